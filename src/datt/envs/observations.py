@@ -1,0 +1,64 @@
+"""Policy inputs (paper §3.1 and the authors' layout), built for N drones at once.
+
+Keys and shapes (body frame unless ``ObsParams.body_frame`` is False):
+
+* ``state [N, 13]`` = (R^T p, R^T v, q (w, x, y, z), R^T (p − p_d(t)))
+* ``ref [N, H, 3]``: R^T (p − p_d(t + i Δ)) for i = 0..H−1, Δ = ``ref_spacing_s`` (own minus
+  reference, as the authors; i = 0 repeats the feedback term, matching the paper's h_t)
+* ``d_hat [N, 3]``: disturbance input, world frame
+
+Ablations change only what is written here: ``body_frame=False`` drops the rotations (the
+quaternion stays), ``feedback=False`` zeroes the feedback entries of ``state``.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor
+
+from datt.config import ObsParams, RewardParams
+from datt.sim.frames import quat_rotate_inverse, quat_yaw, wrap_angle
+
+STATE_DIM = 13
+
+
+def build_observation(
+    pos_m: Tensor, vel_mps: Tensor, quat: Tensor, ref_future_m: Tensor, body_frame: bool = True, feedback: bool = True
+) -> tuple[Tensor, Tensor]:
+    """Return ``(state [N, 13], ref [N, H, 3])``.
+
+    ``pos_m, vel_mps [N, 3]`` (measured, world), ``quat [N, 4]``, ``ref_future_m [H, N, 3]``
+    reference points (world) at t + iΔ, i = 0..H−1 (slot-major, as the env stores them).
+    """
+    err = pos_m.unsqueeze(0) - ref_future_m  # [H, N, 3]
+    if body_frame:
+        # One batched rotation for every vector of the drone: [2 + H, N, 3].
+        vecs = quat_rotate_inverse(quat.unsqueeze(0), torch.cat((torch.stack((pos_m, vel_mps)), err), 0))
+        p_b, v_b, err = vecs[0], vecs[1], vecs[2:]
+    else:
+        p_b, v_b = pos_m, vel_mps
+    e_now = err[0] if feedback else torch.zeros_like(err[0])
+    state = torch.cat((p_b, v_b, quat, e_now), dim=-1)
+    return state, err.transpose(0, 1).contiguous()
+
+
+def observe_and_cost(
+    pos_meas_m: Tensor,
+    pos_m: Tensor,
+    vel_mps: Tensor,
+    quat: Tensor,
+    ref_future_m: Tensor,
+    obs: ObsParams,
+    reward: RewardParams,
+) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """Observation plus the per-step cost, in one pass (compiled as one kernel by the env).
+
+    Returns ``state [N, 13]``, ``ref [N, H, 3]``, ``tracking_error_m [N, 1]`` (true position)
+    and ``cost [N, 1]`` = pos ‖p − p_d‖ + yaw |ψ| + vel min(‖v‖, cap) (reward = −cost).
+    """
+    state, ref = build_observation(pos_meas_m, vel_mps, quat, ref_future_m, obs.body_frame, obs.feedback)
+    err_m = torch.linalg.vector_norm(pos_m - ref_future_m[0], dim=-1, keepdim=True)
+    yaw_err = wrap_angle(quat_yaw(quat)).abs().unsqueeze(-1)  # ψ_ref = 0
+    speed = torch.linalg.vector_norm(vel_mps, dim=-1, keepdim=True).clamp_max(reward.vel_cap_mps)
+    cost = reward.pos * err_m + reward.yaw * yaw_err + reward.vel * speed
+    return state, ref, err_m, cost

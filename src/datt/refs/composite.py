@@ -1,0 +1,59 @@
+"""Families built from other families: ``fixed`` (curriculum) and ``mixed``."""
+
+from __future__ import annotations
+
+from typing import Mapping
+
+import torch
+from torch import Tensor
+
+from datt.refs.base import RefFamily
+
+
+class Fixed(RefFamily):
+    """One reference, drawn once from ``family`` with its own ``seed``, given to every drone.
+
+    Used by the training curriculum (paper §4.1: a fixed initial reference for the first 2.5 M
+    steps). The draw does not consume the env's generator, so the reference is the same in
+    every run and seed.
+    """
+
+    def __init__(self, family: RefFamily, seed: int = 0) -> None:
+        self.family = family
+        self.seed = int(seed)
+        self._cache: dict[tuple, Tensor] = {}
+
+    def sample(self, n: int, t_s: Tensor, generator: torch.Generator) -> Tensor:
+        key = (t_s.shape[0], float(t_s[-1]), t_s.dtype, t_s.device)
+        if key not in self._cache:
+            own = torch.Generator(device=t_s.device).manual_seed(self.seed)
+            self._cache[key] = self.family.sample(1, t_s, own)
+        return self._cache[key].expand(n, -1, -1)
+
+
+class Mixed(RefFamily):
+    """Each drone's family drawn independently with probabilities ∝ ``weights`` (uniform when
+    omitted). ``families``: name -> family (Hydra instantiates the nested configs)."""
+
+    def __init__(self, families: Mapping[str, RefFamily], weights: Mapping[str, float] | None = None) -> None:
+        if not families:
+            raise ValueError("traj.families: needs at least one family")
+        self.names = list(families)
+        self.families = [families[k] for k in self.names]
+        weights = dict(weights or {})
+        unknown = set(weights) - set(self.names)
+        if unknown:
+            raise ValueError(f"traj.weights: unknown families {sorted(unknown)}; allowed: {self.names}")
+        w = torch.tensor([float(weights.get(k, 1.0)) for k in self.names])
+        if (w < 0).any() or w.sum() <= 0:
+            raise ValueError("traj.weights: must be >= 0 with a positive sum")
+        self.probs = w / w.sum()
+
+    def sample(self, n: int, t_s: Tensor, generator: torch.Generator) -> Tensor:
+        choice = torch.multinomial(self.probs, n, replacement=True, generator=generator).to(t_s.device)
+        out = torch.empty(n, t_s.shape[0], 3, dtype=t_s.dtype, device=t_s.device)
+        for k, fam in enumerate(self.families):  # loop over families, not drones
+            idx = (choice == k).nonzero().squeeze(-1)
+            if len(idx):
+                out[idx] = fam.sample(len(idx), t_s, generator)
+        return out

@@ -1,0 +1,91 @@
+"""User references from a CSV file with a header row and columns ``t,x,y,z`` (s, m, world)."""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+import torch
+from torch import Tensor
+
+from datt.config import ConfigError
+from datt.refs.base import RefFamily, piecewise_linear
+
+REQUIRED_COLUMNS = ("t", "x", "y", "z")
+
+
+def _resolve(path: str | Path) -> Path:
+    p = Path(path).expanduser()
+    if not p.is_absolute():
+        try:  # under Hydra, relative paths mean relative to where the user ran the command
+            from hydra.utils import to_absolute_path
+
+            p = Path(to_absolute_path(str(p)))
+        except ValueError:  # Hydra not initialised: plain cwd
+            p = p.resolve()
+    return p
+
+
+def load_csv_reference(path: str | Path, key: str = "traj.path") -> tuple[Tensor, Tensor]:
+    """Read and validate a reference file -> times ``[M]`` (float64, from 0) and positions ``[M, 3]``.
+
+    Raises ``ConfigError`` (one line, naming ``key``) for a missing file, missing columns,
+    non-numeric or NaN/inf values, fewer than two rows, or times that do not strictly increase.
+    """
+    p = _resolve(path)
+    if not p.is_file():
+        raise ConfigError(f"{key}: file {str(p)!r} not found")
+    with p.open(newline="") as f:
+        reader = csv.DictReader(f)
+        header = [h.strip() for h in (reader.fieldnames or [])]
+        missing = [c for c in REQUIRED_COLUMNS if c not in header]
+        if missing:
+            raise ConfigError(
+                f"{key}: {p.name} is missing column(s) {', '.join(missing)}; required: {', '.join(REQUIRED_COLUMNS)}"
+            )
+        rows = []
+        for line_no, row in enumerate(reader, start=2):
+            row = {k.strip(): v for k, v in row.items() if k is not None}
+            try:
+                rows.append([float(row[c]) for c in REQUIRED_COLUMNS])
+            except (TypeError, ValueError):
+                raise ConfigError(f"{key}: {p.name} line {line_no}: non-numeric value in t,x,y,z") from None
+    if len(rows) < 2:
+        raise ConfigError(f"{key}: {p.name} needs at least 2 data rows, got {len(rows)}")
+    data = torch.tensor(rows, dtype=torch.float64)
+    bad = ~torch.isfinite(data).all(dim=1)
+    if bad.any():
+        raise ConfigError(f"{key}: {p.name} line {int(bad.nonzero()[0]) + 2}: NaN or inf value")
+    t = data[:, 0]
+    dec = (t[1:] <= t[:-1]).nonzero()
+    if len(dec):
+        i = int(dec[0])
+        raise ConfigError(
+            f"{key}: {p.name} line {i + 3}: time must strictly increase (t={t[i + 1].item()} after {t[i].item()})"
+        )
+    return t - t[0], data[:, 1:]
+
+
+class CsvReference(RefFamily):
+    """Linear interpolation of a user file, the same reference for every drone.
+
+    ``time_scale`` stretches time (2.0 = twice as slow); ``relative=True`` shifts the path so it
+    starts at the origin (where drones reset); after the last row the reference holds the last
+    position unless ``loop=True`` (then it repeats; the file should end where it starts).
+    """
+
+    def __init__(self, path: str, time_scale: float = 1.0, relative: bool = False, loop: bool = False) -> None:
+        if time_scale <= 0:
+            raise ConfigError(f"traj.time_scale: must be > 0, got {time_scale}")
+        t, pos = load_csv_reference(path)
+        self.path = path
+        self.t_s = t * time_scale
+        self.pos_m = pos - pos[:1] if relative else pos
+        self.loop = loop
+
+    def sample(self, n: int, t_s: Tensor, generator: torch.Generator) -> Tensor:
+        query = t_s.double()
+        if self.loop:
+            query = torch.remainder(query, self.t_s[-1])
+        table = piecewise_linear(self.t_s[None], self.pos_m[None], query)
+        return table.to(t_s.dtype).expand(n, -1, -1)

@@ -1,0 +1,165 @@
+"""Smooth references (paper appendix C.1): degree-5 polynomials and chained polynomials."""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import Tensor
+
+from datt.refs.base import RefFamily, planar
+
+
+def quintic_zero_ends(h: Tensor) -> Tensor:
+    """Linear map from boundary data to a quintic that is 0 at both ends of ``[0, h]``.
+
+    For ``p(τ) = Σ_i c_i τ^i`` with ``p(0) = p(h) = 0``, ``p'(0) = v0``, ``p'(h) = v1``,
+    ``p''(0) = a0``, ``p''(h) = a1``, returns ``K [..., 6, 4]`` with
+    ``c = K @ (v0, v1, a0, a1)``. ``h [...]`` piece durations.
+    """
+    h = h.unsqueeze(-1).unsqueeze(-1)  # [..., 1, 1]
+    one = torch.ones_like(h)
+    zero = torch.zeros_like(h)
+    # Conditions at τ = h on c3, c4, c5 (c0 = 0, c1 = v0, c2 = a0 / 2 are fixed).
+    m = torch.cat(
+        (
+            torch.cat((h**3, h**4, h**5), -1),
+            torch.cat((3 * h**2, 4 * h**3, 5 * h**4), -1),
+            torch.cat((6 * h, 12 * h**2, 20 * h**3), -1),
+        ),
+        -2,
+    )  # [..., 3, 3]
+    # Right-hand sides minus the fixed low-order terms, as a map of (v0, v1, a0, a1).
+    b = torch.cat(
+        (
+            torch.cat((-h, zero, -(h**2) / 2, zero), -1),
+            torch.cat((-one, one, -h, zero), -1),
+            torch.cat((zero, zero, -one, one), -1),
+        ),
+        -2,
+    )  # [..., 3, 4]
+    high = torch.linalg.solve(m, b)  # [..., 3, 4]
+    low = torch.cat(
+        (
+            torch.cat((zero, zero, zero, zero), -1),
+            torch.cat((one, zero, zero, zero), -1),
+            torch.cat((zero, zero, one / 2, zero), -1),
+        ),
+        -2,
+    )
+    return torch.cat((low, high), -2)
+
+
+def eval_pieces(knot_t: Tensor, coeffs: Tensor, t_s: Tensor, derivative: int = 0) -> Tensor:
+    """Evaluate piecewise polynomials.
+
+    ``knot_t [N, M+1]`` piece boundaries, ``coeffs [N, M, 6, D]`` (ascending powers of the
+    local time), ``t_s [T]`` -> ``[N, T, D]``. Times beyond the last knot evaluate the last piece
+    at its end (the references end at rest at the origin, so this holds position).
+    """
+    n, m1 = knot_t.shape
+    t = t_s.to(knot_t.dtype).expand(n, -1).contiguous()
+    t = torch.minimum(t, knot_t[:, -1:])
+    piece = (torch.searchsorted(knot_t.contiguous(), t, right=True) - 1).clamp(0, m1 - 2)
+    tau = t - knot_t.gather(1, piece)  # [N, T]
+    d = coeffs.shape[-1]
+    c = coeffs.gather(1, piece[..., None, None].expand(-1, -1, 6, d))  # [N, T, 6, D]
+    out = torch.zeros_like(c[:, :, 0])
+    for i in range(5, derivative - 1, -1):  # Horner on the differentiated polynomial
+        factor = math.factorial(i) // math.factorial(i - derivative)
+        out = out * tau.unsqueeze(-1) + factor * c[:, :, i]
+    return out
+
+
+class Poly(RefFamily):
+    """One degree-5 polynomial per axis (x, y) over ``duration_s`` (the 10 s episode), with
+    ``p(0) = p(T) = 0`` and random end velocities ``U(±vel_max_mps)`` and accelerations
+    ``U(±acc_max_mps2)``. If a sample strays beyond ``max_amplitude_m`` it is scaled down to
+    that amplitude (keeps the end positions at the origin). After ``duration_s`` the reference
+    holds the origin."""
+
+    def __init__(
+        self,
+        duration_s: float = 10.0,
+        vel_max_mps: float = 1.0,
+        acc_max_mps2: float = 1.0,
+        max_amplitude_m: float = 1.5,
+    ) -> None:
+        if duration_s <= 0 or vel_max_mps < 0 or acc_max_mps2 < 0 or max_amplitude_m <= 0:
+            raise ValueError("traj: duration_s > 0, vel_max_mps >= 0, acc_max_mps2 >= 0, max_amplitude_m > 0")
+        self.duration_s = duration_s
+        self.vel_max = vel_max_mps
+        self.acc_max = acc_max_mps2
+        self.max_amplitude_m = max_amplitude_m
+
+    def sample_pieces(self, n: int, generator: torch.Generator, like: Tensor):
+        """Knot times ``[n, 2]`` and coefficients ``[n, 1, 6, 2]``."""
+        v = self._uniform((n, 2, 2), -self.vel_max, self.vel_max, generator, like)  # [n, end, axis]
+        a = self._uniform((n, 2, 2), -self.acc_max, self.acc_max, generator, like)
+        h = torch.full((n,), self.duration_s, dtype=like.dtype, device=like.device)
+        k = quintic_zero_ends(h)  # [n, 6, 4]
+        bc = torch.stack((v[:, 0], v[:, 1], a[:, 0], a[:, 1]), dim=1)  # [n, 4, 2]
+        coeffs = (k @ bc).unsqueeze(1)  # [n, 1, 6, 2]
+        knot_t = torch.stack((torch.zeros_like(h), h), dim=1)
+        grid = torch.linspace(0, self.duration_s, 2001, dtype=like.dtype, device=like.device)
+        peak = eval_pieces(knot_t, coeffs, grid).abs().amax(dim=(1, 2))
+        scale = (self.max_amplitude_m / peak.clamp_min(1e-9)).clamp(max=1.0)
+        return knot_t, coeffs * scale[:, None, None, None]
+
+    def sample(self, n: int, t_s: Tensor, generator: torch.Generator) -> Tensor:
+        t64 = t_s.double()  # solve and evaluate in float64; the table takes t_s's dtype
+        knot_t, coeffs = self.sample_pieces(n, generator, t64)
+        return planar(eval_pieces(knot_t, coeffs, t64)).to(t_s.dtype)
+
+
+class ChainedPoly(RefFamily):
+    """Chained degree-5 polynomials through the origin (paper appendix C.1).
+
+    Nodes at the origin at random times (gaps ``U(piece_min_s, piece_max_s)``, shared by x and
+    y); node velocities ``U(±knot_vel_max_mps)`` per axis (0 at the first node: the reference
+    starts at rest, like the drone). Node accelerations solve the linear system that makes jerk
+    continuous at every interior node, with zero acceleration at the first and last node, so
+    the chain is C3: position, velocity and acceleration by construction, jerk by the solve.
+    """
+
+    def __init__(self, piece_min_s: float = 1.5, piece_max_s: float = 4.0, knot_vel_max_mps: float = 1.5) -> None:
+        if not 0 < piece_min_s <= piece_max_s:
+            raise ValueError(f"traj.piece_min_s/piece_max_s: need 0 < min <= max, got {piece_min_s}, {piece_max_s}")
+        self.piece_min_s = piece_min_s
+        self.piece_max_s = piece_max_s
+        self.knot_vel_max = knot_vel_max_mps
+
+    def sample_pieces(self, n: int, duration_s: float, generator: torch.Generator, like: Tensor):
+        """Knot times ``[n, M+1]`` and coefficients ``[n, M, 6, 2]`` covering ``duration_s``."""
+        m = math.ceil(duration_s / self.piece_min_s)
+        h = self._uniform((n, m), self.piece_min_s, self.piece_max_s, generator, like)
+        knot_t = torch.cat((torch.zeros_like(h[:, :1]), h.cumsum(1)), dim=1)
+        v = self._uniform((n, m + 1, 2), -self.knot_vel_max, self.knot_vel_max, generator, like)
+        v[:, 0] = 0.0
+        k = quintic_zero_ends(h)  # [n, m, 6, 4]; columns act on (v_k, v_k+1, a_k, a_k+1)
+        j0 = 6.0 * k[:, :, 3]  # jerk at piece start, [n, m, 4]
+        hh = h.unsqueeze(-1)
+        j1 = 6.0 * k[:, :, 3] + 24.0 * hh * k[:, :, 4] + 60.0 * hh**2 * k[:, :, 5]  # at piece end
+        # Unknowns a_0..a_m. Row 0: a_0 = 0, row m: a_m = 0, rows 1..m-1: j1[k-1] = j0[k].
+        A = torch.zeros(n, m + 1, m + 1, dtype=like.dtype, device=like.device)
+        rhs = torch.zeros(n, m + 1, 2, dtype=like.dtype, device=like.device)
+        A[:, 0, 0] = 1.0
+        A[:, m, m] = 1.0
+        rows = torch.arange(1, m, device=like.device)
+        A[:, rows, rows - 1] = j1[:, rows - 1, 2]
+        A[:, rows, rows] = j1[:, rows - 1, 3] - j0[:, rows, 2]
+        A[:, rows, rows + 1] = -j0[:, rows, 3]
+        rhs[:, rows] = (
+            j0[:, rows, 0, None] * v[:, rows]
+            + j0[:, rows, 1, None] * v[:, rows + 1]
+            - j1[:, rows - 1, 0, None] * v[:, rows - 1]
+            - j1[:, rows - 1, 1, None] * v[:, rows]
+        )
+        a = torch.linalg.solve(A, rhs)  # [n, m+1, 2]
+        bc = torch.stack((v[:, :-1], v[:, 1:], a[:, :-1], a[:, 1:]), dim=2)  # [n, m, 4, 2]
+        return knot_t, k @ bc
+
+    def sample(self, n: int, t_s: Tensor, generator: torch.Generator) -> Tensor:
+        t64 = t_s.double()
+        knot_t, coeffs = self.sample_pieces(n, float(t_s[-1]), generator, t64)
+        return planar(eval_pieces(knot_t, coeffs, t64)).to(t_s.dtype)

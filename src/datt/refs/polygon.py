@@ -1,0 +1,84 @@
+"""Closed polygon and star-polygon references flown at constant speed."""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import Tensor
+
+from datt.refs.base import RefFamily, piecewise_linear, planar
+
+
+class Polygon(RefFamily):
+    """Regular polygon ``{p}`` or star polygon ``{p/step}`` flown vertex to vertex, repeatedly.
+
+    Per drone: ``p ~ U{points_min..points_max}`` vertices on a circle of ``radius_m``, visited in
+    the order ``0, step, 2 step, ... (mod p)`` at a constant speed ``U(speed_min_mps, speed_max_mps)``,
+    first vertex at angle ``phase_deg`` (+ a uniform random angle if ``random_rotation``).
+
+    * ``through_origin=True``: the shape is shifted so its first vertex is the origin
+      (authors' polygons); the path starts there.
+    * otherwise the shape is centred on the origin and the path starts at the origin with a
+      straight lead-in of ``lead_in_s`` seconds to the first vertex (authors' star).
+
+    Defaults give the authors' polygon; ``conf/traj/star.yaml`` sets p = 5, step 2, r = 0.7 m,
+    1 m/s, 1 s lead-in.
+    """
+
+    def __init__(
+        self,
+        points_min: int = 3,
+        points_max: int = 6,
+        step: int = 1,
+        radius_m: float = 0.5,
+        speed_min_mps: float = 0.9,
+        speed_max_mps: float = 1.6,
+        through_origin: bool = True,
+        lead_in_s: float = 0.0,
+        phase_deg: float = 90.0,
+        random_rotation: bool = True,
+    ) -> None:
+        if not 3 <= points_min <= points_max:
+            raise ValueError(f"traj.points_min/points_max: need 3 <= min <= max, got {points_min}, {points_max}")
+        if step < 1 or any(math.gcd(p, step) != 1 for p in range(points_min, points_max + 1)):
+            raise ValueError(f"traj.step: must be >= 1 and coprime with every point count, got {step}")
+        if radius_m <= 0 or not 0 < speed_min_mps <= speed_max_mps or lead_in_s < 0:
+            raise ValueError("traj: radius_m > 0, 0 < speed_min_mps <= speed_max_mps, lead_in_s >= 0 required")
+        self.points = (points_min, points_max)
+        self.step = step
+        self.radius_m = radius_m
+        self.speed = (speed_min_mps, speed_max_mps)
+        self.through_origin = through_origin
+        self.lead_in_s = lead_in_s
+        self.phase = math.radians(phase_deg)
+        self.random_rotation = random_rotation
+
+    def sample(self, n: int, t_s: Tensor, generator: torch.Generator) -> Tensor:
+        like = t_s.double()
+        dev = like.device
+        p = torch.randint(self.points[0], self.points[1] + 1, (n,), generator=generator, device=dev)
+        speed = self._uniform((n,), *self.speed, generator, like)
+        phase = torch.full((n,), self.phase, dtype=like.dtype, device=dev)
+        if self.random_rotation:
+            phase = phase + self._uniform((n,), -math.pi, math.pi, generator, like)
+        pf = p.to(like.dtype)
+        side_m = 2 * self.radius_m * torch.sin(math.pi * self.step / pf)  # chord between visits
+        duration = float(t_s[-1])
+        # Vertex visits needed to cover the duration for the slowest/shortest case.
+        max_side = 2 * self.radius_m * math.sin(math.pi * self.step / self.points[1])
+        min_side = min(max_side, 2 * self.radius_m * math.sin(math.pi * self.step / self.points[0]))
+        k = math.ceil(duration * self.speed[1] / min_side) + 2
+        visit = torch.arange(k, device=dev)
+        vertex = (visit[None, :] * self.step) % p[:, None]  # [n, k]
+        ang = phase[:, None] + 2 * math.pi * vertex.to(like.dtype) / pf[:, None]
+        xy = self.radius_m * torch.stack((torch.cos(ang), torch.sin(ang)), -1)  # [n, k, 2]
+        seg_t = (side_m / speed)[:, None].expand(n, k - 1)
+        if self.through_origin:
+            xy = xy - xy[:, :1]
+            knot_t = torch.cat((torch.zeros_like(seg_t[:, :1]), seg_t.cumsum(1)), 1)
+        else:
+            xy = torch.cat((torch.zeros_like(xy[:, :1]), xy), 1)
+            lead = torch.full((n, 1), max(self.lead_in_s, 1e-6), dtype=like.dtype, device=dev)
+            knot_t = torch.cat((torch.zeros_like(lead), (torch.cat((lead, seg_t), 1)).cumsum(1)), 1)
+        return planar(piecewise_linear(knot_t, xy, like)).to(t_s.dtype)

@@ -1,0 +1,115 @@
+"""Quaternion and frame helpers.
+
+Convention: quaternions are scalar-first ``(w, x, y, z)`` and rotate body-frame
+vectors into the world frame (``v_world = R(q) v_body``). World frame is z-up.
+All functions broadcast over leading dimensions (``[..., 4]`` / ``[..., 3]``).
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import Tensor
+
+
+def _cross(a: Tensor, b: Tensor) -> Tensor:
+    # Explicit components: faster than torch.linalg.cross for small trailing dims
+    # and broadcasts without the dim-size checks.
+    ax, ay, az = a.unbind(-1)
+    bx, by, bz = b.unbind(-1)
+    return torch.stack((ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx), dim=-1)
+
+
+def quat_rotate(q: Tensor, v: Tensor) -> Tensor:
+    """Body -> world: ``R(q) v``. ``q [..., 4]``, ``v [..., 3]``."""
+    w = q[..., :1]
+    u = q[..., 1:]
+    t = 2.0 * _cross(u, v)
+    return v + w * t + _cross(u, t)
+
+
+def quat_rotate_inverse(q: Tensor, v: Tensor) -> Tensor:
+    """World -> body: ``R(q)^T v``. ``q [..., 4]``, ``v [..., 3]``."""
+    w = q[..., :1]
+    u = q[..., 1:]
+    t = 2.0 * _cross(u, v)
+    return v - w * t + _cross(u, t)
+
+
+def quat_mul(a: Tensor, b: Tensor) -> Tensor:
+    """Hamilton product ``a ⊗ b`` (apply ``b`` first, then ``a``)."""
+    aw, ax, ay, az = a.unbind(-1)
+    bw, bx, by, bz = b.unbind(-1)
+    return torch.stack(
+        (
+            aw * bw - ax * bx - ay * by - az * bz,
+            aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw,
+        ),
+        dim=-1,
+    )
+
+
+def quat_exp_rotvec(rotvec: Tensor) -> Tensor:
+    """Unit quaternion of the rotation vector ``rotvec`` (axis * angle, rad), ``[..., 3] -> [..., 4]``.
+
+    Exact exponential map; uses the Taylor series of ``sin(θ/2)/θ`` near zero so the
+    result is smooth and finite for tiny rotations.
+    """
+    angle = torch.linalg.vector_norm(rotvec, dim=-1, keepdim=True)
+    half = 0.5 * angle
+    small = angle < 1e-4
+    # sin(θ/2)/θ ≈ 1/2 - θ²/48 for small θ
+    safe = torch.where(small, torch.ones_like(angle), angle)
+    scale = torch.where(small, 0.5 - angle * angle / 48.0, torch.sin(half) / safe)
+    return torch.cat((torch.cos(half), rotvec * scale), dim=-1)
+
+
+def quat_normalize(q: Tensor) -> Tensor:
+    return q / torch.linalg.vector_norm(q, dim=-1, keepdim=True)
+
+
+def quat_body_z(q: Tensor) -> Tensor:
+    """Thrust axis ``R(q) e3`` in the world frame, ``[..., 4] -> [..., 3]``."""
+    w, x, y, z = q.unbind(-1)
+    return torch.stack(
+        (2.0 * (x * z + w * y), 2.0 * (y * z - w * x), 1.0 - 2.0 * (x * x + y * y)), dim=-1
+    )
+
+
+def quat_to_rotmat(q: Tensor) -> Tensor:
+    """Rotation matrix ``R(q)`` (body -> world), ``[..., 4] -> [..., 3, 3]``."""
+    w, x, y, z = q.unbind(-1)
+    row0 = torch.stack((1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)), -1)
+    row1 = torch.stack((2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)), -1)
+    row2 = torch.stack((2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)), -1)
+    return torch.stack((row0, row1, row2), dim=-2)
+
+
+def quat_from_euler(roll: Tensor, pitch: Tensor, yaw: Tensor) -> Tensor:
+    """ZYX (yaw, then pitch, then roll) Euler angles in rad -> quaternion ``[..., 4]``."""
+    cr, sr = torch.cos(roll / 2), torch.sin(roll / 2)
+    cp, sp = torch.cos(pitch / 2), torch.sin(pitch / 2)
+    cy, sy = torch.cos(yaw / 2), torch.sin(yaw / 2)
+    return torch.stack(
+        (
+            cr * cp * cy + sr * sp * sy,
+            sr * cp * cy - cr * sp * sy,
+            cr * sp * cy + sr * cp * sy,
+            cr * cp * sy - sr * sp * cy,
+        ),
+        dim=-1,
+    )
+
+
+def quat_yaw(q: Tensor) -> Tensor:
+    """Yaw angle (rad, ZYX convention) in (-π, π], ``[..., 4] -> [...]``."""
+    w, x, y, z = q.unbind(-1)
+    return torch.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+
+
+def wrap_angle(angle: Tensor) -> Tensor:
+    """Wrap to (-π, π]."""
+    return angle - 2.0 * math.pi * torch.ceil((angle - math.pi) / (2.0 * math.pi))

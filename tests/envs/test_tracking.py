@@ -1,0 +1,253 @@
+"""TrackingEnv: specs, observations, reward, resets, reproducibility, config errors."""
+
+import math
+
+import pytest
+import torch
+from tensordict import TensorDict
+from torchrl.envs.utils import check_env_specs
+
+from datt.config import ConfigError, compose, make_env
+from datt.sim import Quadrotor
+from datt.sim.frames import quat_from_euler, quat_rotate_inverse
+
+
+@pytest.mark.parametrize(
+    "overrides",
+    [
+        [],
+        ["traj=star", "disturbance=brownian"],
+        ["traj=mixed", "disturbance=wind", "adaptation=none"],
+        ["traj=chained_poly", "disturbance=wind_plate", "horizon=1"],
+        ["traj=fixed", "env.obs.body_frame=false", "env.obs.feedback=false", "horizon=20"],
+        ["traj=polygon", "disturbance=constant", "env.dtype=float64", "env.quad.latency_steps=0"],
+    ],
+)
+def test_check_env_specs(make_tracking_env, overrides):
+    env = make_tracking_env(overrides, n=6)
+    check_env_specs(env)
+    td = env.rollout(20)
+    assert td["next", "ref"].shape == (6, 20, env.horizon, 3)
+
+
+def test_rollout_reproducible_with_seed(make_tracking_env):
+    def run(seed):
+        env = make_tracking_env(["disturbance=brownian", "env.obs.pos_noise_std_m=0.01"], n=4, seed=seed)
+        torch.manual_seed(0)  # random actions come from the global RNG
+        return env.rollout(30)
+
+    a, b, c = run(1), run(1), run(2)
+    assert torch.equal(a["next", "state"], b["next", "state"])
+    assert not torch.equal(a["next", "state"], c["next", "state"])
+
+
+def hover_rollout(env, steps):
+    td = env.reset()
+    out = []
+    for _ in range(steps):
+        td["action"] = env.hover_action
+        step, td = env.step_and_maybe_reset(td)
+        out.append(step)
+    return torch.stack(out, dim=1)
+
+
+def direct_refs(env):
+    """Reference points read straight from the table (what the ring buffer must reproduce)."""
+    idx = env.step_idx[:, None] + env.ref_offsets
+    return env.ref_table.gather(1, idx[..., None].expand(-1, -1, 3))
+
+
+def test_observation_layout_body_frame(make_tracking_env):
+    env = make_tracking_env(["traj=zigzag"], n=5)
+    env.reset()
+    # put the drones in known attitudes and states
+    yaw = torch.tensor([0.0, 0.5, -1.0, 2.0, 3.0])
+    env.sim.state.quat = quat_from_euler(torch.full((5,), 0.1), torch.full((5,), -0.2), yaw)
+    env.sim.state.vel_mps = torch.randn(5, 3)
+    obs = env._observe()[0]
+    s = env.sim.state
+    refs = direct_refs(env)  # [N, H, 3]
+    q = s.quat
+    assert torch.allclose(obs["state"][:, 0:3], quat_rotate_inverse(q, s.pos_m), atol=1e-6)
+    assert torch.allclose(obs["state"][:, 3:6], quat_rotate_inverse(q, s.vel_mps), atol=1e-6)
+    assert torch.equal(obs["state"][:, 6:10], q)
+    assert torch.allclose(obs["state"][:, 10:13], quat_rotate_inverse(q, s.pos_m - refs[:, 0]), atol=1e-6)
+    expect_ref = quat_rotate_inverse(q[:, None], s.pos_m[:, None] - refs)
+    assert torch.allclose(obs["ref"], expect_ref, atol=1e-6)
+    # the points are spaced by ref_spacing_s = 3 steps
+    assert env.ref_offsets.tolist() == [3 * i for i in range(10)]
+
+
+def test_ablations_change_exactly_their_inputs(make_tracking_env):
+    base, world, nofb = (
+        make_tracking_env(o, n=4)
+        for o in ([], ["env.obs.body_frame=false"], ["env.obs.feedback=false"])
+    )
+    q = quat_from_euler(torch.full((4,), 0.3), torch.full((4,), 0.2), torch.full((4,), 1.0))
+    for env in (base, world, nofb):
+        env.reset()
+        env.sim.state.quat = q.clone()
+        env.sim.state.vel_mps = torch.ones(4, 3)
+    ob, ow, on = (e._observe()[0] for e in (base, world, nofb))
+    s = world.sim.state
+    refs = direct_refs(world)
+    assert torch.allclose(ow["state"][:, :3], s.pos_m) and torch.allclose(ow["state"][:, 3:6], s.vel_mps)
+    assert torch.allclose(ow["ref"], s.pos_m[:, None] - refs)
+    assert torch.equal(ow["state"][:, 6:10], ob["state"][:, 6:10])  # quaternion untouched
+    assert not torch.allclose(ow["ref"], ob["ref"])
+    assert torch.equal(on["state"][:, 10:], torch.zeros(4, 3))
+    assert torch.equal(on["state"][:, :10], ob["state"][:, :10]) and torch.equal(on["ref"], ob["ref"])
+    assert torch.equal(on["d_hat"], ob["d_hat"])
+
+
+def test_ring_buffer_matches_table_through_steps_and_partial_resets(make_tracking_env):
+    env = make_tracking_env(["traj=zigzag", "env.episode_steps=40", "disturbance=constant"], n=6)
+    td = env.reset()
+    gen = torch.Generator().manual_seed(0)
+    for k in range(130):
+        td["action"] = env.hover_action
+        if k % 17 == 5:  # force a partial reset of random drones
+            td["_reset"] = (torch.rand(6, 1, generator=gen) < 0.4)
+            td = env.reset(td)
+        _, td = env.step_and_maybe_reset(td)
+        w = env.ref_window.index_select(0, (env._head + env.ref_offsets) % env.window).transpose(0, 1)
+        assert torch.equal(w, direct_refs(env)), k
+
+
+def test_partial_reset_only_resets_done_drones(make_tracking_env):
+    env = make_tracking_env(["disturbance=brownian"], n=5)
+    td = env.reset()
+    for _ in range(15):
+        td["action"] = env.hover_action
+        _, td = env.step_and_maybe_reset(td)
+    pos = env.sim.state.pos_m.clone()
+    table = env.ref_table.clone()
+    d = env.disturbance.current_mps2.clone()
+    state_obs = td["state"].clone()
+    mask = torch.tensor([True, False, True, False, False]).unsqueeze(-1)
+    td["_reset"] = mask
+    out = env.reset(td)
+    keep = ~mask.squeeze(-1)
+    assert env.step_idx.tolist() == [0, 15, 0, 15, 15]
+    assert torch.equal(env.sim.state.pos_m[keep], pos[keep])
+    assert torch.equal(env.ref_table[keep], table[keep]) and not torch.equal(env.ref_table[~keep], table[~keep])
+    assert torch.equal(env.disturbance.current_mps2[keep], d[keep])
+    assert not torch.equal(env.disturbance.current_mps2[~keep], d[~keep])
+    assert torch.equal(out["state"][keep], state_obs[keep])
+    assert not torch.equal(out["state"][~keep], state_obs[~keep])
+    assert env.sim.state.pos_m[~keep].abs().max() <= env.params.init_pos_range_m
+    assert env.sim.state.vel_mps[~keep].abs().max() == 0
+
+
+def test_truncation_after_exactly_episode_steps(make_tracking_env):
+    env = make_tracking_env(["env.episode_steps=25"], n=3)
+    data = hover_rollout(env, 60)
+    trunc = data["next", "truncated"][0, :, 0]
+    assert trunc.nonzero().squeeze(-1).tolist() == [24, 49]
+    assert not data["next", "terminated"].any()
+
+
+def test_termination_when_leaving_safety_box(make_tracking_env):
+    env = make_tracking_env(["env.safety_box_m=[3.0,3.0,0.5]", "env.init_pos_range_m=0"], n=2)
+    td = env.reset()
+    steps = 0
+    while True:
+        td["action"] = env.hover_action
+        td["action"][0, 0] = 0.0  # drone 0 falls, drone 1 hovers
+        step, td = env.step_and_maybe_reset(td)
+        steps += 1
+        if step["next", "terminated"].any():
+            break
+    assert step["next", "terminated"][:, 0].tolist() == [True, False]
+    # the step at which a standalone sim with the same command first drops below -0.5 m
+    quad = Quadrotor(1)
+    expect = next(k for k in range(1, 100) if quad.step(torch.zeros(1, 4)).pos_m[0, 2] < -0.5)
+    assert steps == expect and 16 < expect < 22  # free fall alone would take 16 steps
+    crash_reward = step["next", "reward"][0, 0].item()
+    assert crash_reward < -env.params.reward.crash_penalty + 1e-3
+    assert env.step_idx[0] == 0  # was reset; drone 1 kept going
+    assert env.step_idx[1] == steps
+
+
+def test_reward_matches_hand_computed_value(make_tracking_env):
+    env = make_tracking_env(["traj=fixed", "env.init_pos_range_m=0", "env.quad.latency_steps=0"], n=1)
+    td = env.reset()
+    td["action"] = env.hover_action
+    step = env.step(td)
+    s = env.sim.state
+    ref = direct_refs(env)[0, 0]
+    err = (s.pos_m[0] - ref).norm().item()
+    speed = min(s.vel_mps[0].norm().item(), 1.0)
+    assert step["next", "reward"].item() == pytest.approx(-(err + 0.5 * 0.0 + 0.1 * speed), abs=1e-6)
+    assert step["next", "tracking_error_m"].item() == pytest.approx(err, abs=1e-6)
+    # a yawed drone pays 0.5 |yaw| (wrapped)
+    env.sim.state.quat = quat_from_euler(torch.zeros(1), torch.zeros(1), torch.tensor([-3.0]))
+    td = step["next"].clone()
+    td["action"] = torch.tensor([[9.81, 0.0, 0.0, 0.0]])
+    step = env.step(td)
+    s = env.sim.state
+    err = (s.pos_m[0] - direct_refs(env)[0, 0]).norm().item()
+    speed = min(s.vel_mps[0].norm().item(), 1.0)
+    assert step["next", "reward"].item() == pytest.approx(-(err + 0.5 * 3.0 + 0.1 * speed), abs=1e-5)
+
+
+def test_actions_are_clipped_to_bounds(make_tracking_env):
+    env = make_tracking_env(["env.quad.latency_steps=0", "env.quad.k_rate=1.0"], n=1)
+    td = env.reset()
+    td["action"] = torch.tensor([[1000.0, 1000.0, -1000.0, 1000.0]])
+    env.step(td)
+    assert env.sim.state.rate_radps[0].tolist() == pytest.approx([20.0, -20.0, 2.0])
+    assert env.action_spec.space.high[0].tolist() == pytest.approx([9.81 + 30.0, 20.0, 20.0, 2.0])
+
+
+def test_d_hat_privileged_and_none(make_tracking_env):
+    priv = make_tracking_env(["disturbance=brownian"], n=4)
+    zero = make_tracking_env(["disturbance=brownian", "adaptation=none"], n=4)
+    for env in (priv, zero):
+        data = hover_rollout(env, 5)
+        d = env.disturbance.current_mps2
+        if env is priv:
+            assert torch.equal(data["next", "d_hat"][:, -1], d) and d.abs().max() > 0
+        else:
+            assert data["next", "d_hat"].abs().max() == 0
+
+
+def test_disturbance_moves_the_drone(make_tracking_env):
+    calm = hover_rollout(make_tracking_env(["env.init_pos_range_m=0"], n=64), 50)
+    windy = hover_rollout(make_tracking_env(["env.init_pos_range_m=0", "disturbance=constant"], n=64), 50)
+    assert calm["next", "tracking_error_m"][:, -1].max() < windy["next", "tracking_error_m"][:, -1].mean()
+
+
+@pytest.mark.parametrize(
+    "overrides, message",
+    [
+        (["traj=spiral"], "traj: unknown option 'spiral'; allowed: chained_poly, csv, fixed, mixed, poly, polygon, star, zigzag"),
+        (["disturbance=storm"], "disturbance: unknown option 'storm'; allowed: brownian, constant, none, plate, wind, wind_plate"),
+        (["horizon=-2"], "horizon: must be an integer >= 1"),
+        (["horizon=0"], "horizon: must be an integer >= 1"),
+        (["horizon=ten"], "horizon: must be an integer >= 1"),
+        (["env.dt_s=-0.02"], "env.dt_s: must be > 0"),
+        (["env.dt_s=fast"], "env.dt_s: Value 'fast'"),
+        (["env.ref_spacing_s=0.05"], "env.ref_spacing_s: must be a whole multiple of env.dt_s"),
+        (["env.dtype=float16"], "env.dtype: unknown value 'float16'; allowed: float32, float64"),
+        (["env.quad.k_thrust=2"], "env.quad.k_thrust: must be in (0, 1]"),
+        (["env.safety_box_m=[1,1]"], "env.safety_box_m"),
+        (["env.colour=red"], "env.colour: no such key"),
+        (["traj=csv"], "traj.path"),
+        (["traj=zigzag", "traj.seg_min_s=2.0"], "traj.seg_min_s/seg_max_s"),
+    ],
+)
+def test_bad_config_gives_one_line_error_naming_the_key(overrides, message):
+    with pytest.raises(ConfigError) as info:
+        make_env(compose("sim", overrides), num_envs=2)
+    text = str(info.value)
+    assert message in text and "\n" not in text, text
+
+
+@pytest.mark.slow
+def test_compiled_kernels_match_eager(make_tracking_env):
+    eager = make_tracking_env(["disturbance=brownian"], n=64)
+    compiled = make_tracking_env(["disturbance=brownian"], n=64).compile_kernels()
+    a, b = hover_rollout(eager, 40), hover_rollout(compiled, 40)
+    for key in ("state", "ref", "reward"):
+        assert torch.allclose(a["next", key], b["next", key], atol=1e-4), key

@@ -1,0 +1,149 @@
+"""Dynamics against analytic cases (free fall, hover, pure rotation, actuator delay)."""
+
+import math
+
+import pytest
+import torch
+
+from datt.config import ConfigError
+from datt.sim import Quadrotor, QuadrotorParams
+from datt.sim.frames import quat_body_z, quat_yaw
+
+G = 9.81
+
+
+def cmd(n, thrust, rates=(0.0, 0.0, 0.0), dtype=torch.float32):
+    c = torch.tensor([thrust, *rates], dtype=dtype)
+    return c.expand(n, 4).clone()
+
+
+@pytest.mark.parametrize("dtype", ["float32", "float64"])
+@pytest.mark.parametrize("latency", [0, 1, 3])
+def test_free_fall_matches_analytic(dtype, latency):
+    quad = Quadrotor(4, QuadrotorParams(initial_thrust_mps2=0.0, latency_steps=latency), dtype=dtype)
+    quad.reset(pos_m=torch.zeros(4, 3))
+    # Zero thrust from the start: even the in-flight (hover) commands must not act, so
+    # latency only matters if the queue were filled with something else; fill it with 0.
+    quad._queue.zero_()
+    dt = quad.dt_s
+    for k in range(1, 151):
+        quad.step(cmd(4, 0.0, dtype=quad.dtype))
+        t = k * dt
+        expect = -G * t * t / 2
+        z = quad.state.pos_m[:, 2]
+        assert torch.allclose(z, torch.full_like(z, expect), rtol=1e-4, atol=0), (k, z[0].item(), expect)
+    assert torch.allclose(quad.state.vel_mps[:, 2], torch.full((4,), -G * 150 * dt, dtype=quad.dtype), rtol=1e-5)
+    assert quad.state.pos_m[:, :2].abs().max() == 0
+
+
+def test_hover_holds_position_for_ten_seconds():
+    quad = Quadrotor(3)
+    start = torch.tensor([[0.3, -0.2, 1.0], [0.0, 0.0, 0.0], [-1.0, 2.0, 0.5]])
+    quad.reset(pos_m=start)
+    for _ in range(500):
+        quad.step(cmd(3, G))
+    assert torch.allclose(quad.state.pos_m, start, atol=1e-6)
+    assert quad.state.vel_mps.abs().max() < 1e-6
+
+
+def test_hover_fails_without_enough_thrust():
+    quad = Quadrotor(1)
+    for _ in range(50):
+        quad.step(cmd(1, 0.9 * G))
+    assert quad.state.pos_m[0, 2] < -0.05  # the hover test can fail: thrust matters
+
+
+@pytest.mark.parametrize("dtype", ["float32", "float64"])
+def test_pure_yaw_rotation_keeps_unit_norm_and_matches_angle(dtype):
+    rate = 1.3  # rad/s about body z
+    quad = Quadrotor(2, QuadrotorParams(k_rate=1.0, latency_steps=0), dtype=dtype)
+    steps = 10_000
+    for _ in range(steps):
+        quad.step(cmd(2, G, (0.0, 0.0, rate), dtype=quad.dtype))
+    q = quad.state.quat
+    assert torch.allclose(torch.linalg.vector_norm(q, dim=-1), torch.ones(2, dtype=q.dtype), atol=1e-6)
+    expect = math.remainder(rate * steps * quad.dt_s, 2 * math.pi)
+    tol = 2e-3 if dtype == "float32" else 1e-9
+    assert abs(quat_yaw(q)[0].item() - expect) < tol
+    # still level and hovering: yaw does not tilt the thrust axis
+    assert torch.allclose(quat_body_z(q), torch.tensor([0.0, 0.0, 1.0], dtype=q.dtype).expand(2, 3), atol=1e-5)
+    assert quad.state.pos_m.abs().max() < 1e-4
+
+
+def test_roll_rotation_tilts_thrust_axis_analytically():
+    quad = Quadrotor(1, QuadrotorParams(k_rate=1.0, latency_steps=0), dtype="float64")
+    rate = math.pi / 2  # 90 deg in 1 s
+    for _ in range(50):
+        quad.step(cmd(1, G, (rate, 0.0, 0.0), dtype=torch.float64))
+    # R_x(90°) e3 = (0, -1, 0)
+    assert torch.allclose(quat_body_z(quad.state.quat)[0], torch.tensor([0.0, -1.0, 0.0], dtype=torch.float64), atol=1e-9)
+
+
+@pytest.mark.parametrize("latency", [0, 1, 2])
+def test_first_order_delay_step_response(latency):
+    k = 0.4
+    quad = Quadrotor(1, QuadrotorParams(latency_steps=latency, k_thrust=k, k_rate=k), dtype="float64")
+    target, rate_target = G + 10.0, 5.0
+    thrusts, rates = [], []
+    for _ in range(10):
+        quad.step(cmd(1, target, (rate_target, 0.0, 0.0), dtype=torch.float64))
+        thrusts.append(quad.state.thrust_mps2[0].item())
+        rates.append(quad.state.rate_radps[0, 0].item())
+    for n in range(1, 11):
+        active = max(0, n - latency)
+        frac = 1 - (1 - k) ** active
+        assert thrusts[n - 1] == pytest.approx(G + 10.0 * frac, abs=1e-9)
+        assert rates[n - 1] == pytest.approx(rate_target * frac, abs=1e-9)
+    # 63 % (one time constant) is first reached `latency + 2` steps after the command
+    frac = [(th - G) / 10.0 for th in thrusts]
+    first = next(i + 1 for i, f in enumerate(frac) if f >= 1 - math.exp(-1))
+    assert first == latency + 2
+
+
+def test_thrust_clipped_to_physical_range():
+    quad = Quadrotor(2, QuadrotorParams(latency_steps=0, k_thrust=1.0))
+    quad.step(torch.tensor([[-5.0, 0, 0, 0], [500.0, 0, 0, 0]]))
+    assert quad.state.thrust_mps2.tolist() == [0.0, quad.params.max_thrust_mps2]
+
+
+def test_batch_is_independent_per_drone():
+    commands = torch.tensor([[G + 2, 0.5, -0.3, 0.1], [G - 1, -1.0, 0.2, 0.0], [G, 0.0, 0.0, 1.0]])
+    batch = Quadrotor(3)
+    singles = [Quadrotor(1) for _ in range(3)]
+    for _ in range(40):
+        batch.step(commands)
+        for i, s in enumerate(singles):
+            s.step(commands[i : i + 1])
+    for i, s in enumerate(singles):
+        assert torch.allclose(batch.state.pos_m[i], s.state.pos_m[0], atol=1e-6)
+        assert torch.allclose(batch.state.quat[i], s.state.quat[0], atol=1e-6)
+
+
+def test_partial_reset_touches_only_selected_drones():
+    quad = Quadrotor(3)
+    for _ in range(20):
+        quad.step(cmd(3, G + 3.0, (0.5, 0.0, 0.0)))
+    before = quad.state.pos_m.clone()
+    quad.reset(torch.tensor([1]), torch.tensor([[1.0, 2.0, 3.0]]))
+    assert torch.equal(quad.state.pos_m[[0, 2]], before[[0, 2]])
+    assert quad.state.pos_m[1].tolist() == [1.0, 2.0, 3.0]
+    assert quad.state.vel_mps[1].abs().sum() == 0 and quad.state.thrust_mps2[1] == pytest.approx(G)
+
+
+@pytest.mark.parametrize(
+    "kwargs, key",
+    [({"k_thrust": 0.0}, "k_thrust"), ({"k_rate": 1.5}, "k_rate"), ({"latency_steps": -1}, "latency_steps")],
+)
+def test_bad_params_raise_config_error_naming_key(kwargs, key):
+    with pytest.raises(ConfigError, match=key):
+        Quadrotor(1, QuadrotorParams(**kwargs))
+
+
+def test_negative_dt_rejected():
+    with pytest.raises(ConfigError, match="dt_s"):
+        Quadrotor(1, dt_s=-0.01)
+
+
+def test_unknown_dtype_rejected():
+    with pytest.raises(ValueError, match="float16"):
+        Quadrotor(1, dtype="float16")
