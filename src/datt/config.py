@@ -166,14 +166,35 @@ def available_options(group: str) -> list[str]:
     return sorted(p.stem for p in (CONF_DIR / group).glob("*.yaml"))
 
 
-def make_env(cfg: DictConfig, num_envs: int | None = None, seed: int | None = None, **overrides):
+def load_option(group: str, name: str) -> DictConfig:
+    """The YAML of one option of a config group (``conf/<group>/<name>.yaml``)."""
+    path = CONF_DIR / group / f"{name}.yaml"
+    if not path.is_file():
+        raise ConfigError(f"{group}: unknown option {name!r}; allowed: {', '.join(available_options(group))}")
+    node = OmegaConf.load(path)
+    assert isinstance(node, DictConfig)
+    return node
+
+
+def with_options(cfg: DictConfig, **choices) -> DictConfig:
+    """Copy of ``cfg`` with whole option nodes swapped: a name loads ``conf/<group>/<name>.yaml``
+    (``with_options(cfg, disturbance="none")``), a mapping is used as the node itself."""
+    out = OmegaConf.create(OmegaConf.to_container(cfg, resolve=True))
+    OmegaConf.set_struct(out, False)
+    for group, choice in choices.items():
+        out[group] = load_option(group, choice) if isinstance(choice, str) else choice
+    return out
+
+
+def make_env(cfg: DictConfig, num_envs: int | None = None, seed: int | None = None, traj=None, **overrides):
     """Build :class:`~datt.envs.TrackingEnv` from a composed config (``env``, ``traj``,
-    ``disturbance``, ``adaptation``, ``horizon``, ``seed``)."""
+    ``disturbance``, ``adaptation``, ``horizon``, ``seed``). ``traj`` replaces ``cfg.traj`` with
+    a ready family (evaluation banks)."""
     from datt.envs.tracking import TrackingEnv
 
     params = env_params_from_cfg(cfg.get("env"))
     horizon = check_horizon(cfg.get("horizon", 10))
-    traj = instantiate_option(cfg, "traj")
+    traj = traj if traj is not None else instantiate_option(cfg, "traj")
     disturbance = instantiate_option(cfg, "disturbance") if cfg.get("disturbance") is not None else None
     adaptation = instantiate_option(cfg, "adaptation") if cfg.get("adaptation") is not None else None
     env = TrackingEnv(

@@ -1,7 +1,7 @@
 """Reference trajectory families (see :mod:`datt.refs.base`)."""
 
 from datt.refs.base import RefFamily, piecewise_linear
-from datt.refs.composite import Fixed, Mixed
+from datt.refs.composite import Fixed, Mixed, Seeded
 from datt.refs.csv import CsvReference, load_csv_reference
 from datt.refs.poly import ChainedPoly, Poly
 from datt.refs.polygon import Polygon
@@ -16,6 +16,7 @@ __all__ = [
     "Polygon",
     "Fixed",
     "Mixed",
+    "Seeded",
     "CsvReference",
     "load_csv_reference",
 ]

@@ -10,7 +10,20 @@ from torch import Tensor
 from datt.refs.base import RefFamily
 
 
-class Fixed(RefFamily):
+class Seeded(RefFamily):
+    """``family`` drawn with its own generator seeded at ``seed`` on every call: the same n
+    references come back each time, whatever the env's generator (evaluation banks)."""
+
+    def __init__(self, family: RefFamily, seed: int = 0) -> None:
+        self.family = family
+        self.seed = int(seed)
+
+    def sample(self, n: int, t_s: Tensor, generator: torch.Generator) -> Tensor:
+        own = torch.Generator(device=t_s.device).manual_seed(self.seed)
+        return self.family.sample(n, t_s, own)
+
+
+class Fixed(Seeded):
     """One reference, drawn once from ``family`` with its own ``seed``, given to every drone.
 
     Used by the training curriculum (paper §4.1: a fixed initial reference for the first 2.5 M
@@ -19,15 +32,13 @@ class Fixed(RefFamily):
     """
 
     def __init__(self, family: RefFamily, seed: int = 0) -> None:
-        self.family = family
-        self.seed = int(seed)
+        super().__init__(family, seed)
         self._cache: dict[tuple, Tensor] = {}
 
     def sample(self, n: int, t_s: Tensor, generator: torch.Generator) -> Tensor:
         key = (t_s.shape[0], float(t_s[-1]), t_s.dtype, t_s.device)
         if key not in self._cache:
-            own = torch.Generator(device=t_s.device).manual_seed(self.seed)
-            self._cache[key] = self.family.sample(1, t_s, own)
+            self._cache[key] = super().sample(1, t_s, generator)
         return self._cache[key].expand(n, -1, -1)
 
 

@@ -1,0 +1,64 @@
+"""Throughput of the full training loop (collection + GAE + PPO updates) with the default
+training config, and the projected wall time of the paper's 20M steps.
+
+    python benchmarks/train_throughput.py [--iterations 12] [overrides...]
+
+The first two iterations (compilation, warm-up) are excluded. Writes
+benchmarks/results/train_throughput.json.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _common import write_result  # noqa: E402
+
+from datt.config import compose  # noqa: E402
+from datt.train.logging import Logger  # noqa: E402
+from datt.train.ppo import Trainer  # noqa: E402
+
+
+class Timer(Logger):
+    def __init__(self) -> None:
+        self.stamps: list[tuple[float, int]] = []
+
+    def log(self, metrics, step: int) -> None:
+        self.stamps.append((time.perf_counter(), step))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--iterations", type=int, default=12)
+    parser.add_argument("overrides", nargs="*", default=[])
+    args = parser.parse_args()
+    probe = compose("train", args.overrides)
+    per_iter = probe.algo.num_envs * probe.algo.rollout_steps
+    overrides = [*args.overrides, f"train.total_steps={per_iter * args.iterations}", "train.progress=false",
+                 "train.checkpoint_every=1000000", "logger=csv"]  # fmt: skip
+    cfg = compose("train", overrides)
+    timer = Timer()
+    t0 = time.perf_counter()
+    with tempfile.TemporaryDirectory() as tmp:
+        Trainer(cfg, tmp, timer).train()
+    total_s = time.perf_counter() - t0
+    (t_a, f_a), (t_b, f_b) = timer.stamps[1], timer.stamps[-1]
+    steps_per_s = (f_b - f_a) / (t_b - t_a)
+    result = {
+        "overrides": overrides,
+        "frames_per_iteration": per_iter,
+        "iterations_timed": len(timer.stamps) - 2,
+        "steps_per_s": steps_per_s,
+        "projected_20M_wall_min": 20e6 / steps_per_s / 60,
+        "run_wall_s": total_s,
+    }
+    print(f"{steps_per_s:,.0f} env steps/s (collection + PPO update); 20M steps ≈ {result['projected_20M_wall_min']:.1f} min")
+    print(f"wrote {write_result('train_throughput', result)}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,1 @@
+"""Evaluation: seeded reference banks, rollouts, metrics, plots."""

@@ -1,0 +1,154 @@
+"""DATT actor and critic (paper appendix B) as TorchRL modules.
+
+Both read the env's observation keys ``state [*, 13]``, ``ref [*, H, 3]`` and ``d_hat [*, 3]``:
+
+    h  = encoder(ref)                         feedforward embedding (conv1d over the H points)
+    x  = [state, h, d_hat]
+    actor:  MLP(x) -> (loc, scale) -> TanhNormal over the action bounds
+    critic: MLP(x) -> V
+
+The paper's encoder: 3 Conv1d layers, 16 filters, kernel 3, ReLU, then a linear projection to
+32 dims. We pad the convolutions ("same" length) so every horizon H >= 1 works, including the
+H = 1 ablation. ``encoder=mlp`` (two linear layers over the flattened points) and ``none``
+(flattened points straight into the MLP) are alternatives. MLPs: 3 x 64 ReLU (paper).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import torch
+from tensordict.nn import NormalParamExtractor, TensorDictModule
+from torch import nn
+from torchrl.modules import ProbabilisticActor, TanhNormal, ValueOperator
+
+from datt.config import ConfigError
+from datt.envs.observations import STATE_DIM
+
+OBS_KEYS = ["state", "ref", "d_hat"]
+ENCODERS = ("conv", "mlp", "none")
+
+
+@dataclass
+class PolicyParams:
+    """``conf/policy/datt.yaml``."""
+
+    encoder: str = "conv"
+    conv_channels: int = 16
+    conv_layers: int = 3
+    kernel_size: int = 3
+    embed_dim: int = 32
+    hidden: list[int] = field(default_factory=lambda: [64, 64, 64])
+    use_d_hat: bool = True
+    init_std: float = 0.15  # pre-tanh std of the initial policy
+
+    def validate(self) -> None:
+        if self.encoder not in ENCODERS:
+            raise ConfigError(f"policy.encoder: unknown value {self.encoder!r}; allowed: {', '.join(ENCODERS)}")
+        if self.kernel_size < 1 or self.kernel_size % 2 == 0:
+            raise ConfigError(f"policy.kernel_size: must be odd and >= 1, got {self.kernel_size}")
+        if self.conv_layers < 1 or self.conv_channels < 1 or self.embed_dim < 1:
+            raise ConfigError("policy.conv_layers/conv_channels/embed_dim: must be >= 1")
+        if not self.hidden or any(h < 1 for h in self.hidden):
+            raise ConfigError(f"policy.hidden: must be a non-empty list of sizes >= 1, got {list(self.hidden)}")
+        if not self.init_std > 0:
+            raise ConfigError(f"policy.init_std: must be > 0, got {self.init_std}")
+
+
+class RefEncoder(nn.Module):
+    """``ref [*, H, 3] -> [*, embed_dim]`` (``none``: flattened, ``[*, 3H]``)."""
+
+    def __init__(self, horizon: int, p: PolicyParams) -> None:
+        super().__init__()
+        self.kind = p.encoder
+        if p.encoder == "conv":
+            layers: list[nn.Module] = []
+            ch = 3
+            for _ in range(p.conv_layers):
+                layers += [nn.Conv1d(ch, p.conv_channels, p.kernel_size, padding=p.kernel_size // 2), nn.ReLU()]
+                ch = p.conv_channels
+            self.conv = nn.Sequential(*layers)
+            self.proj = nn.Linear(p.conv_channels * horizon, p.embed_dim)
+            self.out_dim = p.embed_dim
+        elif p.encoder == "mlp":
+            self.net = nn.Sequential(nn.Linear(3 * horizon, 64), nn.ReLU(), nn.Linear(64, p.embed_dim))
+            self.out_dim = p.embed_dim
+        else:
+            self.out_dim = 3 * horizon
+
+    def forward(self, ref: torch.Tensor) -> torch.Tensor:
+        lead = ref.shape[:-2]
+        flat = ref.reshape(-1, *ref.shape[-2:])  # [B, H, 3]
+        if self.kind == "conv":
+            h = self.conv(flat.transpose(1, 2))  # [B, C, H]
+            out = torch.relu(self.proj(h.flatten(1)))
+        elif self.kind == "mlp":
+            out = torch.relu(self.net(flat.flatten(1)))
+        else:
+            out = flat.flatten(1)
+        return out.reshape(*lead, -1)
+
+
+class TrackingNet(nn.Module):
+    """``(state, ref, d_hat) -> [*, out_dim]`` : encoder + MLP."""
+
+    def __init__(self, horizon: int, out_dim: int, p: PolicyParams) -> None:
+        super().__init__()
+        self.use_d_hat = p.use_d_hat
+        self.encoder = RefEncoder(horizon, p)
+        dims = [STATE_DIM + self.encoder.out_dim + (3 if p.use_d_hat else 0), *p.hidden]
+        layers: list[nn.Module] = []
+        for a, b in zip(dims[:-1], dims[1:]):
+            layers += [nn.Linear(a, b), nn.ReLU()]
+        self.mlp = nn.Sequential(*layers)
+        self.head = nn.Linear(dims[-1], out_dim)
+
+    def forward(self, state: torch.Tensor, ref: torch.Tensor, d_hat: torch.Tensor) -> torch.Tensor:
+        parts = [state, self.encoder(ref)] + ([d_hat] if self.use_d_hat else [])
+        return self.head(self.mlp(torch.cat(parts, dim=-1)))
+
+
+def make_actor(horizon: int, action_low: torch.Tensor, action_high: torch.Tensor, p: PolicyParams) -> ProbabilisticActor:
+    """TanhNormal policy over ``[low, high]``; initial mean = hover (thrust g, zero rates)."""
+    p.validate()
+    net = TrackingNet(horizon, 8, p)
+    low, high = action_low.float(), action_high.float()
+    center, half = (high + low) / 2, (high - low) / 2
+    hover = torch.zeros(4)
+    hover[0] = float(low[0] + 9.8)  # bounds are g + [-9.8, 30]: g ≈ low + 9.8
+    with torch.no_grad():
+        net.head.weight.mul_(0.01)
+        net.head.bias.zero_()
+        net.head.bias[:4] = torch.atanh(((hover - center) / half).clamp(-0.99, 0.99))
+        # NormalParamExtractor: scale = softplus(x + b) with b chosen so softplus(b) = 1
+        net.head.bias[4:] = _inv_softplus(p.init_std) - _inv_softplus(1.0)
+    module = nn.Sequential(net, NormalParamExtractor(scale_lb=1e-4))
+    td_module = TensorDictModule(_Args(module), in_keys=OBS_KEYS, out_keys=["loc", "scale"])
+    return ProbabilisticActor(
+        td_module,
+        in_keys=["loc", "scale"],
+        distribution_class=TanhNormal,
+        distribution_kwargs={"low": low, "high": high},
+        return_log_prob=True,
+    )
+
+
+def make_critic(horizon: int, p: PolicyParams) -> ValueOperator:
+    p.validate()
+    return ValueOperator(TrackingNet(horizon, 1, p), in_keys=OBS_KEYS)
+
+
+class _Args(nn.Module):
+    """Feed the first module several positional inputs, the rest one output (Sequential takes one)."""
+
+    def __init__(self, seq: nn.Sequential) -> None:
+        super().__init__()
+        self.net, self.post = seq[0], seq[1]
+
+    def forward(self, *inputs: torch.Tensor):
+        return self.post(self.net(*inputs))
+
+
+def _inv_softplus(y: float) -> float:
+    return math.log(math.expm1(y))

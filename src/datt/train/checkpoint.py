@@ -1,0 +1,54 @@
+"""Checkpoints: plain dicts of tensors and primitives, written atomically, loaded with
+``torch.load(..., weights_only=True)`` so a file can never execute code.
+
+Layout (``FORMAT``): actor/critic/optimizer ``state_dict``s, ``frames``, ``iteration``, the
+composed config as YAML text, RNG states, curriculum phase, best metric.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from datt.config import ConfigError
+
+FORMAT = "datt-checkpoint-v1"
+
+
+def save_checkpoint(path: str | Path, payload: dict[str, Any]) -> Path:
+    """Write ``payload`` to ``path`` via a temp file in the same directory and ``os.replace``:
+    a crash mid-write leaves the previous checkpoint intact."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            torch.save({"format": FORMAT, **payload}, f)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return path
+
+
+def load_checkpoint(path: str | Path, key: str = "checkpoint") -> dict[str, Any]:
+    """Load and check a checkpoint; any problem is a one-line :class:`ConfigError` naming ``key``."""
+    path = Path(path).expanduser()
+    if path.is_dir():
+        path = path / "last.pt"
+    if not path.is_file():
+        raise ConfigError(f"{key}: file {str(path)!r} not found")
+    try:
+        data = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # truncated, not a zip, foreign pickle...
+        first = (str(exc).strip().splitlines() or [type(exc).__name__])[0][:160]
+        raise ConfigError(f"{key}: {str(path)!r} is not a readable checkpoint ({first})") from None
+    if not isinstance(data, dict) or data.get("format") != FORMAT:
+        raise ConfigError(f"{key}: {str(path)!r} is not a datt checkpoint (expected format {FORMAT})")
+    return data

@@ -1,0 +1,101 @@
+"""Run loggers. One interface (``log(metrics, step)``, ``close()``); CSV always, wandb optional
+(offline by default: no login or network needed; ``wandb sync <run>/wandb/offline-run-*`` later).
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import os
+from pathlib import Path
+from typing import Any, Mapping
+
+
+class Logger:
+    def log(self, metrics: Mapping[str, float], step: int) -> None:
+        raise NotImplementedError
+
+    def close(self) -> None:
+        pass
+
+
+class CsvLogger(Logger):
+    """Appends rows to ``<run_dir>/metrics.csv`` (columns grow as new metrics appear; resume appends)."""
+
+    def __init__(self, run_dir: str | Path, filename: str = "metrics.csv") -> None:
+        self.path = Path(run_dir) / filename
+        self.rows: list[dict[str, Any]] = []
+        if self.path.exists():
+            with self.path.open(newline="") as f:
+                self.rows = list(csv.DictReader(f))
+
+    def log(self, metrics: Mapping[str, float], step: int) -> None:
+        self.rows.append({"step": step, **{k: _plain(v) for k, v in metrics.items()}})
+        fields: list[str] = []
+        for row in self.rows:
+            fields += [k for k in row if k not in fields]
+        tmp = self.path.with_suffix(".csv.tmp")
+        with tmp.open("w", newline="") as f:
+            writer = csv.DictWriter(f, fieldnames=fields)
+            writer.writeheader()
+            writer.writerows(self.rows)
+        os.replace(tmp, self.path)
+
+
+class WandbLogger(Logger):
+    """wandb run in ``<run_dir>/wandb`` (``mode`` offline by default)."""
+
+    def __init__(
+        self,
+        run_dir: str | Path,
+        config: Mapping[str, Any],
+        project: str = "datt",
+        group: str | None = None,
+        tags: list[str] | None = None,
+        mode: str = "offline",
+        name: str | None = None,
+        run_id: str | None = None,
+    ) -> None:
+        import wandb
+
+        os.environ.setdefault("WANDB_SILENT", "true")
+        self._wandb = wandb
+        self.run = wandb.init(
+            project=project,
+            group=group,
+            tags=list(tags or []),
+            mode=mode,
+            dir=str(run_dir),
+            config=dict(config),
+            name=name,
+            id=run_id,
+            resume="allow" if run_id else None,
+            settings=wandb.Settings(console="off", x_disable_stats=True),
+        )
+
+    def log(self, metrics: Mapping[str, float], step: int) -> None:
+        self.run.log({k: _plain(v) for k, v in metrics.items()}, step=step)
+
+    def close(self) -> None:
+        self.run.finish()
+
+
+class MultiLogger(Logger):
+    def __init__(self, loggers: list[Logger]) -> None:
+        self.loggers = loggers
+
+    def log(self, metrics: Mapping[str, float], step: int) -> None:
+        for logger in self.loggers:
+            logger.log(metrics, step)
+
+    def close(self) -> None:
+        for logger in self.loggers:
+            logger.close()
+
+
+def _plain(v: Any) -> Any:
+    if hasattr(v, "item"):
+        v = v.item()
+    if isinstance(v, float) and not math.isfinite(v):
+        return str(v)
+    return v

@@ -1,0 +1,293 @@
+"""PPO training of the DATT policy with TorchRL parts.
+
+One process, one batched :class:`~datt.envs.TrackingEnv` of ``algo.num_envs`` drones, a TorchRL
+``Collector`` gathering ``num_envs x rollout_steps`` frames per iteration, ``GAE`` for advantages
+and ``ClipPPOLoss`` optimised with Adam over shuffled minibatches. The paper used SB3's PPO
+defaults (10 envs x 2048 steps, minibatch 64, 10 epochs, lr 3e-4); on a 2-core CPU those tiny
+minibatches cost hours, so ``conf/algo/ppo.yaml`` uses thousands of envs, short rollouts, a few
+epochs over minibatches of a few thousand and a larger learning rate (documented there);
+``algo=sb3`` restores the authors' values.
+
+Curriculum (paper §4.1): the first ``curriculum.fixed_ref_steps`` frames fly one fixed
+reference (``curriculum.fixed``), then the configured family. Checkpoints (``last.pt`` every
+``train.checkpoint_every`` iterations and at the end, ``best.pt`` on the best training tracking
+error) hold everything to resume: ``resume=true`` continues the run dir to the same total.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import torch
+from omegaconf import DictConfig, OmegaConf
+from rich.console import Console
+from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+from torchrl.collectors import Collector
+from torchrl.objectives import ClipPPOLoss
+from torchrl.objectives.value import GAE
+
+from datt.config import ConfigError, instantiate_option, make_env
+from datt.policies.networks import PolicyParams, make_actor, make_critic
+from datt.train.checkpoint import load_checkpoint, save_checkpoint
+from datt.train.logging import Logger
+
+
+class TrainingDiverged(RuntimeError):
+    """A NaN/inf appeared in the loss, observations or actions."""
+
+
+@dataclass
+class AlgoParams:
+    """``conf/algo/ppo.yaml``."""
+
+    num_envs: int = 1024
+    rollout_steps: int = 32
+    epochs: int = 4
+    minibatch_size: int = 4096
+    lr: float = 1e-3
+    lr_schedule: str = "linear"  # constant | linear (to lr_final_frac * lr)
+    lr_final_frac: float = 0.1
+    gamma: float = 0.99
+    lmbda: float = 0.95
+    clip_epsilon: float = 0.2
+    entropy_coeff: float = 0.0
+    critic_coeff: float = 0.5
+    loss_critic_type: str = "l2"
+    max_grad_norm: float = 0.5
+    normalize_advantage: bool = True
+
+    def validate(self) -> None:
+        def need(ok: bool, key: str, msg: str) -> None:
+            if not ok:
+                raise ConfigError(f"algo.{key}: {msg}")
+
+        need(self.num_envs >= 1, "num_envs", f"must be >= 1, got {self.num_envs}")
+        need(self.rollout_steps >= 1, "rollout_steps", f"must be >= 1, got {self.rollout_steps}")
+        need(self.epochs >= 1, "epochs", f"must be >= 1, got {self.epochs}")
+        need(self.minibatch_size >= 1, "minibatch_size", f"must be >= 1, got {self.minibatch_size}")
+        need(self.lr > 0, "lr", f"must be > 0, got {self.lr}")
+        need(self.lr_schedule in ("constant", "linear"), "lr_schedule",
+             f"unknown value {self.lr_schedule!r}; allowed: constant, linear")  # fmt: skip
+        need(0 < self.gamma <= 1, "gamma", f"must be in (0, 1], got {self.gamma}")
+        need(0 <= self.lmbda <= 1, "lmbda", f"must be in [0, 1], got {self.lmbda}")
+        need(self.loss_critic_type in ("l1", "l2", "smooth_l1"), "loss_critic_type",
+             f"unknown value {self.loss_critic_type!r}; allowed: l1, l2, smooth_l1")  # fmt: skip
+
+
+def structured(cls, node, key: str):
+    """``node`` (DictConfig) -> dataclass ``cls`` with type errors as one-line ConfigErrors."""
+    from omegaconf.errors import OmegaConfBaseException
+
+    from datt.config import one_line
+
+    try:
+        merged = OmegaConf.merge(OmegaConf.structured(cls), node or {})
+    except OmegaConfBaseException as exc:
+        sub = getattr(exc, "full_key", "") or ""
+        raise ConfigError(f"{key}.{sub}: {one_line(exc)}" if sub else f"{key}: {one_line(exc)}") from None
+    obj = OmegaConf.to_object(merged)
+    obj.validate()
+    return obj
+
+
+class Trainer:
+    """Owns env, modules, loss, optimiser and the loop. ``cfg`` is the composed train config."""
+
+    def __init__(self, cfg: DictConfig, run_dir: str | Path, logger: Logger, console: Console | None = None) -> None:
+        self.cfg = cfg
+        self.run_dir = Path(run_dir)
+        self.logger = logger
+        self.console = console or Console()
+        self.algo: AlgoParams = structured(AlgoParams, cfg.algo, "algo")
+        self.policy_params: PolicyParams = structured(PolicyParams, cfg.policy, "policy")
+        tc = cfg.train
+        self.total_frames = int(tc.total_steps)
+        if self.total_frames < 1:
+            raise ConfigError(f"train.total_steps: must be >= 1, got {self.total_frames}")
+        self.fixed_ref_steps = int(cfg.curriculum.fixed_ref_steps)
+        if self.fixed_ref_steps < 0:
+            raise ConfigError(f"curriculum.fixed_ref_steps: must be >= 0, got {self.fixed_ref_steps}")
+        self.main_traj = instantiate_option(cfg, "traj")
+        self.fixed_traj = instantiate_option(cfg.curriculum, "fixed") if self.fixed_ref_steps > 0 else None
+        seed = int(cfg.seed)
+        torch.manual_seed(seed)
+        self.env = make_env(cfg, num_envs=self.algo.num_envs, seed=seed, traj=self.fixed_traj or self.main_traj)
+        self.phase = "fixed" if self.fixed_traj is not None else "main"
+        self.actor = make_actor(self.env.horizon, self.env.action_low, self.env.action_high, self.policy_params)
+        self.critic = make_critic(self.env.horizon, self.policy_params)
+        a = self.algo
+        self.loss = ClipPPOLoss(
+            self.actor,
+            self.critic,
+            clip_epsilon=a.clip_epsilon,
+            entropy_bonus=a.entropy_coeff > 0,
+            entropy_coeff=a.entropy_coeff if a.entropy_coeff > 0 else None,
+            critic_coeff=a.critic_coeff,
+            loss_critic_type=a.loss_critic_type,
+            normalize_advantage=a.normalize_advantage,
+        )
+        self.gae = GAE(gamma=a.gamma, lmbda=a.lmbda, value_network=self.critic, average_gae=False, shifted=True)
+        self.optim = torch.optim.Adam(self.loss.parameters(), lr=a.lr)
+        self.frames_per_batch = a.num_envs * a.rollout_steps
+        self.frames = 0
+        self.iteration = 0
+        self.best_error = math.inf
+        self.history: list[dict] = []
+
+    # -- checkpoints -------------------------------------------------------------------------
+    def state(self) -> dict:
+        return {
+            "actor": self.actor.state_dict(),
+            "critic": self.critic.state_dict(),
+            "optimizer": self.optim.state_dict(),
+            "frames": self.frames,
+            "iteration": self.iteration,
+            "best_error_m": self.best_error,
+            "phase": self.phase,
+            "horizon": self.env.horizon,
+            "config_yaml": OmegaConf.to_yaml(self.cfg, resolve=True),
+            "rng_torch": torch.get_rng_state(),
+            "rng_env": self.env.generator.get_state(),
+        }
+
+    def save(self, name: str = "last.pt") -> Path:
+        return save_checkpoint(self.run_dir / name, self.state())
+
+    def load(self, path: str | Path) -> None:
+        data = load_checkpoint(path, key="resume")
+        if int(data["horizon"]) != self.env.horizon:
+            raise ConfigError(f"resume: checkpoint has horizon={data['horizon']}, config has {self.env.horizon}")
+        self.actor.load_state_dict(data["actor"])
+        self.critic.load_state_dict(data["critic"])
+        self.optim.load_state_dict(data["optimizer"])
+        self.frames = int(data["frames"])
+        self.iteration = int(data["iteration"])
+        self.best_error = float(data["best_error_m"])
+        torch.set_rng_state(data["rng_torch"])
+        self.env.generator.set_state(data["rng_env"])
+        self._update_phase()
+
+    # -- loop -------------------------------------------------------------------------------
+    def _update_phase(self) -> None:
+        # Drones pick up the new family as their episodes end (within one episode).
+        if self.phase == "fixed" and self.frames >= self.fixed_ref_steps:
+            self.phase = "main"
+            self.env.traj = self.main_traj
+        elif self.phase == "main" and self.fixed_traj is not None and self.frames < self.fixed_ref_steps:
+            self.phase = "fixed"
+            self.env.traj = self.fixed_traj
+
+    def _lr(self) -> float:
+        a = self.algo
+        if a.lr_schedule == "constant":
+            return a.lr
+        frac = min(1.0, self.frames / self.total_frames)
+        return a.lr * (1.0 - (1.0 - a.lr_final_frac) * frac)
+
+    def _check_finite(self, name: str, value: torch.Tensor) -> None:
+        if not torch.isfinite(value).all():
+            raise TrainingDiverged(
+                f"non-finite {name} at iteration {self.iteration} (frame {self.frames}); "
+                f"last good checkpoint: {self.run_dir / 'last.pt'}"
+            )
+
+    def update(self, batch) -> dict:
+        """GAE + PPO epochs on one collected batch ``[num_envs, rollout_steps]``."""
+        a = self.algo
+        for key in (("next", "state"), ("next", "ref"), "action"):
+            self._check_finite("/".join(key) if isinstance(key, tuple) else key, batch.get(key))
+        with torch.no_grad():
+            self.gae(batch)
+        data = batch.reshape(-1)
+        lr = self._lr()
+        for group in self.optim.param_groups:
+            group["lr"] = lr
+        stats = {"loss_objective": 0.0, "loss_critic": 0.0, "grad_norm": 0.0}
+        count = 0
+        for _ in range(a.epochs):
+            for idx in torch.randperm(data.shape[0]).split(a.minibatch_size):
+                losses = self.loss(data[idx])
+                total = losses["loss_objective"] + losses["loss_critic"]
+                if "loss_entropy" in losses.keys():
+                    total = total + losses["loss_entropy"]
+                self._check_finite("loss", total.detach())
+                self.optim.zero_grad(set_to_none=True)
+                total.backward()
+                # Clip actor and critic separately: the critic's gradient (returns of order
+                # 100 with the crash penalty) would otherwise eat the actor's share of the norm.
+                grad = torch.nn.utils.clip_grad_norm_(self.actor.parameters(), a.max_grad_norm)
+                torch.nn.utils.clip_grad_norm_(self.critic.parameters(), a.max_grad_norm)
+                self._check_finite("gradient", grad)
+                self.optim.step()
+                stats["loss_objective"] += losses["loss_objective"].item()
+                stats["loss_critic"] += losses["loss_critic"].item()
+                stats["grad_norm"] += grad.item()
+                count += 1
+        out = {k: v / count for k, v in stats.items()}
+        out["lr"] = lr
+        return out
+
+    def train(self) -> list[dict]:
+        remaining = self.total_frames - self.frames
+        if remaining <= 0:
+            self.console.print(f"[green]run already complete ({self.frames} frames)")
+            return self.history
+        collector = Collector(
+            self.env,
+            self.actor,
+            frames_per_batch=self.frames_per_batch,
+            total_frames=math.ceil(remaining / self.frames_per_batch) * self.frames_per_batch,
+            auto_register_policy_transforms=False,  # the policy is stateless: no InitTracker needed
+        )
+        every = max(1, int(self.cfg.train.checkpoint_every))
+        progress = Progress(
+            TextColumn("[bold]train"), BarColumn(), TextColumn("{task.completed:,.0f}/{task.total:,.0f} steps"),
+            TextColumn("{task.fields[rate]:,.0f} steps/s"), TextColumn("err {task.fields[err]:.3f} m"),
+            TextColumn("ret {task.fields[ret]:.2f}"), TimeElapsedColumn(), TimeRemainingColumn(),
+            console=self.console, disable=not self.cfg.train.progress,
+        )  # fmt: skip
+        start = time.perf_counter()
+        frames_at_start = self.frames
+        with progress:
+            task = progress.add_task("train", total=self.total_frames, completed=self.frames, rate=0.0, err=0.0, ret=0.0)
+            t_iter = time.perf_counter()
+            for batch in collector:
+                stats = self.update(batch)
+                self.frames += batch.numel()
+                self.iteration += 1
+                now = time.perf_counter()
+                err = batch["next", "tracking_error_m"].mean().item()
+                done = batch["next", "done"]
+                ret_per_step = batch["next", "reward"].mean().item()
+                row = {
+                    "frames": self.frames,
+                    "iteration": self.iteration,
+                    "tracking_error_m": err,
+                    "reward_per_step": ret_per_step,
+                    "episode_return_est": ret_per_step * self.env.params.episode_steps,
+                    "crash_rate": (batch["next", "terminated"].sum() / done.sum().clamp_min(1)).item(),
+                    "steps_per_s": batch.numel() / (now - t_iter),
+                    "phase": self.phase,
+                    **stats,
+                }
+                t_iter = now
+                self.history.append(row)
+                self.logger.log({k: v for k, v in row.items() if k != "phase"}, step=self.frames)
+                progress.update(task, completed=self.frames, rate=(self.frames - frames_at_start) / (now - start),
+                                err=err, ret=row["episode_return_est"])  # fmt: skip
+                if self.phase == "main" and err < self.best_error:
+                    self.best_error = err
+                    self.save("best.pt")
+                self._update_phase()
+                if self.iteration % every == 0:
+                    self.save("last.pt")
+                if self.frames >= self.total_frames:
+                    break
+        collector.shutdown()
+        self.save("last.pt")
+        if self.phase != "main" or not (self.run_dir / "best.pt").exists():
+            self.save("best.pt")
+        return self.history

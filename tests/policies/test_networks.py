@@ -1,0 +1,55 @@
+import pytest
+import torch
+from torchrl.envs.utils import ExplorationType, set_exploration_type
+
+from datt.config import ConfigError, compose, make_env
+from datt.policies.networks import PolicyParams, RefEncoder, make_actor, make_critic
+
+
+@pytest.mark.parametrize("horizon", [1, 5, 10, 20])
+@pytest.mark.parametrize("encoder", ["conv", "mlp", "none"])
+def test_actor_critic_shapes_for_every_horizon_and_encoder(horizon, encoder):
+    env = make_env(compose("sim", [f"horizon={horizon}"]), num_envs=6)
+    p = PolicyParams(encoder=encoder)
+    actor = make_actor(horizon, env.action_low, env.action_high, p)
+    critic = make_critic(horizon, p)
+    td = env.reset()
+    out = actor(td.clone())
+    assert out["action"].shape == (6, 4) and out["action_log_prob"].shape == (6,)
+    assert critic(td.clone())["state_value"].shape == (6, 1)
+    assert (out["action"] >= env.action_low).all() and (out["action"] <= env.action_high).all()
+
+
+def test_paper_encoder_structure():
+    enc = RefEncoder(10, PolicyParams())
+    convs = [m for m in enc.conv if isinstance(m, torch.nn.Conv1d)]
+    assert [(c.in_channels, c.out_channels, c.kernel_size[0]) for c in convs] == [(3, 16, 3), (16, 16, 3), (16, 16, 3)]
+    assert enc.proj.out_features == 32 and enc(torch.zeros(7, 10, 3)).shape == (7, 32)
+
+
+def test_initial_policy_hovers():
+    env = make_env(compose("sim"), num_envs=3)
+    actor = make_actor(10, env.action_low, env.action_high, PolicyParams())
+    with set_exploration_type(ExplorationType.DETERMINISTIC):
+        a = actor(env.reset())["action"]
+    assert torch.allclose(a[:, 0], torch.full((3,), 9.81), atol=0.05)
+    assert a[:, 1:].abs().max() < 0.05
+
+
+def test_d_hat_input_can_be_disabled():
+    env = make_env(compose("sim", ["disturbance=constant"]), num_envs=4)
+    td = env.reset()
+    for use in (True, False):
+        torch.manual_seed(0)
+        critic = make_critic(10, PolicyParams(use_d_hat=use))
+        changed = td.clone()
+        changed["d_hat"] = changed["d_hat"] + 1.0
+        same = torch.allclose(critic(td.clone())["state_value"], critic(changed)["state_value"])
+        assert same is (not use)
+
+
+@pytest.mark.parametrize("kwargs, key", [({"encoder": "lstm"}, "policy.encoder"), ({"kernel_size": 2}, "policy.kernel_size"),
+                                         ({"hidden": []}, "policy.hidden")])  # fmt: skip
+def test_bad_policy_params(kwargs, key):
+    with pytest.raises(ConfigError, match=key):
+        PolicyParams(**kwargs).validate()

@@ -1,0 +1,150 @@
+"""Training end to end on tiny budgets: learning signal, resume, NaN guard, CLI errors."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+from omegaconf import OmegaConf
+
+from datt.cli import run_train
+from datt.config import ConfigError, compose
+from datt.train.checkpoint import load_checkpoint
+from datt.train.logging import CsvLogger
+from datt.train.ppo import Trainer, TrainingDiverged
+
+ROOT = Path(__file__).resolve().parents[2]
+TINY = [
+    "logger=csv",
+    "env.compile=false",
+    "train.progress=false",
+    "algo.num_envs=64",
+    "algo.rollout_steps=16",
+    "algo.minibatch_size=512",
+    "algo.epochs=2",
+]
+
+
+def tiny_cfg(*extra):
+    return compose("train", [*TINY, *extra])
+
+
+def test_ablation_options_set_exactly_their_keys():
+    base = OmegaConf.to_container(tiny_cfg(), resolve=True)
+    expect = {
+        "no_body_frame": ("env", "obs", "body_frame", False),
+        "no_feedback": ("env", "obs", "feedback", False),
+        "no_fixed_ref": ("curriculum", "fixed_ref_steps", 0),
+    }
+    for name, (*path, value) in expect.items():
+        cfg = OmegaConf.to_container(tiny_cfg(f"ablation={name}"), resolve=True)
+        node = cfg
+        for key in path[:-1]:
+            node = node[key]
+        assert node[path[-1]] == value
+        # nothing else differs
+        node[path[-1]] = _get(base, path)
+        assert cfg == base, name
+
+
+def _get(d, path):
+    for key in path:
+        d = d[key]
+    return d
+
+
+def test_tiny_training_improves_return(tmp_path):
+    cfg = tiny_cfg("traj=zigzag", "disturbance=none", "train.total_steps=98304", "curriculum.fixed_ref_steps=98304",
+                   "algo.num_envs=128", "algo.rollout_steps=32", "algo.minibatch_size=1024", "algo.epochs=4")  # fmt: skip
+    trainer = Trainer(cfg, tmp_path, CsvLogger(tmp_path))
+    history = trainer.train()
+    first = sum(h["reward_per_step"] for h in history[:3]) / 3
+    last = sum(h["reward_per_step"] for h in history[-3:]) / 3
+    assert last > first + 0.3, (first, last)
+
+
+def test_interrupted_run_resumes_to_the_same_total(tmp_path):
+    total = 4 * 64 * 16
+    cfg = tiny_cfg(f"train.total_steps={total}", "curriculum.fixed_ref_steps=2048", "train.checkpoint_every=1",
+                   "train.eval_at_end=false")  # fmt: skip
+
+    class Kill(Exception):
+        pass
+
+    class KillAfter(CsvLogger):
+        def log(self, metrics, step):
+            super().log(metrics, step)
+            if metrics["iteration"] == 2:
+                raise Kill()
+
+    trainer = Trainer(cfg, tmp_path, KillAfter(tmp_path))
+    with pytest.raises(Kill):
+        trainer.train()
+    ckpt = load_checkpoint(tmp_path / "last.pt")
+    assert ckpt["frames"] == 1024 and ckpt["phase"] == "fixed"  # killed before iteration 2's save
+    cfg_resume = tiny_cfg(f"train.total_steps={total}", "curriculum.fixed_ref_steps=2048", "train.checkpoint_every=1",
+                          "train.eval_at_end=false", f"resume={tmp_path}")  # fmt: skip
+    metrics = run_train(cfg_resume, run_dir=tmp_path)
+    assert metrics["frames"] == total
+    final = load_checkpoint(tmp_path / "last.pt")
+    assert final["frames"] == total and final["iteration"] == 4 and final["phase"] == "main"
+    rows = (tmp_path / "metrics.csv").read_text().splitlines()
+    assert len(rows) == 1 + 2 + 3  # header, 2 rows before the kill (1 logged twice), then 3 more
+
+
+def test_nan_guard_stops_with_last_good_checkpoint(tmp_path):
+    cfg = tiny_cfg("train.total_steps=4096", "train.checkpoint_every=1")
+    trainer = Trainer(cfg, tmp_path, CsvLogger(tmp_path))
+    trainer.save()
+    good = load_checkpoint(tmp_path / "last.pt")
+    with torch.no_grad():
+        for p in trainer.actor.parameters():
+            p.fill_(float("nan"))
+    with pytest.raises(TrainingDiverged, match="non-finite .* last good checkpoint"):
+        trainer.train()
+    after = load_checkpoint(tmp_path / "last.pt")
+    assert after["frames"] == good["frames"] == 0
+    assert all(torch.isfinite(v).all() for v in after["actor"].values())
+
+
+def test_bad_train_values_are_config_errors():
+    with pytest.raises(ConfigError, match="algo.num_envs: must be >= 1"):
+        Trainer(tiny_cfg("algo.num_envs=0"), "/tmp/unused", CsvLogger("/tmp"))
+    with pytest.raises(ConfigError, match="algo.lr_schedule: unknown value 'cosine'; allowed: constant, linear"):
+        Trainer(tiny_cfg("algo.lr_schedule=cosine"), "/tmp/unused", CsvLogger("/tmp"))
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["traj=nope"], "error: traj: unknown option 'nope'; allowed: chained_poly, csv, fixed, mixed, poly, polygon, star, zigzag"),
+        (["horizon=-1"], "error: horizon: must be an integer >= 1"),
+        (["algo.epochs=0"], "error: algo.epochs: must be >= 1"),
+        (["resume=/nonexistent/run"], "error: resume: '/nonexistent/run' has no last.pt"),
+    ],
+)
+def test_train_py_bad_override_one_line(tmp_path, args, message):
+    proc = subprocess.run(
+        [sys.executable, str(ROOT / "train.py"), *TINY, *args, f"hydra.run.dir={tmp_path}"],
+        capture_output=True, text=True, cwd=tmp_path, timeout=120,
+    )  # fmt: skip
+    assert proc.returncode == 2, proc.stderr
+    lines = [ln for ln in proc.stderr.splitlines() if ln.strip() and "Warning" not in ln and "warn" not in ln]
+    assert lines == [message] or (len(lines) == 1 and lines[0].startswith(message)), proc.stderr
+
+
+def test_train_py_end_to_end_writes_run_dir(tmp_path):
+    proc = subprocess.run(
+        [sys.executable, str(ROOT / "train.py"), *TINY, "train.total_steps=2048", "curriculum.fixed_ref_steps=1024",
+         f"hydra.run.dir={tmp_path}"],
+        capture_output=True, text=True, cwd=tmp_path, timeout=300,
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    for name in ("config.yaml", "metrics.csv", "metrics.json", "last.pt", "best.pt", "learning_curve.png", "tracks_clean.png"):
+        assert (tmp_path / name).exists(), name
+    metrics = json.loads((tmp_path / "metrics.json").read_text())
+    assert metrics["frames"] == 2048
+    groups = metrics["conditions"]["clean"]["groups"]
+    assert set(groups) == {"zigzag", "smooth", "star"} and groups["zigzag"]["episodes"] == 10
