@@ -136,6 +136,10 @@ def run_train(cfg: DictConfig, run_dir: Path | None = None) -> dict:
     from datt.train.ppo import Trainer
 
     _set_threads(cfg.train.get("threads"))
+    if cfg.get("stage", "ppo") == "rma":
+        return run_rma(cfg, run_dir or _run_dir())
+    if cfg.get("stage", "ppo") != "ppo":
+        raise ConfigError(f"stage: unknown value {cfg.stage!r}; allowed: ppo, rma")
     resume_dir = _resume_dir(cfg.get("resume", False))
     run_dir = resume_dir or run_dir or _run_dir()
     run_dir.mkdir(parents=True, exist_ok=True)
@@ -174,6 +178,28 @@ def run_train(cfg: DictConfig, run_dir: Path | None = None) -> dict:
         metrics["conditions"] = evaluate_conditions(cfg, trainer.actor, cfg.eval.conditions, run_dir,
                                                     cfg.eval.get("plots", True), tag=run_dir.name)  # fmt: skip
         print_metrics(f"evaluation ({run_dir.name})", metrics["conditions"])
+    (run_dir / "metrics.json").write_text(json.dumps(metrics, indent=2) + "\n")
+    return metrics
+
+
+def run_rma(cfg: DictConfig, run_dir: Path) -> dict:
+    """Fit an RMA adapter for ``base_checkpoint`` and evaluate DATT-RMA vs privileged/L1/none."""
+    from datt.adapt.rma import train_rma
+    from datt.control.datt import DattController
+    from datt.eval.rollout import evaluate
+
+    run_dir.mkdir(parents=True, exist_ok=True)
+    (run_dir / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
+    result = train_rma(cfg, run_dir, console)
+    actor, train_cfg, _ = load_actor(cfg.base_checkpoint)
+    eval_cfg = OmegaConf.merge(train_cfg, {"eval": cfg.eval, "env": {"compile": False}})
+    conditions = {}
+    for name, adaptation in (("d_hat=0", "none"), ("l1", "l1"), ("rma", None), ("privileged", "privileged")):
+        choice = adaptation if adaptation else {"_target_": "datt.adapt.RmaAdaptation", "checkpoint": str(run_dir / "rma.pt")}
+        res = evaluate(eval_cfg, lambda env: DattController(actor), "brownian", choice, seed=int(cfg.eval.get("seed", 0)))
+        conditions[name] = {"disturbance": "brownian", "adaptation": name, "groups": res["groups"]}
+    print_metrics("DATT under Brownian disturbance by adaptation", conditions)
+    metrics = {"rma_train_wall_s": result["wall_s"], "rma_history": result["history"], "conditions": conditions}
     (run_dir / "metrics.json").write_text(json.dumps(metrics, indent=2) + "\n")
     return metrics
 

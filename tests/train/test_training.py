@@ -10,7 +10,9 @@ import torch
 from omegaconf import OmegaConf
 
 from datt.cli import run_train
-from datt.config import ConfigError, compose
+from torchrl.envs.utils import ExplorationType, set_exploration_type
+
+from datt.config import ConfigError, compose, make_env
 from datt.train.checkpoint import load_checkpoint
 from datt.train.logging import CsvLogger
 from datt.train.ppo import Trainer, TrainingDiverged
@@ -56,13 +58,24 @@ def _get(d, path):
 
 
 def test_tiny_training_improves_return(tmp_path):
-    cfg = tiny_cfg("traj=zigzag", "disturbance=none", "train.total_steps=98304", "curriculum.fixed_ref_steps=98304",
-                   "algo.num_envs=128", "algo.rollout_steps=32", "algo.minibatch_size=1024", "algo.epochs=4")  # fmt: skip
+    """~100k steps: the stochastic policy's return on a fixed reference, starting up to 1 m off,
+    improves clearly (measured: -2.14 -> -1.14 and -2.18 -> -1.25 for seeds 0 and 1)."""
+    cfg = tiny_cfg("traj=fixed", "disturbance=none", "env.episode_steps=100", "env.init_pos_range_m=1.0",
+                   "algo.num_envs=256", "algo.rollout_steps=25", "algo.minibatch_size=640", "algo.epochs=4",
+                   "train.total_steps=96000", "curriculum.fixed_ref_steps=0")  # fmt: skip
     trainer = Trainer(cfg, tmp_path, CsvLogger(tmp_path))
-    history = trainer.train()
-    first = sum(h["reward_per_step"] for h in history[:3]) / 3
-    last = sum(h["reward_per_step"] for h in history[-3:]) / 3
-    assert last > first + 0.3, (first, last)
+
+    def stochastic_return():
+        env = make_env(cfg, num_envs=256, seed=123)
+        torch.manual_seed(5)
+        with set_exploration_type(ExplorationType.RANDOM):
+            td = env.rollout(100, trainer.actor, break_when_any_done=False)
+        return td["next", "reward"].mean().item()
+
+    before = stochastic_return()
+    trainer.train()
+    after = stochastic_return()
+    assert after > before + 0.5, (before, after)
 
 
 def test_interrupted_run_resumes_to_the_same_total(tmp_path):

@@ -3,7 +3,8 @@
 Protocol shared by every option of ``conf/adaptation/`` (and by L1/RMA estimators):
 
 * ``bind(n, dt_s, gravity_mps2, device, dtype)`` once;
-* ``reset(idx, true_d_mps2)`` when drones ``idx`` start an episode (``true_d_mps2 [N, 3]`` or None);
+* ``reset(idx, true_d_mps2, state)`` when drones ``idx`` start an episode (``true_d_mps2 [N, 3]``
+  or None; ``state`` the sim/measured state of all N drones, or None);
 * ``update(state, cmd, true_d_mps2)`` after each sim step, returns ``d_hat [N, 3]``. ``state`` is
   the sim's :class:`~datt.sim.QuadState` (or measured state on hardware), ``cmd [N, 4]`` the
   command (thrust_mps2, body rates) sent this step, ``true_d_mps2`` the simulator's disturbance
@@ -27,7 +28,7 @@ class Adaptation:
         self.gravity_mps2 = gravity_mps2
         self.d_hat = torch.zeros(n, 3, device=device, dtype=dtype)
 
-    def reset(self, idx: Tensor, true_d_mps2: Tensor | None = None) -> None:
+    def reset(self, idx: Tensor, true_d_mps2: Tensor | None = None, state=None) -> None:
         self.d_hat[idx] = 0.0
 
     def update(self, state, cmd: Tensor, true_d_mps2: Tensor | None) -> Tensor:
@@ -42,7 +43,7 @@ class Privileged(Adaptation):
 
     uses_true_disturbance = True
 
-    def reset(self, idx: Tensor, true_d_mps2: Tensor | None = None) -> None:
+    def reset(self, idx: Tensor, true_d_mps2: Tensor | None = None, state=None) -> None:
         if true_d_mps2 is None:
             raise RuntimeError("adaptation=privileged needs the true disturbance; use l1 or rma outside simulation")
         self.d_hat[idx] = true_d_mps2[idx]

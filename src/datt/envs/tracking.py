@@ -91,6 +91,9 @@ class TrackingEnv(EnvBase):
         self._head = 0
         self._row_base = torch.arange(num_envs, device=device) * self.table_len
         self.step_idx = torch.zeros(num_envs, dtype=torch.long, device=device)
+        # Per-drone truncation step: episode_steps, except after stagger_episodes().
+        self.episode_len = torch.full((num_envs,), params.episode_steps, dtype=torch.long, device=device)
+        self._stagger_pending = False
         self._observe_kernel = observe_and_cost
 
         lo_t, hi_t = params.thrust_offset_bounds_mps2
@@ -135,12 +138,13 @@ class TrackingEnv(EnvBase):
         u = torch.rand(k, 3, generator=self.generator, device=self.device, dtype=self.dtype)
         self.sim.reset(idx, (2.0 * u - 1.0) * r)
         self.step_idx[idx] = 0
+        self.episode_len[idx] = self.params.episode_steps
         table = self.traj.sample(k, self.t_grid_s, self.generator).to(self.dtype)
         self.ref_table[idx] = table
         slots = (self._head + torch.arange(self.window, device=self.device)) % self.window
         self.ref_window[slots.unsqueeze(1), idx.unsqueeze(0)] = table[:, : self.window].transpose(0, 1)
         self.disturbance.reset(idx, self.sim.state)
-        self.adaptation.reset(idx, self.disturbance.current_mps2)
+        self.adaptation.reset(idx, self.disturbance.current_mps2, self.sim.state)
 
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
         mask = None if tensordict is None else tensordict.get("_reset", None)
@@ -150,6 +154,10 @@ class TrackingEnv(EnvBase):
             idx = mask.reshape(self.n).nonzero().squeeze(-1)
         if len(idx):
             self._reset_drones(idx)
+        if len(idx) == self.n and self._stagger_pending:
+            high = self.params.episode_steps + 1
+            self.episode_len = torch.randint(1, high, (self.n,), generator=self.generator, device=self.device)
+            self._stagger_pending = False
         out = self._observe(None if len(idx) == self.n else idx)[0]
         false = torch.zeros(self.n, 1, dtype=torch.bool, device=self.device)
         out.update({"done": false, "terminated": false.clone(), "truncated": false.clone()})
@@ -210,7 +218,7 @@ class TrackingEnv(EnvBase):
         terminated = outside | ~torch.isfinite(cost)
         if self.params.max_tracking_error_m is not None:
             terminated |= err_m > float(self.params.max_tracking_error_m)
-        truncated = (self.step_idx >= self.params.episode_steps).unsqueeze(-1)
+        truncated = (self.step_idx >= self.episode_len).unsqueeze(-1)
         penalty = self.params.reward.crash_penalty * terminated.to(self.dtype)
         reward = -torch.nan_to_num(cost, nan=0.0, posinf=0.0) - penalty
         out.update({"reward": reward, "done": terminated | truncated, "terminated": terminated, "truncated": truncated})
@@ -222,6 +230,12 @@ class TrackingEnv(EnvBase):
         self.sim.compile(**kwargs)
         self._observe_kernel = torch.compile(observe_and_cost, dynamic=False, **kwargs)
         return self
+
+    def stagger_episodes(self) -> None:
+        """From the next full reset, truncate each drone's first episode after a uniform random
+        number of steps in [1, episode_steps], so training batches mix all phases of an episode
+        instead of every drone being at the same step (later episodes have the full length)."""
+        self._stagger_pending = True
 
     # -- conveniences ----------------------------------------------------------------------
     @property

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import Any
 
 import torch
 from tensordict.nn import NormalParamExtractor, TensorDictModule
@@ -41,7 +42,11 @@ class PolicyParams:
     embed_dim: int = 32
     hidden: list[int] = field(default_factory=lambda: [64, 64, 64])
     use_d_hat: bool = True
-    init_std: float = 0.15  # pre-tanh std of the initial policy
+    # Pre-tanh std of the initial policy per action (thrust, wx, wy, wz). Rates need a small one:
+    # rate noise integrates into an attitude random walk (0.15 x 20 rad/s tips drones over
+    # within ~1 s, so every early episode crashes); 0.05 ≈ 1 rad/s, the SB3 default std.
+    # A single number applies to all four.
+    init_std: Any = field(default_factory=lambda: [0.1, 0.05, 0.05, 0.1])
 
     def validate(self) -> None:
         if self.encoder not in ENCODERS:
@@ -52,8 +57,11 @@ class PolicyParams:
             raise ConfigError("policy.conv_layers/conv_channels/embed_dim: must be >= 1")
         if not self.hidden or any(h < 1 for h in self.hidden):
             raise ConfigError(f"policy.hidden: must be a non-empty list of sizes >= 1, got {list(self.hidden)}")
-        if not self.init_std > 0:
-            raise ConfigError(f"policy.init_std: must be > 0, got {self.init_std}")
+        if isinstance(self.init_std, (int, float)):
+            self.init_std = [float(self.init_std)] * 4
+        self.init_std = [float(s) for s in self.init_std]
+        if len(self.init_std) != 4 or not all(s > 0 for s in self.init_std):
+            raise ConfigError(f"policy.init_std: must be four values > 0 (thrust, wx, wy, wz), got {list(self.init_std)}")
 
 
 class RefEncoder(nn.Module):
@@ -122,7 +130,7 @@ def make_actor(horizon: int, action_low: torch.Tensor, action_high: torch.Tensor
         net.head.bias.zero_()
         net.head.bias[:4] = torch.atanh(((hover - center) / half).clamp(-0.99, 0.99))
         # NormalParamExtractor: scale = softplus(x + b) with b chosen so softplus(b) = 1
-        net.head.bias[4:] = _inv_softplus(p.init_std) - _inv_softplus(1.0)
+        net.head.bias[4:] = torch.tensor([_inv_softplus(s) - _inv_softplus(1.0) for s in p.init_std])
     module = nn.Sequential(net, NormalParamExtractor(scale_lb=1e-4))
     td_module = TensorDictModule(_Args(module), in_keys=OBS_KEYS, out_keys=["loc", "scale"])
     return ProbabilisticActor(

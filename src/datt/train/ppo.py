@@ -58,6 +58,11 @@ class AlgoParams:
     loss_critic_type: str = "l2"
     max_grad_norm: float = 0.5
     normalize_advantage: bool = True
+    # Rewards are multiplied by this before GAE. Returns here are O(100) (500-step episodes,
+    # crash penalty); Adam moves the critic's output by ~lr per step whatever the gradient
+    # scale, so an unscaled critic needs thousands of updates to reach them and the early
+    # advantages are noise. 0.01 ≈ (1 − γ) keeps values O(1).
+    reward_scale: float = 0.01
 
     def validate(self) -> None:
         def need(ok: bool, key: str, msg: str) -> None:
@@ -69,6 +74,7 @@ class AlgoParams:
         need(self.epochs >= 1, "epochs", f"must be >= 1, got {self.epochs}")
         need(self.minibatch_size >= 1, "minibatch_size", f"must be >= 1, got {self.minibatch_size}")
         need(self.lr > 0, "lr", f"must be > 0, got {self.lr}")
+        need(self.reward_scale > 0, "reward_scale", f"must be > 0, got {self.reward_scale}")
         need(self.lr_schedule in ("constant", "linear"), "lr_schedule",
              f"unknown value {self.lr_schedule!r}; allowed: constant, linear")  # fmt: skip
         need(0 < self.gamma <= 1, "gamma", f"must be in (0, 1], got {self.gamma}")
@@ -116,6 +122,8 @@ class Trainer:
         torch.manual_seed(seed)
         self.env = make_env(cfg, num_envs=self.algo.num_envs, seed=seed, traj=self.fixed_traj or self.main_traj)
         self.phase = "fixed" if self.fixed_traj is not None else "main"
+        if bool(tc.get("stagger_episodes", True)):
+            self.env.stagger_episodes()
         self.actor = make_actor(self.env.horizon, self.env.action_low, self.env.action_high, self.policy_params)
         self.critic = make_critic(self.env.horizon, self.policy_params)
         a = self.algo
@@ -200,6 +208,8 @@ class Trainer:
         for key in (("next", "state"), ("next", "ref"), "action"):
             self._check_finite("/".join(key) if isinstance(key, tuple) else key, batch.get(key))
         with torch.no_grad():
+            if a.reward_scale != 1.0:
+                batch.set(("next", "reward"), batch.get(("next", "reward")) * a.reward_scale)
             self.gae(batch)
         data = batch.reshape(-1)
         lr = self._lr()
@@ -255,13 +265,13 @@ class Trainer:
             task = progress.add_task("train", total=self.total_frames, completed=self.frames, rate=0.0, err=0.0, ret=0.0)
             t_iter = time.perf_counter()
             for batch in collector:
+                ret_per_step = batch["next", "reward"].mean().item()  # before update() scales it
                 stats = self.update(batch)
                 self.frames += batch.numel()
                 self.iteration += 1
                 now = time.perf_counter()
                 err = batch["next", "tracking_error_m"].mean().item()
                 done = batch["next", "done"]
-                ret_per_step = batch["next", "reward"].mean().item()
                 row = {
                     "frames": self.frames,
                     "iteration": self.iteration,

@@ -1,0 +1,158 @@
+"""RMA baseline (paper §5.1): d̂ regressed from the last 50 (state, action) pairs.
+
+Network (paper): 3 Conv1d layers of 64 channels, kernel 8 (first with stride 2, as the authors),
+ReLU, then fully connected 32 -> 32 -> 3 with ReLU between. Input per step (14 values): world
+velocity (3), attitude quaternion (4), body rates (3), command (thrust − g, body rates) (4), each
+scaled by a fixed constant (``FEATURE_SCALE``) so all are O(1).
+
+Training (:func:`train_rma`): the frozen DATT policy flies with the adapter's *own* predictions as
+d̂ (so the adapter sees the state distribution it will face), and every step one Adam step
+regresses the adapter's output to the true d over all N drones (batched over thousands of drones,
+``rma.iterations`` steps; paper: 10000 iterations of one 500-step rollout).
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import torch
+from omegaconf import DictConfig, OmegaConf
+from torch import Tensor, nn
+
+from datt.adapt.base import Adaptation
+from datt.config import ConfigError
+
+FEATURES = 14
+# velocity, quaternion, body rates, command (thrust offset from g, rates)
+FEATURE_SCALE = torch.tensor([0.5] * 3 + [1.0] * 4 + [0.2] * 3 + [0.1] + [0.2] * 3)
+
+
+class RmaNet(nn.Module):
+    """``history [B, L, 14] -> d̂ [B, 3]`` (L = history length, default 50)."""
+
+    def __init__(self, history_len: int = 50, channels: int = 64, kernel: int = 8, hidden: int = 32) -> None:
+        super().__init__()
+        if history_len < 2 * kernel + 2 * (kernel - 1):
+            raise ConfigError(f"adaptation.history_len: must be >= {4 * kernel - 2} for kernel {kernel}, got {history_len}")
+        self.conv = nn.Sequential(
+            nn.Conv1d(FEATURES, channels, kernel, stride=2), nn.ReLU(),
+            nn.Conv1d(channels, channels, kernel), nn.ReLU(),
+            nn.Conv1d(channels, channels, kernel), nn.ReLU(),
+        )  # fmt: skip
+        with torch.no_grad():
+            flat = self.conv(torch.zeros(1, FEATURES, history_len)).numel()
+        self.head = nn.Sequential(nn.Linear(flat, hidden), nn.ReLU(), nn.Linear(hidden, hidden), nn.ReLU(), nn.Linear(hidden, 3))
+        self.history_len = history_len
+        self.register_buffer("scale", FEATURE_SCALE.clone())
+
+    def forward(self, history: Tensor) -> Tensor:
+        x = (history * self.scale).transpose(1, 2)  # [B, 14, L]
+        return self.head(self.conv(x).flatten(1))
+
+
+def step_features(state, cmd: Tensor, gravity_mps2: float) -> Tensor:
+    """``[N, 14]`` features of one step (unscaled)."""
+    c = cmd.clone()
+    c[:, 0] -= gravity_mps2
+    return torch.cat((state.vel_mps, state.quat, state.rate_radps, c), dim=-1)
+
+
+class RmaAdaptation(Adaptation):
+    """d̂ from an :class:`RmaNet` over a rolling history buffer ``[N, L, 14]`` (zeros after reset).
+
+    ``checkpoint``: an RMA checkpoint written by ``train.py stage=rma`` (or pass ``net``)."""
+
+    def __init__(self, checkpoint: str | None = None, net: RmaNet | None = None) -> None:
+        if net is None:
+            if checkpoint is None:
+                raise ConfigError("adaptation.checkpoint: RMA needs a trained adapter (train.py stage=rma ...)")
+            net = load_rma(checkpoint)
+        self.net = net.eval()
+        self.history_len = net.history_len
+
+    def bind(self, n: int, dt_s: float, gravity_mps2: float, device, dtype) -> None:
+        super().bind(n, dt_s, gravity_mps2, device, dtype)
+        self.history = torch.zeros(n, self.history_len, FEATURES, device=device, dtype=dtype)
+
+    def reset(self, idx: Tensor, true_d_mps2: Tensor | None = None, state=None) -> None:
+        super().reset(idx, true_d_mps2, state)
+        self.history[idx] = 0.0
+
+    def update(self, state, cmd: Tensor, true_d_mps2: Tensor | None = None) -> Tensor:
+        new = step_features(state, cmd, self.gravity_mps2).to(self.history.dtype)
+        self.history = torch.cat((self.history[:, 1:], new.unsqueeze(1)), dim=1)
+        with torch.no_grad():
+            self.d_hat = self.net(self.history.float()).to(self.history.dtype)
+        return self.d_hat
+
+
+# -- checkpoints ---------------------------------------------------------------------------
+def load_rma(path: str | Path) -> RmaNet:
+    from datt.cli import _original_cwd
+    from datt.train.checkpoint import load_checkpoint
+
+    p = Path(str(path)).expanduser()
+    if not p.is_absolute():
+        p = _original_cwd() / p
+    data = load_checkpoint(p, key="adaptation.checkpoint")
+    if "rma" not in data:
+        raise ConfigError(f"adaptation.checkpoint: {str(p)!r} holds no RMA adapter (a policy checkpoint?)")
+    net = RmaNet(int(data["history_len"]))
+    net.load_state_dict(data["rma"])
+    return net
+
+
+def train_rma(cfg: DictConfig, run_dir: Path, console=None) -> dict:
+    """``train.py stage=rma base_checkpoint=<policy>``: fit an adapter for a frozen policy."""
+    from datt.cli import load_actor
+    from datt.config import instantiate_option, make_env, with_options
+    from datt.control.datt import DattController
+    from datt.train.checkpoint import save_checkpoint
+    from datt.train.logging import CsvLogger
+
+    rc = cfg.rma
+    if cfg.get("base_checkpoint") in (None, ""):
+        raise ConfigError("base_checkpoint: stage=rma needs the policy checkpoint to adapt (base_checkpoint=...)")
+    actor, train_cfg, base = load_actor(cfg.base_checkpoint)
+    for p in actor.parameters():
+        p.requires_grad_(False)
+    torch.manual_seed(int(cfg.seed))
+    net = RmaNet(int(rc.history_len))
+    adapter = RmaAdaptation(net=net)
+    env_cfg = with_options(train_cfg, disturbance=OmegaConf.to_container(cfg.disturbance))
+    env_cfg.env.compile = False
+    env = make_env(env_cfg, num_envs=int(rc.num_envs), seed=int(cfg.seed), traj=instantiate_option(cfg, "traj"))
+    env.adaptation = adapter
+    adapter.bind(env.n, env.dt_s, env.params.quad.gravity_mps2, env.device, env.dtype)
+    controller = DattController(actor)
+    optim = torch.optim.Adam(net.parameters(), lr=float(rc.lr))
+    logger = CsvLogger(run_dir, "rma_metrics.csv")
+    td = env.reset()
+    history = []
+    t0 = time.perf_counter()
+    for it in range(1, int(rc.iterations) + 1):
+        td["action"] = controller.act(env, td)
+        step, td = env.step_and_maybe_reset(td)
+        net.train()
+        pred = net(adapter.history.float())
+        loss = (pred - env.disturbance.current_mps2.float()).pow(2).sum(-1).mean()
+        optim.zero_grad(set_to_none=True)
+        loss.backward()
+        optim.step()
+        net.eval()
+        if it % int(rc.log_every) == 0 or it == int(rc.iterations):
+            row = {"iteration": it, "loss": loss.item(), "tracking_error_m": step["next", "tracking_error_m"].mean().item()}
+            history.append(row)
+            logger.log(row, step=it)
+            if console is not None:
+                console.print(f"rma {it}/{rc.iterations}: loss {row['loss']:.4f} (m/s²)², error {row['tracking_error_m']:.3f} m")
+    payload = {
+        "rma": net.state_dict(),
+        "history_len": int(rc.history_len),
+        "base_checkpoint": str(cfg.base_checkpoint),
+        "frames": int(base["frames"]),
+        "config_yaml": OmegaConf.to_yaml(cfg, resolve=True),
+    }
+    save_checkpoint(run_dir / "rma.pt", payload)
+    return {"history": history, "wall_s": time.perf_counter() - t0}

@@ -1,0 +1,112 @@
+"""L1 estimator: convergence, stability, Brownian tracking, partial resets."""
+
+import math
+
+import pytest
+import torch
+
+from datt.adapt import L1Adaptation
+from datt.config import compose, make_env
+
+
+def run_env(overrides, steps, n=64, seed=0, action=None):
+    env = make_env(compose("sim", ["adaptation=l1", *overrides]), num_envs=n, seed=seed)
+    td = env.reset()
+    d_hats, ds = [], []
+    g = torch.Generator().manual_seed(1)
+    for _ in range(steps):
+        td["action"] = env.hover_action if action is None else action(env, g)
+        td = env.step(td)["next"].exclude("reward", "done", "terminated", "truncated")
+        d_hats.append(td["d_hat"].clone())
+        ds.append(env.disturbance.current_mps2.clone())
+    return env, torch.stack(d_hats, 1), torch.stack(ds, 1)
+
+
+def wiggle(env, g):
+    """Hover plus random thrust and rate commands: the estimator must not mistake them for d."""
+    a = env.hover_action.clone()
+    a[:, 0] += 3.0 * torch.randn(env.n, generator=g)
+    a[:, 1:3] += 1.0 * torch.randn(env.n, 2, generator=g)
+    return a
+
+
+@pytest.mark.parametrize("tau", [0.1, 0.5, 2.0])
+def test_constant_disturbance_within_5_percent_after_three_time_constants(tau):
+    steps_3tau = round(3 * tau / 0.02)
+    env, d_hat, d = run_env(["disturbance=constant", f"adaptation.cutoff_tau_s={tau}",
+                             "env.safety_box_m=[1000,1000,1000]"], steps_3tau + 20, action=wiggle)  # fmt: skip
+    err = (d_hat[:, steps_3tau - 1 :] - d[:, steps_3tau - 1 :]).norm(dim=-1) / d[:, :1].norm(dim=-1)
+    assert err.max() <= 0.05, err.max()
+    # and not much earlier: it really is a filter with that time constant
+    early = (d_hat[:, steps_3tau // 3] - d[:, 0]).norm(dim=-1) / d[:, 0].norm(dim=-1)
+    assert early.min() > 0.25
+
+
+def test_no_disturbance_gives_zero_estimate_despite_aggressive_commands():
+    _, d_hat, _ = run_env(["disturbance=none", "env.safety_box_m=[1000,1000,1000]"], 100, action=wiggle)
+    assert d_hat.abs().max() < 1e-3
+
+
+def test_raw_previous_command_without_actuator_model_is_biased():
+    _, d_hat, _ = run_env(["disturbance=none", "adaptation.actuator_model=false", "env.safety_box_m=[1000,1000,1000]"],
+                          100, action=wiggle)  # fmt: skip
+    assert d_hat.abs().max() > 0.1  # the delay shows up as a fake disturbance
+
+
+def test_follows_brownian_disturbance():
+    _, d_hat, d = run_env(["disturbance=brownian", "env.safety_box_m=[1000,1000,1000]"], 500, n=128, action=wiggle)
+    rmse = (d_hat[:, 50:] - d[:, 50:]).pow(2).mean().sqrt()
+    assert rmse < 0.05, rmse  # d has std ~2 m/s^2
+    zero_rmse = d[:, 50:].pow(2).mean().sqrt()
+    assert rmse < 0.03 * zero_rmse
+
+
+def test_estimator_is_stable_for_configured_a_s():
+    est = L1Adaptation(a_s=-0.01, cutoff_tau_s=0.1)
+    est.bind(1, 0.02, 9.81, "cpu", torch.float64)
+    assert est.a_s < 0  # Hurwitz A_s = a_s I: eigenvalues a_s
+    rho = torch.linalg.eigvals(est.error_dynamics()[0]).abs().max()
+    assert rho < 1.0
+    # the authors' filtered-feedback loop is stable but barely damped
+    authors = L1Adaptation(a_s=-0.01, cutoff_tau_s=2.0, predictor_uses_filtered=True)
+    authors.bind(1, 0.02, 9.81, "cpu", torch.float64)
+    rho_authors = torch.linalg.eigvals(authors.error_dynamics()[0]).abs().max()
+    assert rho < rho_authors < 1.0 and rho_authors > 0.99
+
+
+def test_error_dynamics_matrix_predicts_the_simulated_response():
+    est = L1Adaptation(a_s=-0.5, cutoff_tau_s=0.2)
+    est.bind(1, 0.02, 9.81, "cpu", torch.float64)
+    m, b = est.error_dynamics()
+    x = torch.zeros(3, dtype=torch.float64)  # estimates start at 0; unit disturbance
+    predicted = []
+    for _ in range(30):
+        x = m @ x + b
+        predicted.append(x[2].item())
+    _, d_hat, d = run_env(["disturbance=constant", "adaptation.a_s=-0.5", "adaptation.cutoff_tau_s=0.2",
+                           "env.dtype=float64", "env.safety_box_m=[1000,1000,1000]"], 30, n=2)  # fmt: skip
+    ratio = (d_hat[0, :, 0] / d[0, :, 0]).tolist()
+    assert ratio == pytest.approx(predicted, abs=1e-9)
+
+
+def test_partial_reset_restarts_only_selected_estimates():
+    env, _, _ = run_env(["disturbance=constant"], 30, n=4)
+    before = env.adaptation.d_hat.clone()
+    td = env._reset(__import__("tensordict").TensorDict({"_reset": torch.tensor([[True], [False], [False], [True]])}, [4]))
+    after = env.adaptation.d_hat
+    assert torch.equal(after[1:3], before[1:3]) and after[[0, 3]].abs().max() == 0
+    assert torch.equal(td["d_hat"][[0, 3]], after[[0, 3]])
+
+
+@pytest.mark.parametrize("kwargs, key", [({"a_s": 0.1}, "a_s"), ({"cutoff_tau_s": -1}, "cutoff_tau_s")])
+def test_bad_l1_parameters(kwargs, key):
+    with pytest.raises(ValueError, match=f"adaptation.{key}"):
+        L1Adaptation(**kwargs)
+
+
+def test_law_gain_matches_eq_7b():
+    est = L1Adaptation(a_s=-0.01)
+    est.bind(1, 0.02, 9.81, "cpu", torch.float32)
+    e = math.exp(-0.01 * 0.02)
+    assert est.law_gain == pytest.approx(-(1 / (e - 1)) * -0.01 * e)
+    assert est.law_gain == pytest.approx(-50.0, rel=1e-3)

@@ -1,0 +1,55 @@
+import pytest
+import torch
+from tensordict import TensorDict
+
+from datt.adapt.rma import FEATURES, RmaAdaptation, RmaNet, load_rma, train_rma
+from datt.config import ConfigError, compose, make_env
+
+
+def test_network_shapes_and_paper_structure():
+    net = RmaNet(50)
+    convs = [m for m in net.conv if isinstance(m, torch.nn.Conv1d)]
+    assert [(c.in_channels, c.out_channels, c.kernel_size[0]) for c in convs] == [(14, 64, 8), (64, 64, 8), (64, 64, 8)]
+    linears = [m for m in net.head if isinstance(m, torch.nn.Linear)]
+    assert [lin.out_features for lin in linears] == [32, 32, 3]
+    assert net(torch.zeros(5, 50, FEATURES)).shape == (5, 3)
+    with pytest.raises(ConfigError, match="history_len"):
+        RmaNet(10)
+
+
+def test_history_buffer_across_partial_resets():
+    env = make_env(compose("sim", ["disturbance=constant"]), num_envs=4)
+    adapter = RmaAdaptation(net=RmaNet(50))
+    env.adaptation = adapter
+    adapter.bind(4, env.dt_s, 9.81, "cpu", torch.float32)
+    td = env.reset()
+    for k in range(60):
+        td["action"] = env.hover_action
+        td = env.step(td)["next"].exclude("reward", "done", "terminated", "truncated")
+        assert adapter.history.shape == (4, 50, FEATURES)
+    assert adapter.history[:, 0].abs().sum() > 0  # full after 60 steps
+    latest = adapter.history[:, -1].clone()
+    assert torch.allclose(latest[:, :3], env.sim.state.vel_mps)
+    env._reset(TensorDict({"_reset": torch.tensor([[False], [True], [False], [False]])}, [4]))
+    assert adapter.history[1].abs().sum() == 0 and torch.equal(adapter.history[0, -1], latest[0])
+    td["action"] = env.hover_action
+    env.step(td)
+    assert adapter.history[1, :-1].abs().sum() == 0 and adapter.history[1, -1].abs().sum() > 0
+
+
+def test_rma_training_loss_decreases(tmp_path, tiny_policy_checkpoint):
+    cfg = compose("train", ["stage=rma", f"base_checkpoint={tiny_policy_checkpoint}", "disturbance=constant",
+                            "rma.iterations=150", "rma.num_envs=128", "rma.lr=3e-3", "rma.log_every=10",
+                            "env.safety_box_m=[100,100,100]"])  # fmt: skip
+    result = train_rma(cfg, tmp_path)
+    losses = [h["loss"] for h in result["history"]]
+    assert sum(losses[-3:]) / 3 < 0.6 * sum(losses[:2]) / 2, losses
+    net = load_rma(tmp_path / "rma.pt")
+    assert isinstance(net, RmaNet)
+
+
+def test_policy_checkpoint_is_not_an_rma_checkpoint(tiny_policy_checkpoint):
+    with pytest.raises(ConfigError, match="holds no RMA adapter"):
+        load_rma(tiny_policy_checkpoint)
+    with pytest.raises(ConfigError, match="adaptation.checkpoint"):
+        RmaAdaptation()
