@@ -38,6 +38,17 @@ def _original_cwd() -> Path:
         return Path.cwd()
 
 
+def resolve_path(path: str | Path) -> Path:
+    """A user path: absolute, else relative to where the command ran, else to the repository
+    (so the shipped ``checkpoints/...`` work from any directory)."""
+    p = Path(str(path)).expanduser()
+    if p.is_absolute():
+        return p
+    here = _original_cwd() / p
+    repo = CONF_DIR.parent / p
+    return here if here.exists() or not repo.exists() else repo
+
+
 def _set_threads(n) -> None:
     if n:
         torch.set_num_threads(int(n))
@@ -95,15 +106,16 @@ def print_metrics(title: str, conditions: dict) -> None:
 
 
 def evaluate_conditions(cfg: DictConfig, actor, conditions: dict, run_dir: Path, plots: bool, tag: str) -> dict:
-    from datt.control.datt import DattController
+    """Fly the bank under each condition with the policy (``actor``) or, if None, hovering."""
+    from datt.control import DattController, HoverController
     from datt.eval.plots import plot_tracks
     from datt.eval.rollout import evaluate
 
     results = {}
     eval_cfg = OmegaConf.merge(cfg, {"env": {"compile": False}})
+    factory = (lambda env: HoverController()) if actor is None else (lambda env: DattController(actor))
     for name, cond in conditions.items():
-        res = evaluate(eval_cfg, lambda env: DattController(actor), cond["disturbance"], cond["adaptation"],
-                       seed=int(cfg.eval.get("seed", 0)))  # fmt: skip
+        res = evaluate(eval_cfg, factory, cond["disturbance"], cond["adaptation"], seed=int(cfg.eval.get("seed", 0)))
         labels = {k: v if isinstance(v, str) else OmegaConf.to_container(v) for k, v in cond.items()}
         results[name] = {**labels, "groups": res["groups"]}
         if plots:
@@ -177,7 +189,9 @@ def run_train(cfg: DictConfig, run_dir: Path | None = None) -> dict:
     if cfg.train.eval_at_end:
         metrics["conditions"] = evaluate_conditions(cfg, trainer.actor, cfg.eval.conditions, run_dir,
                                                     cfg.eval.get("plots", True), tag=run_dir.name)  # fmt: skip
-        print_metrics(f"evaluation ({run_dir.name})", metrics["conditions"])
+        clean = {"disturbance": "none", "adaptation": "none"}
+        metrics["hover_reference"] = evaluate_conditions(cfg, None, {"hover": clean}, run_dir, False, "hover")["hover"]
+        print_metrics(f"evaluation ({run_dir.name})", {**metrics["conditions"], "hover (reference)": metrics["hover_reference"]})
     (run_dir / "metrics.json").write_text(json.dumps(metrics, indent=2) + "\n")
     return metrics
 
@@ -211,10 +225,7 @@ def load_actor(path: str | Path):
     from datt.policies.networks import PolicyParams, make_actor
     from datt.train.ppo import structured
 
-    p = Path(str(path)).expanduser()
-    if not p.is_absolute():
-        p = _original_cwd() / p
-    data = load_checkpoint(p)
+    data = load_checkpoint(resolve_path(path))
     train_cfg = OmegaConf.create(data["config_yaml"])
     params = structured(PolicyParams, train_cfg.policy, "policy")
     env = make_env(with_options(train_cfg, disturbance="none", adaptation="none"), num_envs=1)
@@ -242,6 +253,7 @@ def run_eval(cfg: DictConfig, run_dir: Path | None = None) -> dict:
     actor, train_cfg, data = load_actor(cfg.checkpoint)
     # The policy's observation layout (horizon, ablations) comes from its training config.
     merged = OmegaConf.merge(cfg, {"horizon": train_cfg.horizon, "env": {"obs": train_cfg.env.obs}})
+    OmegaConf.set_struct(merged, False)
     cond = {"disturbance": cfg.disturbance, "adaptation": cfg.adaptation}
     label = f"{_choice('disturbance')}/{_choice('adaptation')}"
     results = {}

@@ -24,7 +24,7 @@ def test_free_fall_matches_analytic(dtype, latency):
     quad.reset(pos_m=torch.zeros(4, 3))
     # Zero thrust from the start: even the in-flight (hover) commands must not act, so
     # latency only matters if the queue were filled with something else; fill it with 0.
-    quad._queue.zero_()
+    quad.latency.fill_all(0.0)
     dt = quad.dt_s
     for k in range(1, 151):
         quad.step(cmd(4, 0.0, dtype=quad.dtype))

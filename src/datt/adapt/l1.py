@@ -33,6 +33,7 @@ from torch import Tensor
 
 from datt.adapt.base import Adaptation
 from datt.sim.frames import quat_body_z
+from datt.sim.quadrotor import CommandLatency
 
 
 class L1Adaptation(Adaptation):
@@ -71,14 +72,13 @@ class L1Adaptation(Adaptation):
         self.prev_quat = torch.zeros(n, 4, **kw)
         self.prev_quat[:, 0] = 1.0
         self.thrust_est = torch.full((n,), gravity_mps2, **kw)
-        self.cmd_queue = torch.full((max(self.latency_steps, 1), n), gravity_mps2, **kw)
-        self._head = 0
+        self.latency = CommandLatency(self.latency_steps, torch.tensor(gravity_mps2, **kw), n)
 
     def reset(self, idx: Tensor, true_d_mps2: Tensor | None = None, state=None) -> None:
         super().reset(idx, true_d_mps2, state)
         self.sigma_hat[idx] = 0.0
         self.thrust_est[idx] = self.gravity_mps2
-        self.cmd_queue[:, idx] = self.gravity_mps2
+        self.latency.reset(idx)
         if state is not None:
             self.v_hat[idx] = state.vel_mps[idx]
             self.prev_vel[idx] = state.vel_mps[idx]
@@ -91,13 +91,7 @@ class L1Adaptation(Adaptation):
     def _thrust_during_step(self, thrust_cmd: Tensor) -> Tensor:
         if not self.actuator_model:
             return thrust_cmd
-        if self.latency_steps:
-            applied = self.cmd_queue[self._head].clone()
-            self.cmd_queue[self._head] = thrust_cmd
-            self._head = (self._head + 1) % self.latency_steps
-        else:
-            applied = thrust_cmd
-        self.thrust_est = torch.lerp(self.thrust_est, applied, self.k_thrust)
+        self.thrust_est = torch.lerp(self.thrust_est, self.latency.push(thrust_cmd), self.k_thrust)
         return self.thrust_est
 
     def update(self, state, cmd: Tensor, true_d_mps2: Tensor | None = None) -> Tensor:

@@ -1,5 +1,7 @@
 """RMA baseline (paper §5.1): d̂ regressed from the last 50 (state, action) pairs.
 
+After a reset the history is filled with the starting state and the hover command.
+
 Network (paper): 3 Conv1d layers of 64 channels, kernel 8 (first with stride 2, as the authors),
 ReLU, then fully connected 32 -> 32 -> 3 with ReLU between. Input per step (14 values): world
 velocity (3), attitude quaternion (4), body rates (3), command (thrust − g, body rates) (4), each
@@ -76,8 +78,15 @@ class RmaAdaptation(Adaptation):
         self.history = torch.zeros(n, self.history_len, FEATURES, device=device, dtype=dtype)
 
     def reset(self, idx: Tensor, true_d_mps2: Tensor | None = None, state=None) -> None:
+        """New episode: the history reads as if the drone had been hovering where it starts
+        (zeros would be a state the adapter never sees in flight)."""
         super().reset(idx, true_d_mps2, state)
-        self.history[idx] = 0.0
+        if state is None:
+            self.history[idx] = 0.0
+            return
+        hover = torch.zeros(self.n, 4, dtype=self.history.dtype, device=self.history.device)
+        hover[:, 0] = self.gravity_mps2
+        self.history[idx] = step_features(state, hover, self.gravity_mps2)[idx].unsqueeze(1).to(self.history.dtype)
 
     def update(self, state, cmd: Tensor, true_d_mps2: Tensor | None = None) -> Tensor:
         new = step_features(state, cmd, self.gravity_mps2).to(self.history.dtype)
@@ -89,12 +98,10 @@ class RmaAdaptation(Adaptation):
 
 # -- checkpoints ---------------------------------------------------------------------------
 def load_rma(path: str | Path) -> RmaNet:
-    from datt.cli import _original_cwd
+    from datt.cli import resolve_path
     from datt.train.checkpoint import load_checkpoint
 
-    p = Path(str(path)).expanduser()
-    if not p.is_absolute():
-        p = _original_cwd() / p
+    p = resolve_path(path)
     data = load_checkpoint(p, key="adaptation.checkpoint")
     if "rma" not in data:
         raise ConfigError(f"adaptation.checkpoint: {str(p)!r} holds no RMA adapter (a policy checkpoint?)")
@@ -125,6 +132,7 @@ def train_rma(cfg: DictConfig, run_dir: Path, console=None) -> dict:
     env = make_env(env_cfg, num_envs=int(rc.num_envs), seed=int(cfg.seed), traj=instantiate_option(cfg, "traj"))
     env.adaptation = adapter
     adapter.bind(env.n, env.dt_s, env.params.quad.gravity_mps2, env.device, env.dtype)
+    env.stagger_episodes()  # spread resets: otherwise every 500th step is all fresh histories
     controller = DattController(actor)
     optim = torch.optim.Adam(net.parameters(), lr=float(rc.lr))
     logger = CsvLogger(run_dir, "rma_metrics.csv")

@@ -20,3 +20,13 @@ class Controller:
 
     def act(self, env, td: TensorDictBase) -> torch.Tensor:
         raise NotImplementedError
+
+
+class HoverController(Controller):
+    """Holds hover thrust and zero rates: the do-nothing reference point for tracking errors
+    (its error is how far the reference strays from the start)."""
+
+    name = "hover"
+
+    def act(self, env, td: TensorDictBase) -> torch.Tensor:
+        return env.hover_action

@@ -20,6 +20,7 @@ from torchrl.data import Bounded, Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase
 
 from datt.adapt.base import Adaptation, Privileged
+from datt.compile import compile_or_eager
 from datt.config import ConfigError, EnvParams
 from datt.envs.observations import STATE_DIM, observe_and_cost
 from datt.refs.base import RefFamily
@@ -228,7 +229,7 @@ class TrackingEnv(EnvBase):
         """Fuse the integrator and the observation/reward kernel with ``torch.compile``
         (first call compiles, ~30 s on 2 cores; then several times faster at large N)."""
         self.sim.compile(**kwargs)
-        self._observe_kernel = torch.compile(observe_and_cost, dynamic=False, **kwargs)
+        self._observe_kernel = compile_or_eager(observe_and_cost, **kwargs)
         return self
 
     def stagger_episodes(self) -> None:

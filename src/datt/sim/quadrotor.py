@@ -84,6 +84,33 @@ class QuadState:
     thrust_mps2: Tensor
 
 
+class CommandLatency:
+    """Fixed transport delay of ``steps`` control steps for batched commands ``[N, *shape]``.
+
+    ``push(cmd)`` stores the command sent now and returns the one sent ``steps`` steps ago
+    (``steps = 0``: the command itself). Slots start at ``fill``; ``reset(idx)`` refills drones."""
+
+    def __init__(self, steps: int, fill: Tensor, n: int) -> None:
+        self.steps = int(steps)
+        self.fill = fill
+        self._queue = fill.expand(max(self.steps, 1), n, *fill.shape).clone()
+        self._head = 0
+
+    def push(self, cmd: Tensor) -> Tensor:
+        if not self.steps:
+            return cmd
+        applied = self._queue[self._head].clone()
+        self._queue[self._head] = cmd
+        self._head = (self._head + 1) % self.steps
+        return applied
+
+    def reset(self, idx: Tensor) -> None:
+        self._queue[:, idx] = self.fill
+
+    def fill_all(self, value: Tensor | float) -> None:
+        self._queue[:] = value
+
+
 class Quadrotor:
     """N quadrotors integrated in lock-step; every operation is one batched tensor op."""
 
@@ -120,9 +147,7 @@ class Quadrotor:
         )
         self.state.quat[:, 0] = 1.0
         self.state.thrust_mps2.fill_(self.initial_thrust)
-        # Ring buffer of commands in flight: slot `_head` holds the oldest one.
-        self._queue = self.hover_cmd.expand(p.latency_steps, n, 4).clone()
-        self._head = 0
+        self.latency = CommandLatency(p.latency_steps, self.hover_cmd, n)
         self.last_applied_cmd = self.hover_cmd.expand(n, 4).clone()
         self._integrate = integrate
 
@@ -136,8 +161,7 @@ class Quadrotor:
         s.quat[idx] = torch.tensor([1.0, 0.0, 0.0, 0.0], device=self.device, dtype=self.dtype)
         s.rate_radps[idx] = 0.0
         s.thrust_mps2[idx] = self.initial_thrust
-        if self.params.latency_steps:
-            self._queue[:, idx] = self.hover_cmd
+        self.latency.reset(idx)
         self.last_applied_cmd[idx] = self.hover_cmd
 
     def step(self, cmd: Tensor, disturbance_mps2: Tensor | None = None) -> QuadState:
@@ -147,12 +171,7 @@ class Quadrotor:
         world-frame acceleration acting during this step. Updates and returns ``self.state``.
         """
         p = self.params
-        if p.latency_steps:
-            applied = self._queue[self._head].clone()
-            self._queue[self._head] = cmd
-            self._head = (self._head + 1) % p.latency_steps
-        else:
-            applied = cmd
+        applied = self.latency.push(cmd)
         self.last_applied_cmd = applied
         if disturbance_mps2 is None:
             disturbance_mps2 = torch.zeros_like(self.state.pos_m)
@@ -165,7 +184,9 @@ class Quadrotor:
 
     def compile(self, **kwargs) -> "Quadrotor":
         """Use a ``torch.compile``-d integrator (fused loops; worth it for N in the thousands)."""
-        self._integrate = torch.compile(integrate, dynamic=False, **kwargs)
+        from datt.compile import compile_or_eager
+
+        self._integrate = compile_or_eager(integrate, **kwargs)
         return self
 
 

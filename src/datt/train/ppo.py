@@ -139,6 +139,8 @@ class Trainer:
         )
         self.gae = GAE(gamma=a.gamma, lmbda=a.lmbda, value_network=self.critic, average_gae=False, shifted=True)
         self.optim = torch.optim.Adam(self.loss.parameters(), lr=a.lr)
+        if tc.get("init_from"):
+            self.init_weights(tc.init_from)
         self.frames_per_batch = a.num_envs * a.rollout_steps
         self.frames = 0
         self.iteration = 0
@@ -163,6 +165,18 @@ class Trainer:
 
     def save(self, name: str = "last.pt") -> Path:
         return save_checkpoint(self.run_dir / name, self.state())
+
+    def init_weights(self, path: str | Path) -> None:
+        """Start from another run's actor/critic weights (fine-tuning); optimiser, frame count
+        and curriculum start fresh. The horizon and policy shape must match."""
+        data = load_checkpoint(path, key="train.init_from")
+        if int(data["horizon"]) != self.env.horizon:
+            raise ConfigError(f"train.init_from: checkpoint has horizon={data['horizon']}, config has {self.env.horizon}")
+        try:
+            self.actor.load_state_dict(data["actor"])
+            self.critic.load_state_dict(data["critic"])
+        except RuntimeError as exc:
+            raise ConfigError(f"train.init_from: policy shape differs from policy config ({str(exc).splitlines()[0]})") from None
 
     def load(self, path: str | Path) -> None:
         data = load_checkpoint(path, key="resume")

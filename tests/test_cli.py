@@ -1,0 +1,53 @@
+"""End-to-end entry points: eval.py on a checkpoint, the datt console script, error lines."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def run(args, cwd, timeout=300):
+    return subprocess.run([sys.executable, *args], capture_output=True, text=True, cwd=cwd, timeout=timeout)
+
+
+def test_eval_py_on_checkpoint_writes_metrics(tmp_path, tiny_policy_checkpoint):
+    proc = run([str(ROOT / "eval.py"), f"checkpoint={tiny_policy_checkpoint}", "disturbance=brownian", "adaptation=l1",
+                "eval.seeds=[0,1]", f"hydra.run.dir={tmp_path}"], tmp_path)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    metrics = json.loads((tmp_path / "metrics.json").read_text())
+    assert list(metrics["conditions"]) == ["brownian/l1 seed 0", "brownian/l1 seed 1"]
+    for cond in metrics["conditions"].values():
+        assert cond["groups"]["zigzag"]["episodes"] == 10 and cond["groups"]["star"]["episodes"] == 1
+    assert (tmp_path / "tracks_brownian_l1_seed_0.png").exists()
+    assert "zigzag error (m)" in proc.stdout
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["checkpoint=missing.pt"], "error: checkpoint: file"),
+        (["adaptation=magic"], "error: adaptation: unknown option 'magic'; allowed: l1, none, privileged, rma"),
+        (["controller=mppi"], "error: controller: unknown option 'mppi'; allowed: datt"),
+    ],
+)
+def test_eval_py_errors_are_one_line(tmp_path, args, message):
+    proc = run([str(ROOT / "eval.py"), *args, f"hydra.run.dir={tmp_path}"], tmp_path)
+    lines = [ln for ln in proc.stderr.splitlines() if ln.strip() and "warn" not in ln.lower()]
+    assert proc.returncode == 2 and len(lines) == 1 and lines[0].startswith(message), proc.stderr
+
+
+def test_corrupt_checkpoint_is_one_line(tmp_path):
+    bad = tmp_path / "bad.pt"
+    bad.write_bytes(b"\x00garbage")
+    proc = run([str(ROOT / "eval.py"), f"checkpoint={bad}", f"hydra.run.dir={tmp_path}"], tmp_path)
+    lines = [ln for ln in proc.stderr.splitlines() if ln.strip() and "warn" not in ln.lower()]
+    assert proc.returncode == 2 and len(lines) == 1 and "is not a readable checkpoint" in lines[0], proc.stderr
+
+
+def test_datt_console_script_usage(tmp_path):
+    proc = run(["-c", "import sys; sys.argv=['datt']; from datt.cli import main; main()"], tmp_path)
+    assert proc.returncode == 2 and "usage: datt {train,eval}" in proc.stderr
