@@ -73,6 +73,8 @@ def hydra_main(config_name: str, task: Callable[[DictConfig], object]) -> Callab
     """Wrap ``task`` in ``@hydra.main`` with one-line error reporting."""
     import hydra
 
+    from datt.train.ppo import TrainingDiverged
+
     @hydra.main(config_path=str(CONF_DIR), config_name=config_name, version_base="1.3")
     def _main(cfg: DictConfig) -> None:
         try:
@@ -80,6 +82,9 @@ def hydra_main(config_name: str, task: Callable[[DictConfig], object]) -> Callab
         except ConfigError as exc:
             print(f"error: {exc}", file=sys.stderr)
             sys.exit(2)
+        except TrainingDiverged as exc:
+            print(f"error: training diverged: {exc}", file=sys.stderr)
+            sys.exit(3)
 
     def entry() -> None:
         try:

@@ -1,10 +1,8 @@
 """TrackingEnv: specs, observations, reward, resets, reproducibility, config errors."""
 
-import math
 
 import pytest
 import torch
-from tensordict import TensorDict
 from torchrl.envs.utils import check_env_specs
 
 from datt.config import ConfigError, compose, make_env
