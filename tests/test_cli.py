@@ -19,10 +19,10 @@ def test_eval_py_on_checkpoint_writes_metrics(tmp_path, tiny_policy_checkpoint):
                 "eval.seeds=[0,1]", f"hydra.run.dir={tmp_path}"], tmp_path)  # fmt: skip
     assert proc.returncode == 0, proc.stderr[-2000:]
     metrics = json.loads((tmp_path / "metrics.json").read_text())
-    assert list(metrics["conditions"]) == ["brownian/l1 seed 0", "brownian/l1 seed 1"]
+    assert list(metrics["conditions"]) == ["datt brownian/l1 seed 0", "datt brownian/l1 seed 1"]
     for cond in metrics["conditions"].values():
         assert cond["groups"]["zigzag"]["episodes"] == 10 and cond["groups"]["star"]["episodes"] == 1
-    assert (tmp_path / "tracks_brownian_l1_seed_0.png").exists()
+    assert (tmp_path / "tracks_datt_brownian_l1_seed_0.png").exists()
     assert "zigzag error (m)" in proc.stdout
 
 
@@ -31,7 +31,7 @@ def test_eval_py_on_checkpoint_writes_metrics(tmp_path, tiny_policy_checkpoint):
     [
         (["checkpoint=missing.pt"], "error: checkpoint: file"),
         (["adaptation=magic"], "error: adaptation: unknown option 'magic'; allowed: l1, none, privileged, rma"),
-        (["controller=mppi"], "error: controller: unknown option 'mppi'; allowed: datt"),
+        (["controller=mppi"], "error: controller: unknown option 'mppi'; allowed: datt, l1_pid, pid"),
     ],
 )
 def test_eval_py_errors_are_one_line(tmp_path, args, message):

@@ -110,15 +110,21 @@ def print_metrics(title: str, conditions: dict) -> None:
     console.print(table)
 
 
-def evaluate_conditions(cfg: DictConfig, actor, conditions: dict, run_dir: Path, plots: bool, tag: str) -> dict:
-    """Fly the bank under each condition with the policy (``actor``) or, if None, hovering."""
-    from datt.control import DattController, HoverController
+def evaluate_conditions(cfg: DictConfig, policy, conditions: dict, run_dir: Path, plots: bool, tag: str) -> dict:
+    """Fly the bank under each condition with ``policy``: a trained actor, a ready
+    :class:`~datt.control.Controller`, or None (hovering, the reference point)."""
+    from datt.control import Controller, DattController, HoverController
     from datt.eval.plots import plot_tracks
     from datt.eval.rollout import evaluate
 
     results = {}
     eval_cfg = OmegaConf.merge(cfg, {"env": {"compile": False}})
-    factory = (lambda env: HoverController()) if actor is None else (lambda env: DattController(actor))
+    if policy is None:
+        factory = lambda env: HoverController()  # noqa: E731
+    elif isinstance(policy, Controller):
+        factory = lambda env: policy  # noqa: E731
+    else:
+        factory = lambda env: DattController(policy)  # noqa: E731
     for name, cond in conditions.items():
         res = evaluate(eval_cfg, factory, cond["disturbance"], cond["adaptation"], seed=int(cfg.eval.get("seed", 0)))
         labels = {k: v if isinstance(v, str) else OmegaConf.to_container(v) for k, v in cond.items()}
@@ -251,22 +257,31 @@ def _choice(group: str, default: str = "custom") -> str:
 
 
 def run_eval(cfg: DictConfig, run_dir: Path | None = None) -> dict:
+    """``eval.py``: one controller over the seeded bank, per seed (``eval.seeds``)."""
+    from datt.config import instantiate_option
+
     run_dir = run_dir or _run_dir()
     run_dir.mkdir(parents=True, exist_ok=True)
-    if cfg.controller.name != "datt":
-        raise ConfigError(f"controller: {cfg.controller.name!r} is not available yet; allowed: datt")
-    actor, train_cfg, data = load_actor(cfg.checkpoint)
-    # The policy's observation layout (horizon, ablations) comes from its training config.
-    merged = OmegaConf.merge(cfg, {"horizon": train_cfg.horizon, "env": {"obs": train_cfg.env.obs}})
+    name = str(cfg.controller.name)
+    merged = OmegaConf.create(OmegaConf.to_container(cfg, resolve=True))
     OmegaConf.set_struct(merged, False)
+    if name == "datt":
+        actor, train_cfg, data = load_actor(cfg.checkpoint)
+        # The policy's observation layout (horizon, ablations) comes from its training config.
+        merged = OmegaConf.merge(merged, {"horizon": train_cfg.horizon, "env": {"obs": train_cfg.env.obs}})
+        OmegaConf.set_struct(merged, False)
+        policy, extra = actor, {"checkpoint": str(cfg.checkpoint), "frames": int(data["frames"])}
+    else:
+        node = OmegaConf.create({k: v for k, v in OmegaConf.to_container(cfg.controller).items() if k != "name"})
+        policy, extra = instantiate_option(OmegaConf.create({"controller": node}), "controller"), {}
     cond = {"disturbance": cfg.disturbance, "adaptation": cfg.adaptation}
-    label = f"{_choice('disturbance')}/{_choice('adaptation')}"
+    label = f"{name} {_choice('disturbance')}/{_choice('adaptation')}"
     results = {}
     for seed in cfg.eval.seeds:
         merged.eval.seed = int(seed)
-        results.update(evaluate_conditions(merged, actor, {f"{label} seed {seed}": cond}, run_dir, cfg.eval.plots, "datt"))
-    metrics = {"checkpoint": str(cfg.checkpoint), "frames": int(data["frames"]), "conditions": results}
-    print_metrics(f"datt ({Path(str(cfg.checkpoint)).name})", results)
+        results.update(evaluate_conditions(merged, policy, {f"{label} seed {seed}": cond}, run_dir, cfg.eval.plots, name))
+    metrics = {"controller": name, **extra, "conditions": results}
+    print_metrics(f"{name} on the seeded bank", results)
     (run_dir / "metrics.json").write_text(json.dumps(metrics, indent=2, default=str) + "\n")
     return metrics
 
