@@ -16,7 +16,7 @@ from omegaconf import DictConfig, OmegaConf
 from rich.console import Console
 from rich.table import Table
 
-from datt.config import CONF_DIR, ConfigError, available_options, with_options
+from datt.config import CONF_DIR, ConfigError, available_options
 from datt.train.checkpoint import load_checkpoint
 
 console = Console()
@@ -144,9 +144,7 @@ def _resume_dir(resume) -> Path | None:
         if not candidates:
             raise ConfigError("resume: no run with a last.pt under outputs/; pass resume=<run dir>")
         return candidates[-1].parent
-    path = Path(str(resume)).expanduser()
-    if not path.is_absolute():
-        path = _original_cwd() / path
+    path = resolve_path(resume)
     if not (path / "last.pt").is_file():
         raise ConfigError(f"resume: {str(path)!r} has no last.pt")
     return path
@@ -232,15 +230,15 @@ def run_rma(cfg: DictConfig, run_dir: Path) -> dict:
 # -- eval ----------------------------------------------------------------------------------
 def load_actor(path: str | Path):
     """Actor and its training config from a checkpoint (file or run dir)."""
-    from datt.config import make_env
+    from datt.config import env_params_from_cfg, structured
+    from datt.envs.tracking import action_bounds
     from datt.policies.networks import PolicyParams, make_actor
-    from datt.train.ppo import structured
 
     data = load_checkpoint(resolve_path(path))
     train_cfg = OmegaConf.create(data["config_yaml"])
     params = structured(PolicyParams, train_cfg.policy, "policy")
-    env = make_env(with_options(train_cfg, disturbance="none", adaptation="none"), num_envs=1)
-    actor = make_actor(int(data["horizon"]), env.action_low, env.action_high, params)
+    low, high = action_bounds(env_params_from_cfg(train_cfg.env))
+    actor = make_actor(int(data["horizon"]), low, high, params)
     actor.load_state_dict(data["actor"])
     actor.eval()
     return actor, train_cfg, data

@@ -128,17 +128,22 @@ def one_line(exc: BaseException) -> str:
     return msg[0] if msg else type(exc).__name__
 
 
-def env_params_from_cfg(env_cfg: DictConfig | dict | None) -> EnvParams:
-    """Merge ``cfg.env`` onto the :class:`EnvParams` schema (type-checked) and validate ranges."""
-    schema = OmegaConf.structured(EnvParams)
+def structured(cls, node, key: str):
+    """Merge ``node`` onto the dataclass schema ``cls`` (type-checked), build it and call its
+    ``validate()``; type errors become one-line ConfigErrors under ``key``."""
     try:
-        merged = OmegaConf.merge(schema, env_cfg or {})
+        merged = OmegaConf.merge(OmegaConf.structured(cls), node or {})
     except OmegaConfBaseException as exc:
-        key = getattr(exc, "full_key", None)
-        raise ConfigError(f"env.{key}: {one_line(exc)}" if key else f"env: {one_line(exc)}") from None
-    params: EnvParams = OmegaConf.to_object(merged)  # type: ignore[assignment]
-    params.validate()
-    return params
+        sub = getattr(exc, "full_key", "") or ""
+        raise ConfigError(f"{key}.{sub}: {one_line(exc)}" if sub else f"{key}: {one_line(exc)}") from None
+    obj = OmegaConf.to_object(merged)
+    obj.validate()
+    return obj
+
+
+def env_params_from_cfg(env_cfg: DictConfig | dict | None) -> EnvParams:
+    """``cfg.env`` as validated :class:`EnvParams`."""
+    return structured(EnvParams, env_cfg, "env")
 
 
 def check_horizon(horizon: Any) -> int:

@@ -28,6 +28,14 @@ from datt.sim.disturbances import Disturbance
 from datt.sim.quadrotor import Quadrotor, resolve_dtype
 
 
+def action_bounds(params: EnvParams, **kw) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(low, high)`` of the action ``[thrust_mps2, wx, wy, wz]``, each ``[4]``."""
+    g = params.quad.gravity_mps2
+    lo_t, hi_t = params.thrust_offset_bounds_mps2
+    rates = torch.tensor(params.rate_bounds_radps, **kw)
+    return torch.cat((torch.tensor([g + lo_t], **kw), -rates)), torch.cat((torch.tensor([g + hi_t], **kw), rates))
+
+
 class TrackingEnv(EnvBase):
     """Batched trajectory-tracking env (``batch_size = [num_envs]``).
 
@@ -97,10 +105,7 @@ class TrackingEnv(EnvBase):
         self._stagger_pending = False
         self._observe_kernel = observe_and_cost
 
-        lo_t, hi_t = params.thrust_offset_bounds_mps2
-        rates = torch.tensor(params.rate_bounds_radps, **kw)
-        self.action_low = torch.cat((torch.tensor([g + lo_t], **kw), -rates))
-        self.action_high = torch.cat((torch.tensor([g + hi_t], **kw), rates))
+        self.action_low, self.action_high = action_bounds(params, **kw)
         self.box_m = torch.tensor(params.safety_box_m, **kw)
         self._make_specs()
         self._all_idx = torch.arange(num_envs, device=device)

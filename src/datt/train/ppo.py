@@ -29,7 +29,7 @@ from torchrl.collectors import Collector
 from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
 
-from datt.config import ConfigError, instantiate_option, make_env
+from datt.config import ConfigError, instantiate_option, make_env, structured
 from datt.policies.networks import PolicyParams, make_actor, make_critic
 from datt.train.checkpoint import load_checkpoint, save_checkpoint
 from datt.train.logging import Logger
@@ -81,22 +81,6 @@ class AlgoParams:
         need(0 <= self.lmbda <= 1, "lmbda", f"must be in [0, 1], got {self.lmbda}")
         need(self.loss_critic_type in ("l1", "l2", "smooth_l1"), "loss_critic_type",
              f"unknown value {self.loss_critic_type!r}; allowed: l1, l2, smooth_l1")  # fmt: skip
-
-
-def structured(cls, node, key: str):
-    """``node`` (DictConfig) -> dataclass ``cls`` with type errors as one-line ConfigErrors."""
-    from omegaconf.errors import OmegaConfBaseException
-
-    from datt.config import one_line
-
-    try:
-        merged = OmegaConf.merge(OmegaConf.structured(cls), node or {})
-    except OmegaConfBaseException as exc:
-        sub = getattr(exc, "full_key", "") or ""
-        raise ConfigError(f"{key}.{sub}: {one_line(exc)}" if sub else f"{key}: {one_line(exc)}") from None
-    obj = OmegaConf.to_object(merged)
-    obj.validate()
-    return obj
 
 
 class Trainer:
