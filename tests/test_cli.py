@@ -23,7 +23,11 @@ def test_eval_py_on_checkpoint_writes_metrics(tmp_path, tiny_policy_checkpoint):
     for cond in metrics["conditions"].values():
         assert cond["groups"]["zigzag"]["episodes"] == 10 and cond["groups"]["star"]["episodes"] == 1
     assert (tmp_path / "tracks_datt_brownian_l1_seed_0.png").exists()
+    assert (tmp_path / "axes_datt_brownian_l1_seed_0.png").exists()
     assert "zigzag error (m)" in proc.stdout
+    timing = metrics["inference_ms"]
+    assert timing["batch"] == 1 and timing["steps"] == 200 and 0 < timing["median_ms"] <= timing["p95_ms"]
+    assert (tmp_path / "metrics.csv").read_text().startswith("condition,group,mean_m,std_m,crashes,episodes")
 
 
 @pytest.mark.parametrize(
@@ -31,7 +35,7 @@ def test_eval_py_on_checkpoint_writes_metrics(tmp_path, tiny_policy_checkpoint):
     [
         (["checkpoint=missing.pt"], "error: checkpoint: file"),
         (["adaptation=magic"], "error: adaptation: unknown option 'magic'; allowed: l1, none, privileged, rma"),
-        (["controller=mppi"], "error: controller: unknown option 'mppi'; allowed: datt, l1_pid, pid"),
+        (["controller=lqr"], "error: controller: unknown option 'lqr'; allowed: datt, datt_l1, datt_rma, l1_mppi, l1_pid, mppi, pid"),
     ],
 )
 def test_eval_py_errors_are_one_line(tmp_path, args, message):
@@ -50,4 +54,4 @@ def test_corrupt_checkpoint_is_one_line(tmp_path):
 
 def test_datt_console_script_usage(tmp_path):
     proc = run(["-c", "import sys; sys.argv=['datt']; from datt.cli import main; main()"], tmp_path)
-    assert proc.returncode == 2 and "usage: datt {train,eval}" in proc.stderr
+    assert proc.returncode == 2 and "usage: datt {train,eval,tables}" in proc.stderr

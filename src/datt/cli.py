@@ -16,7 +16,7 @@ from omegaconf import DictConfig, OmegaConf
 from rich.console import Console
 from rich.table import Table
 
-from datt.config import CONF_DIR, ConfigError, available_options
+from datt.config import CONF_DIR, SWEEPS_DIR, ConfigError, available_options
 from datt.train.checkpoint import load_checkpoint
 
 console = Console()
@@ -50,13 +50,33 @@ def resolve_path(path: str | Path) -> Path:
 
 
 def _set_threads(n) -> None:
+    """``n`` torch threads; ``None`` = automatic: under the joblib launcher, the cores divided by
+    the parallel jobs (so 2 jobs on 2 cores use 1 thread each instead of oversubscribing)."""
+    n = n or joblib_threads()
     if n:
         torch.set_num_threads(int(n))
 
 
+def joblib_threads() -> int | None:
+    import os
+
+    try:
+        from hydra.core.hydra_config import HydraConfig
+
+        launcher = HydraConfig.get().launcher
+    except (ImportError, ValueError):
+        return None
+    if "joblib" not in str(launcher.get("_target_", "")):
+        return None
+    cores = os.cpu_count() or 1
+    n_jobs = int(launcher.get("n_jobs") or -1)
+    n_jobs = cores + 1 + n_jobs if n_jobs < 0 else n_jobs  # joblib: -1 = all cores, -2 = all but one
+    return max(1, cores // max(1, min(n_jobs, cores)))
+
+
 def preflight(argv: list[str]) -> None:
     """Reject unknown config-group options before Hydra prints a multi-line error."""
-    groups = {p.name for p in CONF_DIR.iterdir() if p.is_dir()}
+    groups = {p.name for p in CONF_DIR.iterdir() if p.is_dir()} | {"sweep"}
     for arg in argv:
         if arg.startswith("-") or "=" not in arg:
             continue
@@ -92,6 +112,11 @@ def hydra_main(config_name: str, task: Callable[[DictConfig], object]) -> Callab
         except ConfigError as exc:
             print(f"error: {exc}", file=sys.stderr)
             sys.exit(2)
+        if not any(a.startswith("hydra.searchpath") for a in sys.argv[1:]):
+            # sweeps/ is found from any working directory (absolute path from the package location)
+            # (next to the other overrides: argparse wants Hydra's positional overrides contiguous)
+            at = next((i for i, a in enumerate(sys.argv) if i and "=" in a and not a.startswith("-")), len(sys.argv))
+            sys.argv.insert(at, f"hydra.searchpath=[file://{SWEEPS_DIR}]")
         _main()
 
     return entry
@@ -114,7 +139,7 @@ def evaluate_conditions(cfg: DictConfig, policy, conditions: dict, run_dir: Path
     """Fly the bank under each condition with ``policy``: a trained actor, a ready
     :class:`~datt.control.Controller`, or None (hovering, the reference point)."""
     from datt.control import Controller, DattController, HoverController
-    from datt.eval.plots import plot_tracks
+    from datt.eval.plots import plot_group_axes, plot_tracks
     from datt.eval.rollout import evaluate
 
     results = {}
@@ -126,12 +151,16 @@ def evaluate_conditions(cfg: DictConfig, policy, conditions: dict, run_dir: Path
     else:
         factory = lambda env: DattController(policy)  # noqa: E731
     for name, cond in conditions.items():
+        if cond is None:  # a sweep can drop a default condition by setting it to null
+            continue
         res = evaluate(eval_cfg, factory, cond["disturbance"], cond["adaptation"], seed=int(cfg.eval.get("seed", 0)))
         labels = {k: v if isinstance(v, str) else OmegaConf.to_container(v) for k, v in cond.items()}
         results[name] = {**labels, "groups": res["groups"]}
         if plots:
             slug = "".join(c if c.isalnum() else "_" for c in name)
             plot_tracks(res["trace"], res["names"], res["counts"], run_dir / f"tracks_{slug}.png", title=f"{tag}: {name}")
+            plot_group_axes(res["trace"], res["names"], res["counts"], float(cfg.env.dt_s), run_dir / f"axes_{slug}.png",
+                            title=f"{tag}: {name}")  # fmt: skip
     return results
 
 
@@ -150,11 +179,28 @@ def _resume_dir(resume) -> Path | None:
     return path
 
 
+def wandb_group_and_tags(cfg: DictConfig, run_dir: Path) -> tuple[str | None, list[str]]:
+    """All jobs of one multirun share a wandb group (``<sweep_name or multirun>/<sweep dir>``) and are
+    tagged with their swept overrides (``ablation=h5``, ``seed=1``), so dashboards group by them."""
+    group, tags = cfg.logger.get("group"), [str(t) for t in (cfg.logger.get("tags") or [])]
+    try:
+        from hydra.core.hydra_config import HydraConfig
+        from hydra.types import RunMode
+
+        hc = HydraConfig.get()
+    except (ImportError, ValueError):
+        return group, tags
+    if hc.mode == RunMode.MULTIRUN:
+        group = f"{cfg.get('sweep_name') or 'multirun'}/{run_dir.parent.name}"
+        tags += [o.lstrip("+") for o in hc.overrides.task if not o.lstrip("+").startswith(("sweep=", "hydra"))]
+    return group, [t[:64] for t in tags]  # wandb caps tag length at 64
+
+
 def run_train(cfg: DictConfig, run_dir: Path | None = None) -> dict:
     """Train, checkpoint, evaluate; returns the metrics written to ``metrics.json``."""
     from datt.eval.plots import plot_learning_curve
     from datt.train.logging import CsvLogger, MultiLogger, WandbLogger
-    from datt.train.ppo import Trainer
+    from datt.train.ppo import Trainer, TrainingDiverged
 
     _set_threads(cfg.train.get("threads"))
     if cfg.get("stage", "ppo") == "rma":
@@ -168,11 +214,10 @@ def run_train(cfg: DictConfig, run_dir: Path | None = None) -> dict:
         (run_dir / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
     loggers = [CsvLogger(run_dir)]
     if cfg.logger.get("wandb", False):
-        choices = {k: cfg[k] for k in ("horizon", "seed")}
+        group, tags = wandb_group_and_tags(cfg, run_dir)
         loggers.append(
-            WandbLogger(run_dir, OmegaConf.to_container(cfg, resolve=True), project=cfg.logger.project,
-                        group=cfg.logger.get("group"), tags=list(cfg.logger.get("tags") or []),
-                        mode=cfg.logger.mode, name=run_dir.name, run_id=f"{run_dir.name}-{choices['seed']}")  # fmt: skip
+            WandbLogger(run_dir, OmegaConf.to_container(cfg, resolve=True), project=cfg.logger.project, group=group,
+                        tags=tags, mode=cfg.logger.mode, name=run_dir.name, run_id=f"{run_dir.parent.name}-{run_dir.name}")  # fmt: skip
         )
     logger = MultiLogger(loggers)
     trainer = Trainer(cfg, run_dir, logger, console)
@@ -183,6 +228,10 @@ def run_train(cfg: DictConfig, run_dir: Path | None = None) -> dict:
     t0 = time.perf_counter()
     try:
         history = trainer.train()
+    except TrainingDiverged as exc:
+        # tables.py reports this run as "failed" (as the paper does for diverged ablations)
+        (run_dir / "failed.json").write_text(json.dumps({"message": str(exc), "frames": trainer.frames}) + "\n")
+        raise
     finally:
         logger.close()
     wall_s = time.perf_counter() - t0
@@ -254,40 +303,146 @@ def _choice(group: str, default: str = "custom") -> str:
         return default
 
 
-def run_eval(cfg: DictConfig, run_dir: Path | None = None) -> dict:
-    """``eval.py``: one controller over the seeded bank, per seed (``eval.seeds``)."""
-    from datt.config import instantiate_option
+def build_controller(cfg: DictConfig):
+    """The controller ``cfg.controller`` names, the config to evaluate it under, and labels.
 
-    run_dir = run_dir or _run_dir()
-    run_dir.mkdir(parents=True, exist_ok=True)
-    name = str(cfg.controller.name)
+    Options without ``_target_`` (datt, datt_l1, datt_rma) load the policy from ``checkpoint``; its
+    observation layout (horizon, ablations) comes from its training config. An ``adaptation`` key
+    in the controller option fixes the estimator it flies with (l1_pid, l1_mppi, datt_l1, ...).
+    """
+    from datt.config import instantiate_option, load_option
+    from datt.control import DattController
+
+    node = OmegaConf.to_container(cfg.controller, resolve=True)
+    name, forced = str(node.pop("name")), node.pop("adaptation", None)
     merged = OmegaConf.create(OmegaConf.to_container(cfg, resolve=True))
     OmegaConf.set_struct(merged, False)
-    if name == "datt":
-        actor, train_cfg, data = load_actor(cfg.checkpoint)
-        # The policy's observation layout (horizon, ablations) comes from its training config.
-        merged = OmegaConf.merge(merged, {"horizon": train_cfg.horizon, "env": {"obs": train_cfg.env.obs}})
-        OmegaConf.set_struct(merged, False)
-        policy, extra = actor, {"checkpoint": str(cfg.checkpoint), "frames": int(data["frames"])}
-    else:
-        node = OmegaConf.create({k: v for k, v in OmegaConf.to_container(cfg.controller).items() if k != "name"})
-        policy, extra = instantiate_option(OmegaConf.create({"controller": node}), "controller"), {}
-    cond = {"disturbance": cfg.disturbance, "adaptation": cfg.adaptation}
-    label = f"{name} {_choice('disturbance')}/{_choice('adaptation')}"
+    labels = {"controller": name, "disturbance": _choice("disturbance"), "adaptation": forced or _choice("adaptation")}
+    if forced:
+        merged.adaptation = load_option("adaptation", str(forced))
+    if "_target_" in node:
+        return instantiate_option(OmegaConf.create({"controller": node}), "controller"), merged, labels
+    actor, train_cfg, data = load_actor(cfg.checkpoint)
+    merged = OmegaConf.merge(merged, {"horizon": train_cfg.horizon, "env": {"obs": train_cfg.env.obs}})
+    OmegaConf.set_struct(merged, False)
+    return DattController(actor, frozen=True), merged, {**labels, "checkpoint": str(cfg.checkpoint), "frames": int(data["frames"])}
+
+
+def measure_inference(cfg: DictConfig, controller) -> dict | None:
+    """Median/p95 ms per control step at batch 1 (see :mod:`datt.eval.timing`)."""
+    from datt.config import make_env
+    from datt.eval.timing import step_times_ms, summarize_ms
+
+    timing = cfg.eval.get("timing") or {}
+    if int(timing.get("steps", 0)) <= 0:
+        return None
+    env = make_env(cfg, num_envs=1, seed=int(cfg.seed))
+    if timing.get("compile", True):
+        env.compile_kernels(sim=False)  # the controller side: observation kernel and adaptation update
+    threads = int(timing.get("threads", 1))
+    times = step_times_ms(env, controller, int(timing.steps), int(timing.get("warmup_steps", 20)), threads=threads)
+    return {**summarize_ms(times), "batch": 1, "threads": threads}
+
+
+def write_metrics_csv(path: Path, conditions: dict) -> None:
+    import csv
+
+    with open(path, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["condition", "group", "mean_m", "std_m", "crashes", "episodes"])
+        for cond, res in conditions.items():
+            for group, row in res["groups"].items():
+                w.writerow([cond, group, row["mean_m"], row["std_m"], row["crashes"], row["episodes"]])
+
+
+def run_eval(cfg: DictConfig, run_dir: Path | None = None) -> dict:
+    """``eval.py``: one controller over the seeded bank, per seed (``eval.seeds``), plus its
+    per-step inference time at batch 1."""
+    run_dir = run_dir or _run_dir()
+    run_dir.mkdir(parents=True, exist_ok=True)
+    _set_threads(cfg.get("threads"))
+    controller, merged, labels = build_controller(cfg)
+    name = labels["controller"]
+    cond = {"disturbance": merged.disturbance, "adaptation": merged.adaptation}
+    label = f"{name} {labels['disturbance']}/{labels['adaptation']}"
     results = {}
     for seed in cfg.eval.seeds:
         merged.eval.seed = int(seed)
-        results.update(evaluate_conditions(merged, policy, {f"{label} seed {seed}": cond}, run_dir, cfg.eval.plots, name))
-    metrics = {"controller": name, **extra, "conditions": results}
+        results.update(evaluate_conditions(merged, controller, {f"{label} seed {seed}": cond}, run_dir, cfg.eval.plots, name))
+    metrics = {**labels, "conditions": results}
     print_metrics(f"{name} on the seeded bank", results)
+    inference = measure_inference(merged, controller)
+    if inference is not None:
+        metrics["inference_ms"] = inference
+        console.print(f"inference at batch 1: median {inference['median_ms']:.3f} ms, p95 {inference['p95_ms']:.3f} ms "
+                      f"({inference['steps']} steps after warm-up, {inference['threads']} threads)")  # fmt: skip
     (run_dir / "metrics.json").write_text(json.dumps(metrics, indent=2, default=str) + "\n")
+    write_metrics_csv(run_dir / "metrics.csv", results)
     return metrics
+
+
+# -- tables --------------------------------------------------------------------------------
+def run_tables(cfg: DictConfig, run_dir: Path | None = None) -> dict:
+    """``tables.py <table>``: (optionally run the sweep, then) collect its jobs into the table."""
+    import subprocess
+
+    from datt.eval import tables as T
+
+    spec = T.get_spec(str(cfg.table))
+    outputs = _original_cwd() / "outputs"
+    if cfg.get("run", False):
+        sweep_dir = outputs / "sweeps" / spec.name / time.strftime("%Y-%m-%d_%H-%M-%S")
+        cmd = [sys.executable, str(CONF_DIR.parent / spec.entry), "-m", f"+sweep={spec.name}",
+               *[str(o) for o in cfg.get("sweep_overrides") or []], f"hydra.sweep.dir={sweep_dir}"]  # fmt: skip
+        console.print("running: " + " ".join(cmd[1:]))
+        if subprocess.run(cmd, cwd=_original_cwd()).returncode != 0:
+            raise ConfigError(f"run: the {spec.name} sweep failed (see its output above); finished jobs are in {sweep_dir}")
+        roots = [sweep_dir]
+    elif cfg.get("runs"):
+        runs = cfg.runs if isinstance(cfg.runs, (list, tuple)) or OmegaConf.is_list(cfg.runs) else [cfg.runs]
+        roots = [resolve_path(r) for r in runs]
+        for r in roots:
+            if not r.exists():
+                raise ConfigError(f"runs: {str(r)!r} does not exist")
+    else:
+        roots = T.default_roots(spec, outputs)
+    jobs = T.find_jobs(roots)
+    if not jobs:
+        raise ConfigError(f"runs: no Hydra job dirs under {', '.join(map(str, roots))}")
+    rows, _ = T.collect(spec, jobs)
+    rendered = T.render(spec, rows, jobs)
+    out_dir = resolve_path(cfg.out_dir) if cfg.get("out_dir") else roots[0]
+    files = T.write(spec, rendered, out_dir)
+    if cfg.get("plots", True) and spec.kind == "train":
+        files += T.plot_train_sweep(spec, rows, jobs, out_dir)
+    table = Table(title=spec.title)
+    for h in rendered["header"]:
+        table.add_column(h)
+    for r in rendered["rows"]:
+        table.add_row(*r)
+    console.print(table)
+    for note in T._job_notes(jobs):
+        console.print(note)
+    console.print("wrote " + ", ".join(str(f) for f in files))
+    return {"files": [str(f) for f in files], "rows": rendered["rows"], "jobs": len(jobs)}
+
+
+def _tables_entry(inner: Callable[[], None]) -> Callable[[], None]:
+    """``tables.py ablation`` = ``tables.py table=ablation`` (a positional table name)."""
+
+    def entry() -> None:
+        if len(sys.argv) > 1 and "=" not in sys.argv[1] and not sys.argv[1].startswith("-"):
+            sys.argv[1] = f"table={sys.argv[1]}"
+        inner()
+
+    return entry
 
 
 # -- console script ------------------------------------------------------------------------
 train_main = hydra_main("train", run_train)
 eval_main = hydra_main("eval", run_eval)
-COMMANDS = {"train": train_main, "eval": eval_main}
+tables_main = _tables_entry(hydra_main("tables", run_tables))
+COMMANDS = {"train": train_main, "eval": eval_main, "tables": tables_main}
 
 
 def main() -> None:

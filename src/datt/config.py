@@ -17,6 +17,8 @@ from omegaconf.errors import OmegaConfBaseException
 from datt.sim.quadrotor import QuadrotorParams
 
 CONF_DIR = Path(__file__).resolve().parents[2] / "conf"
+# Hydra search-path root of the paper-table sweeps: ``+sweep=<name>`` loads sweeps/sweep/<name>.yaml
+SWEEPS_DIR = CONF_DIR.parent / "sweeps"
 
 
 class ConfigError(ValueError):
@@ -167,8 +169,10 @@ def instantiate_option(cfg: DictConfig, group: str) -> Any:
 
 
 def available_options(group: str) -> list[str]:
-    """Names of the YAML options of a config group (``conf/<group>/*.yaml``)."""
-    return sorted(p.stem for p in (CONF_DIR / group).glob("*.yaml"))
+    """Names of the YAML options of a config group (``conf/<group>/*.yaml``; the ``sweep`` group
+    lives on the sweeps search path)."""
+    root = SWEEPS_DIR if group == "sweep" else CONF_DIR
+    return sorted(p.stem for p in (root / group).glob("*.yaml"))
 
 
 def load_option(group: str, name: str) -> DictConfig:

@@ -58,6 +58,7 @@ class L1Adaptation(Adaptation):
         self.actuator_model = actuator_model
         self.k_thrust = float(k_thrust)
         self.latency_steps = int(latency_steps)
+        self._step = l1_step
 
     def bind(self, n: int, dt_s: float, gravity_mps2: float, device, dtype) -> None:
         super().bind(n, dt_s, gravity_mps2, device, dtype)
@@ -88,24 +89,25 @@ class L1Adaptation(Adaptation):
             self.prev_vel[idx] = 0.0
             self.prev_quat[idx] = torch.tensor([1.0, 0.0, 0.0, 0.0], dtype=self.v_hat.dtype, device=self.v_hat.device)
 
-    def _thrust_during_step(self, thrust_cmd: Tensor) -> Tensor:
-        if not self.actuator_model:
-            return thrust_cmd
-        self.thrust_est = torch.lerp(self.thrust_est, self.latency.push(thrust_cmd), self.k_thrust)
-        return self.thrust_est
-
     def update(self, state, cmd: Tensor, true_d_mps2: Tensor | None = None) -> Tensor:
         """``state``: measured state after the step (``vel_mps [N, 3]``, ``quat [N, 4]``);
         ``cmd [N, 4]`` the command sent at the start of the step."""
-        thrust = self._thrust_during_step(cmd[:, 0])
-        f = quat_body_z(self.prev_quat) * thrust.unsqueeze(-1) + self.gravity
-        feedback = self.d_hat if self.predictor_uses_filtered else self.sigma_hat
-        self.v_hat = self.v_hat + self.dt_s * (f + feedback + self.a_s * (self.v_hat - self.prev_vel))
-        self.sigma_hat = self.law_gain * (self.v_hat - state.vel_mps)
-        self.d_hat = self.alpha * self.d_hat + (1.0 - self.alpha) * self.sigma_hat
-        self.prev_vel = state.vel_mps.clone()
-        self.prev_quat = state.quat.clone()
+        thrust_sent = self.latency.push(cmd[:, 0]) if self.actuator_model else cmd[:, 0]
+        k = self.k_thrust if self.actuator_model else 1.0
+        self.v_hat, self.sigma_hat, self.d_hat, self.thrust_est, self.prev_vel, self.prev_quat = self._step(
+            self.v_hat, self.sigma_hat, self.d_hat, self.prev_vel, self.prev_quat, self.thrust_est, thrust_sent,
+            state.vel_mps, state.quat, self.gravity, self.dt_s, self.a_s, self.law_gain, self.alpha, k,
+            self.predictor_uses_filtered,
+        )  # fmt: skip
         return self.d_hat
+
+    def compile(self, **kwargs) -> "L1Adaptation":
+        """Use a ``torch.compile``-d update (one fused kernel; pays off at batch 1, where eager
+        op dispatch dominates, and at large N)."""
+        from datt.compile import compile_or_eager
+
+        self._step = compile_or_eager(l1_step, **kwargs)
+        return self
 
     def error_dynamics(self) -> tuple[Tensor, Tensor]:
         """Per-axis one-step map of the estimator state ``x = (ṽ, σ̂, d̂)`` under a constant
@@ -121,3 +123,20 @@ class L1Adaptation(Adaptation):
         m = torch.tensor([row_v, row_s, row_d], dtype=torch.float64)
         b = torch.tensor([-dt, -g * dt, -(1 - al) * g * dt], dtype=torch.float64)
         return m, b
+
+
+def l1_step(
+    v_hat: Tensor, sigma_hat: Tensor, d_hat: Tensor, prev_vel: Tensor, prev_quat: Tensor, thrust_est: Tensor,
+    thrust_sent: Tensor, vel: Tensor, quat: Tensor, gravity: Tensor, dt: float, a_s: float, law_gain: float,
+    alpha: float, k_thrust: float, predictor_uses_filtered: bool,
+) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor, Tensor]:  # fmt: skip
+    """One step of eq. 7 (pure; compilable): actuator model, predictor, adaptation law, low-pass
+    filter. Shapes ``[N, 3]`` (quaternions ``[N, 4]``, thrusts ``[N]``); ``k_thrust = 1`` means no
+    actuator model (the thrust sent acts at once). Returns (v̂, σ̂, d̂, thrust_est, prev_vel, prev_quat)."""
+    thrust = torch.lerp(thrust_est, thrust_sent, k_thrust)
+    f = quat_body_z(prev_quat) * thrust.unsqueeze(-1) + gravity
+    feedback = d_hat if predictor_uses_filtered else sigma_hat
+    v_hat = v_hat + dt * (f + feedback + a_s * (v_hat - prev_vel))
+    sigma_hat = law_gain * (v_hat - vel)
+    d_hat = alpha * d_hat + (1.0 - alpha) * sigma_hat
+    return v_hat, sigma_hat, d_hat, thrust, vel.clone(), quat.clone()

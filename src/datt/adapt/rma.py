@@ -139,7 +139,10 @@ def train_rma(cfg: DictConfig, run_dir: Path, console=None) -> dict:
     td = env.reset()
     history = []
     t0 = time.perf_counter()
-    for it in range(1, int(rc.iterations) + 1):
+    from datt.train.ppo import budget_factor
+
+    iterations = max(1, int(int(rc.iterations) * budget_factor(cfg)))
+    for it in range(1, iterations + 1):
         td["action"] = controller.act(env, td)
         step, td = env.step_and_maybe_reset(td)
         net.train()
@@ -149,12 +152,12 @@ def train_rma(cfg: DictConfig, run_dir: Path, console=None) -> dict:
         loss.backward()
         optim.step()
         net.eval()
-        if it % int(rc.log_every) == 0 or it == int(rc.iterations):
+        if it % int(rc.log_every) == 0 or it == iterations:
             row = {"iteration": it, "loss": loss.item(), "tracking_error_m": step["next", "tracking_error_m"].mean().item()}
             history.append(row)
             logger.log(row, step=it)
             if console is not None:
-                console.print(f"rma {it}/{rc.iterations}: loss {row['loss']:.4f} (m/s²)², error {row['tracking_error_m']:.3f} m")
+                console.print(f"rma {it}/{iterations}: loss {row['loss']:.4f} (m/s²)², error {row['tracking_error_m']:.3f} m")
     payload = {
         "rma": net.state_dict(),
         "history_len": int(rc.history_len),

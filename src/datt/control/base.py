@@ -2,8 +2,9 @@
 
 A controller is batched: ``reset(env)`` after the env (re)starts its N drones, then
 ``act(env, td) -> [N, 4]`` every step, returning ``[thrust_mps2, wx, wy, wz]`` (the env's action
-convention). ``td`` is the env's current observation (``state``, ``ref``, ``d_hat``); the
-controller may also read ``env.sim.state`` and the reference window for model-based control.
+convention). Inputs are the (measured) state ``env.sim.state``, the future reference
+(``env._ref_future()`` / ``env.ref_table``) and the estimate ``env.adaptation.d_hat``; ``td`` is
+the env's observation, used by controllers with ``builds_observation = False``.
 """
 
 from __future__ import annotations
@@ -14,6 +15,9 @@ from tensordict import TensorDictBase
 
 class Controller:
     name = "controller"
+    # True: act() reads the sim state / reference / d̂ itself and ignores ``td`` (so timing does not
+    # charge it for the env's observation); False: act() consumes the env's observation ``td``.
+    builds_observation = True
 
     def reset(self, env) -> None:
         """Called after ``env.reset()`` (all drones)."""

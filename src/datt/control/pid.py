@@ -67,7 +67,7 @@ class PidController(Controller):
         a_fb = -self.kp * err - self.kd * (s.vel_mps - v_ref) - self.ki * self.integral + a_ref
         a_fb = a_fb - env.sim.gravity
         if self.use_d_hat:
-            a_fb = a_fb - td["d_hat"]
+            a_fb = a_fb - env.adaptation.d_hat
         a_body = quat_rotate_inverse(s.quat, a_fb)
         norm = torch.linalg.vector_norm(a_body, dim=-1, keepdim=True).clamp_min(1e-6)
         z_fb = a_body / norm

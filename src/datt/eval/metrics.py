@@ -30,6 +30,7 @@ def summarize(errors: torch.Tensor, crashed: torch.Tensor) -> dict:
         "crashes": int(crashed.sum()),
         "episodes": int(len(errors)),
         "per_episode_m": [round(float(e), 6) for e in errors],
+        "per_episode_crashed": [bool(c) for c in crashed],
     }
 
 

@@ -36,21 +36,61 @@ def plot_tracks(trace, names: list[str], counts: list[int], path: str | Path, ti
     return Path(path)
 
 
-def plot_axes_vs_time(trace, index: int, dt_s: float, path: str | Path, title: str = "") -> Path:
-    """x, y, z of reference and flown track against time for one drone."""
+def _first_of_groups(counts: list[int]) -> list[int]:
+    return [sum(counts[:g]) for g in range(len(counts))]
+
+
+def plot_group_axes(trace, names: list[str], counts: list[int], dt_s: float, path: str | Path, title: str = "") -> Path:
+    """x, y, z against time (reference dashed, flown solid) for the first reference of each group:
+    one column per group, one row per axis."""
     import numpy as np
 
-    pos, ref = trace.pos_m[index].numpy(), trace.ref_m[index].numpy()
-    t = np.arange(len(pos)) * dt_s
-    fig, axes = plt.subplots(3, 1, figsize=(7, 6), sharex=True)
-    for k, ax in enumerate(axes):
-        ax.plot(t, ref[:, k], "--", label="reference")
-        ax.plot(t, pos[:, k], label="flown")
-        ax.set_ylabel("xyz"[k] + " (m)")
+    fig, axes = plt.subplots(3, len(names), figsize=(4.2 * len(names), 6.0), sharex=True, squeeze=False)
+    for col, (name, i) in enumerate(zip(names, _first_of_groups(counts))):
+        stop = int(trace.crashed_at[i]) + 1
+        pos, ref = trace.pos_m[i, :stop].numpy(), trace.ref_m[i, :stop].numpy()
+        t = np.arange(len(pos)) * dt_s
+        for k in range(3):
+            ax = axes[k, col]
+            ax.plot(t, ref[:, k], "--", lw=1.0, label="reference")
+            ax.plot(t, pos[:, k], lw=1.3, label="flown")
+            ax.grid(alpha=0.3)
+            if col == 0:
+                ax.set_ylabel("xyz"[k] + " (m)")
+        axes[0, col].set_title(f"{name} #0")
+        axes[-1, col].set_xlabel("t (s)")
+    axes[0, 0].legend(fontsize=8)
+    fig.suptitle(title or "per-axis tracking")
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return Path(path)
+
+
+def plot_side_by_side(traces: dict, index: int, dt_s: float, path: str | Path, title: str = "") -> Path:
+    """Several controllers on the same reference (drone ``index`` of each trace): x-y tracks on
+    the left, tracking error against time on the right."""
+    import numpy as np
+
+    fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 4.4))
+    first = next(iter(traces.values()))
+    ref = first.ref_m[index].numpy()
+    a1.plot(ref[:, 0], ref[:, 1], "k--", lw=1.0, label="reference")
+    for name, trace in traces.items():
+        stop = int(trace.crashed_at[index]) + 1
+        pos = trace.pos_m[index, :stop].numpy()
+        a1.plot(pos[:, 0], pos[:, 1], lw=1.2, label=name)
+        err = trace.err_m[index, :stop].numpy()
+        a2.plot(np.arange(1, len(err) + 1) * dt_s, err, lw=1.0, label=f"{name} ({err.mean():.3f} m)")
+    a1.set_xlabel("x (m)")
+    a1.set_ylabel("y (m)")
+    a1.set_aspect("equal", adjustable="datalim")
+    a2.set_xlabel("t (s)")
+    a2.set_ylabel("‖p − p_d‖ (m)")
+    for ax in (a1, a2):
         ax.grid(alpha=0.3)
-    axes[0].legend()
-    axes[-1].set_xlabel("t (s)")
-    fig.suptitle(title)
+        ax.legend(fontsize=8)
+    fig.suptitle(title or "controllers on one reference")
     fig.tight_layout()
     fig.savefig(path, dpi=90)
     plt.close(fig)

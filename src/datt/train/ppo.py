@@ -83,6 +83,18 @@ class AlgoParams:
              f"unknown value {self.loss_critic_type!r}; allowed: l1, l2, smooth_l1")  # fmt: skip
 
 
+def budget_factor(cfg) -> float:
+    """``budget`` scales every step count of a run (sweeps on small machines); 1 = as configured."""
+    budget = cfg.get("budget", 1.0)
+    try:
+        budget = float(budget)
+    except (TypeError, ValueError):
+        budget = float("nan")
+    if not budget > 0:
+        raise ConfigError(f"budget: must be a number > 0 (fraction of the configured steps), got {cfg.get('budget')}")
+    return budget
+
+
 class Trainer:
     """Owns env, modules, loss, optimiser and the loop. ``cfg`` is the composed train config."""
 
@@ -94,10 +106,11 @@ class Trainer:
         self.algo: AlgoParams = structured(AlgoParams, cfg.algo, "algo")
         self.policy_params: PolicyParams = structured(PolicyParams, cfg.policy, "policy")
         tc = cfg.train
-        self.total_frames = int(tc.total_steps)
+        budget = budget_factor(cfg)
+        self.total_frames = int(int(tc.total_steps) * budget)
         if self.total_frames < 1:
             raise ConfigError(f"train.total_steps: must be >= 1, got {self.total_frames}")
-        self.fixed_ref_steps = int(cfg.curriculum.fixed_ref_steps)
+        self.fixed_ref_steps = int(int(cfg.curriculum.fixed_ref_steps) * budget)
         if self.fixed_ref_steps < 0:
             raise ConfigError(f"curriculum.fixed_ref_steps: must be >= 0, got {self.fixed_ref_steps}")
         self.main_traj = instantiate_option(cfg, "traj")

@@ -1,0 +1,413 @@
+"""Paper tables from finished runs: ``python tables.py <table>`` (``conf/tables.yaml``).
+
+A table collects every job directory of its sweep (``outputs/sweeps/<table>/<time>/<job>/``, or
+the directories given as ``runs=``), reads each job's ``metrics.json`` and Hydra overrides, groups
+jobs by their swept keys (all overrides except ``seed``) and reports mean ± std over seeds next to
+the paper's numbers, as Markdown, CSV and LaTeX (plus PNG plots for training sweeps). A job that
+diverged (``failed.json``) or whose drones all crashed counts as *failed*, as in the paper; jobs
+without ``metrics.json`` are listed as incomplete with how far they got, never silently dropped.
+
+Kinds of table (the registry ``TABLES``):
+
+* ``train`` (ablation, horizon): one number per run, the end-of-training error on the zigzag bank
+  without disturbance; rows = swept keys.
+* ``rma``: the four Brownian rows each ``stage=rma`` run evaluates (d̂ = 0, L1, RMA, privileged).
+* ``eval`` (main, wind): per controller (and disturbance), per-episode errors pooled over the
+  eval seeds; inference time from ``inference_ms``.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from datt.config import ConfigError
+
+
+@dataclass
+class Cell:
+    """Values of one table cell: per-run (or per-episode) errors, failures and total runs."""
+
+    values: list[float] = field(default_factory=list)
+    failed: int = 0
+    total: int = 0
+
+    def add(self, value: float | None) -> None:
+        self.total += 1
+        if value is None or not math.isfinite(value):
+            self.failed += 1
+        else:
+            self.values.append(float(value))
+
+    def text(self, digits: int = 3) -> str:
+        if self.total == 0:
+            return "—"
+        if not self.values:
+            return "failed"
+        mean = float(np.mean(self.values))
+        out = f"{mean:.{digits}f}"
+        if len(self.values) > 1:
+            out += f" ± {float(np.std(self.values)):.{digits}f}"
+        if self.failed:
+            out += f" ({self.failed}/{self.total} failed)"
+        return out
+
+
+@dataclass
+class Job:
+    path: Path
+    overrides: dict[str, str]
+    metrics: dict | None
+    status: str  # finished | failed | incomplete
+    note: str = ""
+
+
+@dataclass
+class TableSpec:
+    name: str
+    kind: str  # train | rma | eval
+    title: str
+    entry: str  # script that runs the sweep: train.py or eval.py
+    columns: list[str]
+    row_order: list[str]
+    row_labels: dict[str, str]
+    paper: dict[str, list[str]]
+    paper_note: str
+
+
+_ABLATION_LABELS = {
+    "ablation=no_body_frame": "No body frame",
+    "ablation=no_fixed_ref": "No fixed initial reference",
+    "ablation=no_feedback": "No feedback term",
+    "ablation=h1": "Feedforward horizon 1 (H = 0.02 s)",
+    "ablation=h5": "Feedforward horizon 5 (H = 0.3 s)",
+    "ablation=none": "Feedforward horizon 10 (base, used in main experiments)",
+    "ablation=h15": "Feedforward horizon 15 (H = 0.9 s)",
+    "ablation=h20": "Feedforward horizon 20 (H = 1.2 s)",
+}
+_CONTROLLERS = {
+    "pid": "Nonlinear tracking control (PID)",
+    "l1_pid": "L1 adaptive control (L1-PID)",
+    "mppi": "MPC (MPPI)",
+    "l1_mppi": "L1-MPC (L1-MPPI)",
+    "datt": "DATT (d̂ = 0)",
+    "datt_rma": "DATT-RMA",
+    "datt_l1": "DATT (L1)",
+}
+
+TABLES: dict[str, TableSpec] = {
+    "ablation": TableSpec(
+        "ablation", "train", "Ablations: zigzag tracking error (m), no disturbance, no adaptation", "train.py",
+        ["zigzag error (m)"], list(_ABLATION_LABELS), _ABLATION_LABELS,
+        {"ablation=no_body_frame": ["failed"], "ablation=no_fixed_ref": ["0.437 ± 0.08"],
+         "ablation=no_feedback": ["0.077 ± 0.011"], "ablation=h1": ["failed"], "ablation=h5": ["0.240 ± 0.008"],
+         "ablation=none": ["0.055 ± 0.007"], "ablation=h15": ["0.073 ± 0.010"], "ablation=h20": ["0.101 ± 0.018"]},
+        "paper Table 3 (15M steps, SB3, 5 runs each)",
+    ),
+    "horizon": TableSpec(
+        "horizon", "train", "Feedforward horizon: zigzag tracking error (m)", "train.py", ["zigzag error (m)"],
+        [f"horizon={h}" for h in (1, 5, 10, 15, 20)], {f"horizon={h}": f"H = {h} ({h * 0.06:.2f} s)" for h in (1, 5, 10, 15, 20)},
+        {"horizon=1": ["failed"], "horizon=5": ["0.240 ± 0.008"], "horizon=10": ["0.055 ± 0.007"],
+         "horizon=15": ["0.073 ± 0.010"], "horizon=20": ["0.101 ± 0.018"]},
+        "paper Table 3",
+    ),
+    "rma": TableSpec(
+        "rma", "rma", "Adaptation under the Brownian disturbance: zigzag tracking error (m)", "train.py",
+        ["zigzag error (m)"], ["d_hat=0", "l1", "rma", "privileged"],
+        {"d_hat=0": "DATT (d̂ = 0)", "l1": "DATT (L1)", "rma": "DATT-RMA", "privileged": "DATT (privileged d)"},
+        {"l1": ["0.062 ± 0.011"], "rma": ["0.055 ± 0.009"]},
+        "paper Table 4",
+    ),
+    "main": TableSpec(
+        "main", "eval", "Tracking without disturbance (simulation): error (m) and inference time", "eval.py",
+        ["smooth", "infeasible (zigzag)", "inference ms (batch 1)"], ["pid", "l1_pid", "mppi", "l1_mppi", "datt", "datt_l1"],
+        _CONTROLLERS,
+        {"pid": ["0.098 ± 0.012", "crash", "0.21"], "l1_pid": ["0.091 ± 0.009", "crash", "0.93"],
+         "mppi": ["0.104 ± 0.009", "0.183 ± 0.027", "12.62"], "l1_mppi": ["0.088 ± 0.010", "0.181 ± 0.031", "13.10"],
+         "datt": ["0.054 ± 0.013", "0.089 ± 0.026", "2.41"], "datt_l1": ["0.049 ± 0.017", "0.083 ± 0.023", "3.17"]},
+        "paper Table 1 (real Crazyflie)",
+    ),
+    "wind": TableSpec(
+        "wind", "eval", "Zero-shot disturbances (simulation): tracking error (m)", "eval.py",
+        ["smooth, plate", "smooth, plate + wind", "infeasible, plate", "infeasible, plate + wind"],
+        ["l1_pid", "l1_mppi", "datt", "datt_rma", "datt_l1"], _CONTROLLERS,
+        {"l1_pid": ["0.163 ± 0.013", "0.184 ± 0.020", "crash", "crash"],
+         "l1_mppi": ["0.121 ± 0.010", "0.181 ± 0.04", "0.216 ± 0.028", "0.243 ± 0.026"],
+         "datt": ["0.091 ± 0.040", "0.118 ± 0.054", "0.143 ± 0.031", "crash"],
+         "datt_rma": ["0.091 ± 0.049", "0.115 ± 0.071", "0.164 ± 0.051", "0.193 ± 0.075"],
+         "datt_l1": ["0.063 ± 0.052", "0.095 ± 0.053", "0.122 ± 0.041", "0.161 ± 0.056"]},
+        "paper Table 2 (real Crazyflie, fans and cardboard plate)",
+    ),
+}  # fmt: skip
+
+
+# -- collecting runs -----------------------------------------------------------------------
+def find_jobs(roots: list[Path]) -> list[Job]:
+    """Every Hydra job dir (one with ``.hydra/``) under ``roots``."""
+    jobs = []
+    for root in roots:
+        if not root.exists():
+            continue
+        dirs = [root] if (root / ".hydra").is_dir() else sorted({p.parent.parent for p in root.glob("**/.hydra/config.yaml")})
+        for d in dirs:
+            jobs.append(read_job(d))
+    return jobs
+
+
+def read_job(path: Path) -> Job:
+    overrides = {}
+    ov_file = path / ".hydra" / "overrides.yaml"
+    if ov_file.is_file():
+        for item in yaml.safe_load(ov_file.read_text()) or []:
+            key, _, value = str(item).partition("=")
+            key = key.lstrip("+~")
+            if key not in ("sweep", "budget") and not key.startswith("hydra"):
+                overrides[key] = value
+    if (path / "failed.json").is_file():
+        note = json.loads((path / "failed.json").read_text()).get("message", "")
+        return Job(path, overrides, None, "failed", note)
+    if (path / "metrics.json").is_file():
+        return Job(path, overrides, json.loads((path / "metrics.json").read_text()), "finished")
+    return Job(path, overrides, None, "incomplete", _progress(path))
+
+
+def _progress(path: Path) -> str:
+    rows = path / "metrics.csv"
+    if not rows.is_file():
+        return "no progress logged"
+    lines = rows.read_text().strip().splitlines()
+    if len(lines) < 2:
+        return "no progress logged"
+    last = dict(zip(lines[0].split(","), lines[-1].split(",")))
+    return f"stopped at {int(float(last.get('frames', 0))):,} frames"
+
+
+def _row_key(job: Job, spec: TableSpec, varying: set[str] | None = None) -> str:
+    """Row of a job: its eval controller, or ``key=value`` of its swept overrides (the table's own
+    keys such as ``ablation``/``horizon`` plus any key that differs between jobs; not ``seed``)."""
+    if spec.kind == "eval":
+        return (job.metrics or {}).get("controller", job.overrides.get("controller", "?"))
+    own = {"ablation", "horizon"}
+    keys = sorted(k for k in job.overrides if k != "seed" and (k in own or varying is None or k in varying))
+    return ",".join(f"{k}={job.overrides[k]}" for k in keys) or "base"
+
+
+def varying_keys(jobs: list[Job]) -> set[str]:
+    values: dict[str, set[str]] = {}
+    for job in jobs:
+        for k, v in job.overrides.items():
+            values.setdefault(k, set()).add(v)
+    return {k for k, v in values.items() if len(v) > 1 or any(k not in j.overrides for j in jobs)}
+
+
+def _group_error(metrics: dict, condition: str | None, group: str) -> float | None:
+    conds = metrics.get("conditions", {})
+    cond = conds.get(condition) if condition else next(iter(conds.values()), None)
+    if cond is None or group not in cond["groups"]:
+        return None
+    row = cond["groups"][group]
+    return None if row["crashes"] == row["episodes"] else row["mean_m"]
+
+
+def _episodes(metrics: dict, group: str) -> tuple[list[float], int]:
+    """Per-episode errors of ``group`` pooled over every condition (seed) of an eval run, and
+    the number of crashed/failed episodes (excluded from the values)."""
+    values, failed = [], 0
+    for cond in metrics.get("conditions", {}).values():
+        row = cond["groups"].get(group)
+        if row is None:
+            continue
+        crashed = row.get("per_episode_crashed", [False] * len(row["per_episode_m"]))
+        values += [e for e, c in zip(row["per_episode_m"], crashed) if not c]
+        failed += sum(crashed)
+    return values, failed
+
+
+def collect(spec: TableSpec, jobs: list[Job]) -> tuple[dict[str, list[Cell]], dict]:
+    """Cells per row key, and per-row extras (inference ms)."""
+    rows: dict[str, list[Cell]] = {}
+    extras: dict[str, dict] = {}
+    varying = varying_keys(jobs)
+
+    def cells(key: str) -> list[Cell]:
+        return rows.setdefault(key, [Cell() for _ in spec.columns])
+
+    for job in jobs:
+        if job.status == "incomplete":
+            continue
+        m = job.metrics or {}
+        if spec.kind == "train":
+            cells(_row_key(job, spec, varying))[0].add(_group_error(m, "clean", "zigzag") if job.status == "finished" else None)
+        elif spec.kind == "rma":
+            for cond in spec.row_order:
+                cells(cond)[0].add(_group_error(m, cond, "zigzag") if job.status == "finished" else None)
+        elif spec.name == "main":
+            key = _row_key(job, spec)
+            row = cells(key)
+            for col, group in ((0, "smooth"), (1, "zigzag")):
+                values, failed = _episodes(m, group)
+                row[col].values += values
+                row[col].failed += failed
+                row[col].total += len(values) + failed
+            if "inference_ms" in m:
+                extras.setdefault(key, {}).setdefault("inference_ms", []).append(m["inference_ms"]["median_ms"])
+        else:  # wind: columns by (group, disturbance)
+            key = _row_key(job, spec)
+            dist = m.get("disturbance", job.overrides.get("disturbance"))
+            col_of = {("smooth", "plate"): 0, ("smooth", "wind_plate"): 1, ("zigzag", "plate"): 2, ("zigzag", "wind_plate"): 3}
+            for group in ("smooth", "zigzag"):
+                col = col_of.get((group, dist))
+                if col is None:
+                    continue
+                values, failed = _episodes(m, group)
+                cell = cells(key)[col]
+                cell.values += values
+                cell.failed += failed
+                cell.total += len(values) + failed
+    for key, extra in extras.items():
+        if spec.name == "main":
+            ms = extra["inference_ms"]
+            rows[key][2] = Cell(values=[float(np.median(ms))], total=1)
+    return rows, extras
+
+
+# -- rendering -----------------------------------------------------------------------------
+def render(spec: TableSpec, rows: dict[str, list[Cell]], jobs: list[Job]) -> dict[str, str]:
+    order = [k for k in spec.row_order if k in rows] + sorted(k for k in rows if k not in spec.row_order)
+    header = ["method" if spec.kind != "train" else "ablation"] + spec.columns + [f"paper: {c}" for c in spec.columns]
+    body = []
+    for key in order:
+        label = spec.row_labels.get(key, key)
+        ours = [c.text(digits=2 if "ms" in col else 3) for c, col in zip(rows[key], spec.columns)]
+        seeds = max(c.total for c in rows[key]) if spec.kind in ("train", "rma") else None
+        if seeds:
+            label += f" [{seeds} run{'s' if seeds > 1 else ''}]"
+        paper = spec.paper.get(key, ["—"] * len(spec.columns))
+        body.append([label, *ours, *paper])
+    md = [f"**{spec.title}** (ours: simulation; paper: {spec.paper_note})", "", "| " + " | ".join(header) + " |"]
+    md.append("|" + "---|" * len(header))
+    md += ["| " + " | ".join(r) + " |" for r in body]
+    notes = _job_notes(jobs)
+    if notes:
+        md += ["", *notes]
+    tex = ["\\begin{tabular}{l" + "c" * (len(header) - 1) + "}", "\\toprule", " & ".join(_tex(h) for h in header) + " \\\\", "\\midrule"]
+    tex += [" & ".join(_tex(c) for c in r) + " \\\\" for r in body]
+    tex += ["\\bottomrule", "\\end{tabular}"]
+    return {"md": "\n".join(md) + "\n", "tex": "\n".join(tex) + "\n", "rows": body, "header": header}
+
+
+def _tex(text: str) -> str:
+    text = text.replace("±", "$\\pm$").replace("d̂", "$\\hat d$").replace("_", "\\_").replace("%", "\\%")
+    return "\\textit{failed}" if text == "failed" else text
+
+
+def _job_notes(jobs: list[Job]) -> list[str]:
+    notes = []
+    for job in jobs:
+        if job.status == "incomplete":
+            notes.append(f"- incomplete: `{job.path}` ({job.note})")
+        elif job.status == "failed":
+            notes.append(f"- failed (diverged): `{job.path}` {job.note}".rstrip())
+    return notes
+
+
+def write(spec: TableSpec, rendered: dict, out_dir: Path) -> list[Path]:
+    out_dir.mkdir(parents=True, exist_ok=True)
+    md, tex, csv_path = out_dir / f"{spec.name}.md", out_dir / f"{spec.name}.tex", out_dir / f"{spec.name}.csv"
+    md.write_text(rendered["md"])
+    tex.write_text(rendered["tex"])
+    with open(csv_path, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(rendered["header"])
+        w.writerows(rendered["rows"])
+    return [md, csv_path, tex]
+
+
+def default_roots(spec: TableSpec, outputs: Path) -> list[Path]:
+    """The newest sweep dir of this table under ``outputs/sweeps/<table>/``."""
+    base = outputs / "sweeps" / spec.name
+    dirs = sorted(p for p in base.glob("*") if p.is_dir()) if base.is_dir() else []
+    if not dirs:
+        raise ConfigError(f"runs: no sweep under {base}; run `python {spec.entry} -m +sweep={spec.name}` or pass runs=<sweep dir>")
+    return [dirs[-1]]
+
+
+def get_spec(name: str) -> TableSpec:
+    if name not in TABLES:
+        raise ConfigError(f"table: unknown table {name!r}; allowed: {', '.join(TABLES)}")
+    return TABLES[name]
+
+
+# -- plots ---------------------------------------------------------------------------------
+def _horizon_of(key: str) -> int | None:
+    for part in key.split(","):
+        k, _, v = part.partition("=")
+        if k == "horizon" and v.isdigit():
+            return int(v)
+        if k == "ablation" and v in ("none", "h1", "h5", "h15", "h20"):
+            return 10 if v == "none" else int(v[1:])
+    return None
+
+
+def plot_train_sweep(spec: TableSpec, rows: dict[str, list[Cell]], jobs: list[Job], out_dir: Path) -> list[Path]:
+    """Horizon vs zigzag error (mean ± std over seeds) and learning curves (mean per row)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    paths = []
+    points = sorted((h, c) for k, cs in rows.items() if (h := _horizon_of(k)) is not None for c in cs[:1])
+    if points:
+        fig, ax = plt.subplots(figsize=(5, 3.6))
+        ok = [(h, c) for h, c in points if c.values]
+        if ok:
+            ax.errorbar([h for h, _ in ok], [np.mean(c.values) for _, c in ok], yerr=[np.std(c.values) for _, c in ok],
+                        marker="o", capsize=3, label="ours (sim)")  # fmt: skip
+        for h, c in points:
+            if not c.values:
+                ax.annotate("failed", (h, 0), textcoords="offset points", xytext=(0, 8), ha="center", color="C3")
+        ax.set_xlabel("feedforward points H")
+        ax.set_ylabel("zigzag tracking error (m)")
+        ax.set_xticks([h for h, _ in points])
+        ax.grid(alpha=0.3)
+        if ok:
+            ax.legend()
+        fig.tight_layout()
+        paths.append(out_dir / f"{spec.name}_horizon.png")
+        fig.savefig(paths[-1], dpi=90)
+        plt.close(fig)
+    curves: dict[str, list[tuple[np.ndarray, np.ndarray]]] = {}
+    for job in jobs:
+        f = job.path / "metrics.csv"
+        if not f.is_file():
+            continue
+        with open(f) as fh:
+            data = list(csv.DictReader(fh))
+        if data and "tracking_error_m" in data[0]:
+            x = np.array([float(r["frames"]) for r in data])
+            y = np.array([float(r["tracking_error_m"]) for r in data])
+            curves.setdefault(_row_key(job, spec, varying_keys(jobs)), []).append((x, y))
+    if curves:
+        fig, ax = plt.subplots(figsize=(7, 4))
+        for key in [k for k in spec.row_order if k in curves] + sorted(k for k in curves if k not in spec.row_order):
+            n = min(len(x) for x, _ in curves[key])
+            x = curves[key][0][0][:n]
+            y = np.mean([c[1][:n] for c in curves[key]], axis=0)
+            ax.plot(x, y, label=f"{spec.row_labels.get(key, key)} ({len(curves[key])})", lw=1.2)
+        ax.set_yscale("log")
+        ax.set_xlabel("env steps")
+        ax.set_ylabel("training tracking error (m)")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7)
+        fig.tight_layout()
+        paths.append(out_dir / f"{spec.name}_curves.png")
+        fig.savefig(paths[-1], dpi=90)
+        plt.close(fig)
+    return paths

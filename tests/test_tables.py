@@ -1,0 +1,127 @@
+"""Sweeps and tables: a tiny multirun end to end, sweep files compose, failed/incomplete runs."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from datt.config import CONF_DIR, available_options
+from datt.eval import tables as T
+
+REPO = CONF_DIR.parent
+TINY = ["train.total_steps=4096", "algo.num_envs=64", "algo.rollout_steps=16", "algo.minibatch_size=512", "algo.epochs=1",
+        "curriculum.fixed_ref_steps=1024", "logger=csv", "env.compile=false", "train.progress=false", "eval.plots=false",
+        "eval.bank={zigzag:[{traj:zigzag,seed:1000,count:2}]}", "eval.conditions.brownian=null"]  # fmt: skip
+
+
+def run(script, *args, cwd):
+    return subprocess.run([sys.executable, str(REPO / script), *args], cwd=cwd, capture_output=True, text=True, timeout=600)
+
+
+def test_multirun_then_table_end_to_end(tmp_path):
+    out = run("train.py", "-m", "horizon=1,5", *TINY, cwd=tmp_path)
+    assert out.returncode == 0, out.stderr[-2000:]
+    (sweep,) = list((tmp_path / "outputs" / "multirun").iterdir())
+    out = run("tables.py", "horizon", f"runs={sweep}", cwd=tmp_path)
+    assert out.returncode == 0, out.stderr[-2000:]
+    md = (sweep / "horizon.md").read_text()
+    assert "H = 1 " in md and "H = 5 " in md  # both rows
+    assert "0.240 ± 0.008" in md  # next to the paper's number
+    assert "train.total_steps" not in md  # a fixed override is not a row key
+    rows = (sweep / "horizon.csv").read_text().splitlines()
+    assert len(rows) == 3
+    assert (sweep / "horizon.tex").read_text().startswith("\\begin{tabular}")
+    assert (sweep / "horizon_curves.png").stat().st_size > 1000
+
+
+@pytest.mark.parametrize("name", available_options("sweep"))
+def test_every_sweep_composes_from_any_directory(tmp_path, name):
+    script = T.TABLES[name].entry
+    out = run(script, f"+sweep={name}", "--cfg", "hydra", cwd=tmp_path)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert "params:" in out.stdout and f"outputs/sweeps/{name}/" in out.stdout
+    job = run(script, f"+sweep={name}", "--cfg", "job", cwd=tmp_path)
+    assert f"sweep_name: {name}" in job.stdout
+
+
+def test_ablation_sweep_settings_and_budget(tmp_path):
+    out = run("train.py", "+sweep=ablation", "budget=0.1", "--cfg", "job", "--resolve", cwd=tmp_path)
+    assert "_target_: datt.refs.Zigzag" in out.stdout and "datt.sim.NoDisturbance" in out.stdout
+    assert "total_steps: 15000000" in out.stdout and "budget: 0.1" in out.stdout
+    assert "brownian: null" in out.stdout
+
+
+def test_launchers_compose_and_build(tmp_path):
+    out = run("train.py", "hydra/launcher=joblib", "hydra.launcher.n_jobs=2", "--cfg", "hydra", cwd=tmp_path)
+    assert "JoblibLauncher" in out.stdout and "n_jobs: 2" in out.stdout
+    from hydra.utils import instantiate
+    from omegaconf import OmegaConf
+
+    out = run("train.py", "hydra/launcher=submitit_slurm", "--cfg", "hydra", "--resolve", cwd=tmp_path)
+    assert out.returncode == 0, out.stderr[-2000:]
+    launcher_cfg = OmegaConf.create(out.stdout)["hydra"]["launcher"]
+    launcher = instantiate(launcher_cfg)
+    assert type(launcher).__name__ == "SlurmLauncher"
+
+
+def _job(root: Path, num: int, overrides: list[str], metrics: dict | None = None, failed: str | None = None) -> Path:
+    job = root / str(num)
+    (job / ".hydra").mkdir(parents=True)
+    (job / ".hydra" / "config.yaml").write_text("{}\n")
+    (job / ".hydra" / "overrides.yaml").write_text("".join(f"- {o}\n" for o in overrides))
+    if metrics is not None:
+        (job / "metrics.json").write_text(json.dumps(metrics))
+    if failed is not None:
+        (job / "failed.json").write_text(json.dumps({"message": failed}))
+    return job
+
+
+def _train_metrics(err, crashed=False):
+    row = {"mean_m": err, "std_m": 0.0, "crashes": 2 if crashed else 0, "episodes": 2, "per_episode_m": [err, err]}
+    return {"conditions": {"clean": {"groups": {"zigzag": row}}}}
+
+
+def test_failed_and_incomplete_runs_are_reported(tmp_path):
+    _job(tmp_path, 0, ["+sweep=ablation", "ablation=none", "seed=0"], _train_metrics(0.05))
+    _job(tmp_path, 1, ["+sweep=ablation", "ablation=none", "seed=1"], _train_metrics(0.07))
+    _job(tmp_path, 2, ["+sweep=ablation", "ablation=no_body_frame", "seed=0"], failed="NaN in loss")
+    _job(tmp_path, 3, ["+sweep=ablation", "ablation=no_body_frame", "seed=1"], _train_metrics(0.9, crashed=True))
+    inc = _job(tmp_path, 4, ["+sweep=ablation", "ablation=h5", "seed=0"])
+    (inc / "metrics.csv").write_text("step,frames,tracking_error_m\n1,32768,0.5\n2,65536,0.4\n")
+    spec = T.get_spec("ablation")
+    jobs = T.find_jobs([tmp_path])
+    rows, _ = T.collect(spec, jobs)
+    rendered = T.render(spec, rows, jobs)
+    by_label = {r[0].split(" [")[0]: r for r in rendered["rows"]}
+    assert by_label["Feedforward horizon 10 (base, used in main experiments)"][1] == "0.060 ± 0.010"
+    assert by_label["No body frame"][1] == "failed"
+    assert "incomplete" in rendered["md"] and "65,536 frames" in rendered["md"]
+    assert "NaN in loss" in rendered["md"]
+
+
+def test_main_table_pools_seeds_and_reports_inference(tmp_path):
+    def metrics(controller, smooth, zig, ms, crashed=(False, False)):
+        g = lambda v, c: {"mean_m": 0, "std_m": 0, "crashes": sum(c), "episodes": 2, "per_episode_m": v,  # noqa: E731
+                          "per_episode_crashed": list(c)}  # fmt: skip
+        cond = {"groups": {"smooth": g(smooth, (False, False)), "zigzag": g(zig, crashed)}}
+        return {"controller": controller, "conditions": {"s0": cond, "s1": cond}, "inference_ms": {"median_ms": ms}}
+
+    _job(tmp_path, 0, ["+sweep=main", "controller=pid"], metrics("pid", [0.1, 0.1], [0.3, 2.0], 0.2, (False, True)))
+    _job(tmp_path, 1, ["+sweep=main", "controller=datt"], metrics("datt", [0.03, 0.05], [0.06, 0.08], 0.1))
+    spec = T.get_spec("main")
+    jobs = T.find_jobs([tmp_path])
+    rendered = T.render(spec, T.collect(spec, jobs)[0], jobs)
+    rows = {r[0]: r for r in rendered["rows"]}
+    assert rows["Nonlinear tracking control (PID)"][2] == "0.300 ± 0.000 (2/4 failed)"
+    assert rows["DATT (d̂ = 0)"][1] == "0.040 ± 0.010" and rows["DATT (d̂ = 0)"][3] == "0.10"
+    assert rows["DATT (d̂ = 0)"][5] == "0.089 ± 0.026"  # paper column
+
+
+def test_unknown_table_and_missing_sweep_are_one_line(tmp_path):
+    out = run("tables.py", "nope", cwd=tmp_path)
+    assert out.returncode == 2 and out.stderr.strip().count("\n") == 0
+    assert "table: unknown table 'nope'; allowed: ablation, horizon, rma, main, wind" in out.stderr
+    out = run("tables.py", "ablation", cwd=tmp_path)
+    assert out.returncode == 2 and "python train.py -m +sweep=ablation" in out.stderr
