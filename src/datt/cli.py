@@ -438,11 +438,85 @@ def _tables_entry(inner: Callable[[], None]) -> Callable[[], None]:
     return entry
 
 
+# -- deploy --------------------------------------------------------------------------------
+def run_deploy(cfg: DictConfig, run_dir: Path | None = None, estop=None, server_hook=None) -> dict:
+    """``deploy.py``: takeoff -> track -> land through cflib, against the simulated Crazyflie
+    (``deploy=sim``, started here) or a real one (``deploy=crazyflie``). ``server_hook(server,
+    runner)`` lets tests inject faults once the flight objects exist."""
+    from urllib.parse import urlparse
+
+    from datt.config import instantiate_option, make_env, structured, with_options
+    from datt.control.pid import PidController
+    from datt.deploy import mocap as M
+    from datt.deploy.link import CrazyflieLink, LinkError
+    from datt.deploy.runner import FlightParams, FlightRunner, Shifted
+    from datt.deploy.safety import SafetyParams
+    from datt.deploy.thrust import ThrustMap, ThrustParams
+
+    run_dir = run_dir or _run_dir()
+    run_dir.mkdir(parents=True, exist_ok=True)
+    _set_threads(cfg.get("threads"))
+    d = cfg.deploy
+    controller, merged, labels = build_controller(cfg)
+    model_cfg = with_options(merged, disturbance="none")
+    model_cfg.env.init_pos_range_m = 0.0
+    model_cfg.env.compile = False
+
+    def make_flight_env(family):
+        return make_env(model_cfg, num_envs=1, seed=int(cfg.seed), traj=family)
+
+    thrust_params = structured(ThrustParams, d.thrust, "deploy.thrust")
+    server = None
+    if d.get("server") is not None:
+        from datt.deploy.sim import SimCrazyflie, SimCrazyflieParams
+
+        url = urlparse(str(d.uri))
+        if url.scheme != "udp":
+            raise ConfigError(f"deploy.uri: the simulated Crazyflie listens on udp://host:port, got {d.uri!r}")
+        sp = SimCrazyflieParams(host=url.hostname, port=url.port, thrust=thrust_params,
+                                **{k: (tuple(v) if OmegaConf.is_list(v) else v) for k, v in d.server.items()})  # fmt: skip
+        server = SimCrazyflie(sp, disturbance=instantiate_option(cfg, "disturbance")).start()
+    source = str(d.mocap.get("source", "none"))
+    if source == "none":
+        mocap = M.NoMocap()
+    elif source == "simulated":
+        if server is None:
+            raise ConfigError("deploy.mocap.source: 'simulated' needs the simulated Crazyflie (deploy=sim)")
+        mocap = M.SimulatedMocap(server, latency_s=float(d.mocap.latency_s), dropout_prob=float(d.mocap.dropout_prob),
+                                 dropout_after_s=d.mocap.get("dropout_after_s"))  # fmt: skip
+    elif source == "motioncapture":
+        mocap = M.MotionCaptureMocap(str(d.mocap.system), str(d.mocap.host), str(d.mocap.body))
+    else:
+        raise ConfigError(f"deploy.mocap.source: unknown source {source!r}; allowed: none, simulated, motioncapture")
+    link = CrazyflieLink(str(d.uri), int(d.log_period_ms), float(d.connect_timeout_s))
+    track_family = instantiate_option(cfg, "traj")
+    runner = FlightRunner(link, mocap, make_flight_env, controller, PidController, track_family,
+                          structured(FlightParams, d.flight, "deploy.flight"), structured(SafetyParams, d.safety, "deploy.safety"),
+                          ThrustMap(thrust_params), run_dir, estop=estop, console=console)  # fmt: skip
+    if server_hook is not None:
+        server_hook(server, runner)
+    try:
+        summary = runner.fly()
+    except LinkError as exc:
+        raise ConfigError(str(exc)) from None
+    finally:
+        if server is not None:
+            server.stop()
+    summary["controller"] = labels
+    (run_dir / "events.json").write_text(json.dumps(summary, indent=2, default=str) + "\n")
+    err = summary["track_error_m"]
+    console.print(f"flight: {summary['outcome']}; tracking error {err if err is None else f'{err:.3f} m'} over "
+                  f"{summary['track_steps']} steps; tick jitter median {summary['jitter_ms']['median']:.2f} ms, "
+                  f"p99 {summary['jitter_ms']['p99']:.2f} ms; {summary['late_ticks']} late ticks; log in {run_dir}")  # fmt: skip
+    return summary
+
+
 # -- console script ------------------------------------------------------------------------
 train_main = hydra_main("train", run_train)
 eval_main = hydra_main("eval", run_eval)
 tables_main = _tables_entry(hydra_main("tables", run_tables))
-COMMANDS = {"train": train_main, "eval": eval_main, "tables": tables_main}
+deploy_main = hydra_main("deploy", run_deploy)
+COMMANDS = {"train": train_main, "eval": eval_main, "tables": tables_main, "deploy": deploy_main}
 
 
 def main() -> None:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import warnings
+
 import torch
 from tensordict import TensorDictBase
 from torch import nn
@@ -52,7 +54,9 @@ class DattController(Controller):
         fn = self._traced.get(key)
         if fn is None:
             module = _ObservePolicy(self.net, self.center, self.half, obs.body_frame, obs.feedback).eval()
-            traced = torch.jit.trace(module, (s.pos_m, s.vel_mps, s.quat, future, d_hat), check_trace=False)
+            with warnings.catch_warnings():  # TorchScript's deprecation notices
+                warnings.simplefilter("ignore")
+                traced = torch.jit.trace(module, (s.pos_m, s.vel_mps, s.quat, future, d_hat), check_trace=False)
             fn = self._traced[key] = torch.jit.freeze(traced)
         return fn(s.pos_m, s.vel_mps, s.quat, future, d_hat)
 

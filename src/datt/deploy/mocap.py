@@ -1,0 +1,103 @@
+"""Position sources for the external-position (mocap) stream sent to the vehicle.
+
+``read() -> (pos_m (x, y, z), t_s) | None`` with ``t_s`` on ``time.monotonic()``:
+
+* ``none``: no external position; the onboard estimate is used as is.
+* ``motioncapture``: the ``motioncapture`` library (Vicon, OptiTrack, Qualisys, ...; optional,
+  ``pip install motioncapture``), rigid body ``body`` from ``system``/``host``.
+* ``simulated``: the simulated Crazyflie's true position with a latency and random dropouts
+  (``dropout_after_s`` cuts the stream for good: fault injection).
+"""
+
+from __future__ import annotations
+
+import collections
+import random
+import threading
+import time
+
+
+class MocapSource:
+    name = "none"
+
+    def start(self) -> None:
+        pass
+
+    def read(self):
+        return None
+
+    def stop(self) -> None:
+        pass
+
+
+class NoMocap(MocapSource):
+    pass
+
+
+class SimulatedMocap(MocapSource):
+    name = "simulated"
+
+    def __init__(self, server, latency_s: float = 0.01, dropout_prob: float = 0.0, dropout_after_s: float | None = None,
+                 rate_hz: float = 100.0, seed: int = 0) -> None:  # fmt: skip
+        self.server, self.latency_s, self.dropout_prob = server, float(latency_s), float(dropout_prob)
+        self.dropout_after_s = dropout_after_s
+        self.period_s = 1.0 / float(rate_hz)
+        self.rng = random.Random(seed)
+        self._buffer: collections.deque = collections.deque()
+        self._latest = None
+        self._running = threading.Event()
+
+    def start(self) -> None:
+        self._t0 = time.monotonic()
+        self._running.set()
+        threading.Thread(target=self._loop, daemon=True).start()
+
+    def _loop(self) -> None:
+        while self._running.is_set():
+            now = time.monotonic()
+            cut = self.dropout_after_s is not None and now - self._t0 > self.dropout_after_s
+            if not cut and self.rng.random() >= self.dropout_prob:
+                self._buffer.append((tuple(self.server.true_state()["pos_m"]), now))
+            while self._buffer and now - self._buffer[0][1] >= self.latency_s:
+                self._latest = self._buffer.popleft()
+            time.sleep(self.period_s)
+
+    def read(self):
+        return self._latest
+
+    def stop(self) -> None:
+        self._running.clear()
+
+
+class MotionCaptureMocap(MocapSource):
+    name = "motioncapture"
+
+    def __init__(self, system: str, host: str, body: str) -> None:
+        try:
+            import motioncapture
+        except ImportError:
+            from datt.config import ConfigError
+
+            raise ConfigError("deploy.mocap: the motioncapture source needs `pip install motioncapture`") from None
+        self.mc = motioncapture.connect(system, {"hostname": host})
+        self.body = body
+        self._latest = None
+        self._running = threading.Event()
+
+    def start(self) -> None:
+        self._running.set()
+        threading.Thread(target=self._loop, daemon=True).start()
+
+    def _loop(self) -> None:
+        while self._running.is_set():
+            self.mc.waitForNextFrame()
+            for name, obj in self.mc.rigidBodies.items():
+                if name == self.body:
+                    p = obj.position
+                    self._latest = ((float(p[0]), float(p[1]), float(p[2])), time.monotonic())
+
+    def read(self):
+        return self._latest
+
+    def stop(self) -> None:
+        self._running.clear()

@@ -1,0 +1,348 @@
+"""Flight state machine: CONNECT -> PREFLIGHT -> ARM -> TAKEOFF -> TRACK -> LAND -> DISARM.
+
+Every tick (``rate_hz``, 50 by default) the runner reads the onboard estimate from the link,
+forwards the mocap position, asks :mod:`datt.deploy.safety` for OK / LAND / KILL, computes the
+phase's controller output and sends it as a rate setpoint (thrust through
+:mod:`datt.deploy.thrust`). TAKEOFF and LAND fly the PID baseline along a straight ramp; TRACK
+flies the configured controller (DATT + L1 by default) along the configured reference, starting
+at the hover point.
+
+Controllers run on a one-drone :class:`~datt.envs.TrackingEnv` used as a flight model: each tick
+its simulator state is overwritten with the measurement (in the controller frame, whose origin is
+the hover point, because the policy was trained on references starting at the origin), the
+adaptation is updated with the command sent last tick, and the reference window advances by one
+step. KILL sends the emergency stop before anything else. Every flight writes ``flight.csv`` (one
+row per tick), ``events.json`` (phases, safety decisions, timing), and track plots to the run dir.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Optional
+
+import numpy as np
+import torch
+
+from datt.deploy import safety as S
+from datt.deploy.thrust import ThrustMap
+from datt.refs.base import RefFamily
+
+
+class Ramp(RefFamily):
+    """Straight line from ``start`` to ``end`` (controller frame) over ``duration_s``, then hold."""
+
+    def __init__(self, start, end, duration_s: float) -> None:
+        self.start, self.end = torch.tensor(start, dtype=torch.float64), torch.tensor(end, dtype=torch.float64)
+        self.duration_s = max(float(duration_s), 1e-6)
+
+    def sample(self, n, t_s, generator):
+        u = (t_s / self.duration_s).clamp(0.0, 1.0).unsqueeze(-1)
+        return (self.start + u * (self.end - self.start)).to(t_s.dtype).expand(n, len(t_s), 3).clone()
+
+
+class Shifted(RefFamily):
+    """A family's references with a constant offset (the track starts where the drone is)."""
+
+    def __init__(self, family: RefFamily, offset) -> None:
+        self.family, self.offset = family, torch.tensor(offset, dtype=torch.float64)
+
+    def sample(self, n, t_s, generator):
+        return self.family.sample(n, t_s, generator) + self.offset.to(t_s.dtype)
+
+
+class FlightModel:
+    """A controller flying from measurements: a one-drone env whose state is set each tick."""
+
+    def __init__(self, make_env, controller, family: RefFamily) -> None:
+        self.env = make_env(family)
+        self.controller = controller
+        self.env.reset()
+        controller.reset(self.env)
+        self.last_cmd = self.env.hover_action.clone()
+
+    def act(self, pos_m, vel_mps, quat) -> np.ndarray:
+        s = self.env.sim.state
+        s.pos_m[0] = torch.as_tensor(pos_m, dtype=s.pos_m.dtype)
+        s.vel_mps[0] = torch.as_tensor(vel_mps, dtype=s.pos_m.dtype)
+        s.quat[0] = torch.as_tensor(quat, dtype=s.pos_m.dtype)
+        self.env.adaptation.update(s, self.last_cmd, None)
+        td = None if self.controller.builds_observation else self.env._observe()[0]
+        action = self.controller.act(self.env, td)
+        cmd = torch.clamp(action, self.env.action_low, self.env.action_high)
+        self.env.sim.latency.push(cmd)  # model-based controllers see the command in flight
+        self.last_cmd = cmd
+        return cmd[0].detach().numpy().astype(float)  # as the env would apply it (NaN stays NaN)
+
+    def reference(self) -> np.ndarray:
+        return self.env._ref_future()[0, 0].numpy().astype(float)
+
+    def advance(self) -> None:
+        self.env._advance_refs()
+
+    @property
+    def d_hat(self) -> np.ndarray:
+        return self.env.adaptation.d_hat[0].numpy().astype(float)
+
+
+@dataclass
+class FlightParams:
+    rate_hz: float = 50.0
+    takeoff_height_m: float = 1.0
+    takeoff_s: float = 2.5
+    hover_s: float = 1.0
+    track_s: Optional[float] = None  # None = the env's episode length
+    land_s: float = 2.5
+    preflight_timeout_s: float = 3.0
+    min_battery_v: float = 3.7
+    late_tick_ms: float = 5.0
+    origin_m: list = field(default_factory=lambda: [0.0, 0.0])  # hover point x, y (z = takeoff_height_m)
+
+    def validate(self) -> None:
+        from datt.config import ConfigError
+
+        if not self.rate_hz > 0:
+            raise ConfigError(f"deploy.flight.rate_hz: must be > 0, got {self.rate_hz}")
+        if not self.takeoff_height_m > 0:
+            raise ConfigError(f"deploy.flight.takeoff_height_m: must be > 0, got {self.takeoff_height_m}")
+
+
+class FlightRunner:
+    def __init__(self, link, mocap, make_env, track_controller, pid_factory, track_family: RefFamily,
+                 params: FlightParams, safety: S.SafetyParams, thrust: ThrustMap, run_dir: Path,
+                 estop: threading.Event | None = None, console=None) -> None:  # fmt: skip
+        self.link, self.mocap = link, mocap
+        self.make_env, self.track_controller, self.pid_factory = make_env, track_controller, pid_factory
+        self.track_family = track_family
+        self.p, self.safety, self.thrust = params, safety, thrust
+        self.run_dir = Path(run_dir)
+        self.estop = estop or threading.Event()
+        self.console = console
+        self.rows: list[dict] = []
+        self.events: list[dict] = []
+        self.phase = "CONNECT"
+        self.t0 = time.monotonic()
+        self.outcome = "incomplete"
+
+    # -- helpers ---------------------------------------------------------------------------
+    def _event(self, kind: str, text: str = "", **extra) -> None:
+        item = {"t_s": round(time.monotonic() - self.t0, 4), "phase": self.phase, "kind": kind, "text": text, **extra}
+        self.events.append(item)
+        if self.console is not None:
+            self.console.print(f"[{item['t_s']:7.2f} s] {self.phase:8s} {kind}: {text}")
+
+    def _set_phase(self, phase: str) -> None:
+        self.phase = phase
+        self._event("phase", phase)
+
+    def _origin(self) -> np.ndarray:
+        return np.array([self.p.origin_m[0], self.p.origin_m[1], self.p.takeoff_height_m])
+
+    def _mocap_age(self) -> float | None:
+        if self.mocap is None or self.mocap.name == "none":
+            return None
+        sample = self.mocap.read()
+        if sample is None:
+            return math.inf
+        pos, t = sample
+        self.link.send_extpos(pos)
+        return time.monotonic() - t
+
+    def _send(self, action) -> int:
+        roll, pitch, yaw = self.thrust.rates_deg(float(action[1]), float(action[2]), float(action[3]))
+        command = self.thrust.command(float(action[0]))
+        self.link.send_rates(roll, pitch, yaw, command)
+        return command
+
+    def _kill(self, reason: str) -> None:
+        self.link.emergency_stop()  # first, before logging or anything else
+        self._event("KILL", reason)
+        self.outcome = f"killed: {reason}"
+
+    # -- flight ----------------------------------------------------------------------------
+    def fly(self) -> dict:
+        try:
+            self._set_phase("CONNECT")
+            self.link.connect()
+            if self.mocap is not None:
+                self.mocap.start()
+            self._set_phase("PREFLIGHT")
+            start = self._preflight()
+            self._set_phase("ARM")
+            self.link.arm(True)
+            self.link.send_rates(0.0, 0.0, 0.0, 0)  # unlocks the firmware's thrust lock
+            time.sleep(0.05)
+            origin = self._origin()
+            # models are built (and the policy traced) before the motors spin: no stall mid-flight
+            phases = [
+                ("TAKEOFF", self._model(self.pid_factory(), Ramp(start - origin, [0.0, 0.0, 0.0], self.p.takeoff_s)),
+                 self.p.takeoff_s + self.p.hover_s),
+                ("TRACK", self._model(self.track_controller, self.track_family), self.p.track_s),
+            ]  # fmt: skip
+            for name, model, duration in phases:
+                self._set_phase(name)
+                if self._fly_phase(model, duration, origin) != S.OK:
+                    break
+            else:
+                self._land(origin)
+        except _Abort:
+            pass
+        except KeyboardInterrupt:
+            self._kill("operator interrupt (Ctrl-C)")
+        finally:
+            self._set_phase("DISARM")
+            try:
+                self.link.send_rates(0.0, 0.0, 0.0, 0)
+                self.link.arm(False)
+            except Exception as exc:  # a dead link cannot disarm; the vehicle's watchdog does
+                self._event("disarm failed", str(exc))
+            if self.mocap is not None:
+                self.mocap.stop()
+            self.link.close()
+            summary = self._write()
+        return summary
+
+    def _preflight(self) -> np.ndarray:
+        deadline = time.monotonic() + self.p.preflight_timeout_s
+        state = None
+        while time.monotonic() < deadline:
+            self._mocap_age()
+            state = self.link.state()
+            if state is not None and time.monotonic() - state.t_s < self.safety.max_state_age_s:
+                break
+            time.sleep(0.02)
+        checks = []
+        if state is None:
+            checks.append("no state estimate from the vehicle")
+        else:
+            if state.vbat_v < self.p.min_battery_v:
+                checks.append(f"battery {state.vbat_v:.2f} V < {self.p.min_battery_v} V")
+            if S.tilt_deg(state.quat) > 10:
+                checks.append("vehicle not level")
+            lo, hi = self.safety.geofence_min_m, self.safety.geofence_max_m
+            if not all(lo[i] <= state.pos_m[i] <= hi[i] for i in range(3)):
+                checks.append("start position outside the geofence")
+            goal = self._origin()
+            if not all(lo[i] <= goal[i] <= hi[i] for i in range(3)):
+                checks.append("hover point outside the geofence")
+        if checks:
+            self.outcome = "preflight failed: " + "; ".join(checks)
+            self._event("preflight failed", "; ".join(checks))
+            raise _Abort(self.outcome)
+        self._event("preflight ok", f"battery {state.vbat_v:.2f} V")
+        return np.array(state.pos_m)
+
+    def _tick_loop(self, model: FlightModel, steps: int, origin: np.ndarray, allow_land: bool = True) -> str:
+        dt = 1.0 / self.p.rate_hz
+        next_t = time.monotonic()
+        for _ in range(steps):
+            scheduled = next_t
+            now = time.monotonic()
+            jitter_ms = (now - scheduled) * 1e3
+            state = self.link.state()
+            mocap_age = self._mocap_age()
+            action, command = None, 0
+            if state is not None and all(math.isfinite(v) for v in (*state.pos_m, *state.vel_mps, *state.quat)):
+                pos = np.array(state.pos_m) - origin
+                action = model.act(pos, state.vel_mps, state.quat)
+            decision = S.check(self.safety, now_s=time.monotonic(), state=state, command=action, estop=self.estop.is_set(),
+                               link_lost=self.link.link_lost.is_set(), mocap_age_s=mocap_age)  # fmt: skip
+            if decision.action == S.KILL:
+                self._kill(decision.reason)
+                return S.KILL
+            if decision.action == S.LAND and allow_land:
+                self._event("LAND", decision.reason)
+                return S.LAND
+            if decision.action == S.LAND:  # already landing: keep landing, note why
+                self._event("warning", decision.reason)
+            command = self._send(action)
+            compute_ms = (time.monotonic() - now) * 1e3
+            self.rows.append({
+                "t_s": now - self.t0, "phase": self.phase, "pos": list(state.pos_m), "vel": list(state.vel_mps),
+                "quat": list(state.quat), "ref": list(model.reference() + origin), "action": [float(a) for a in action],
+                "thrust_cmd": command, "d_hat": list(model.d_hat), "vbat": state.vbat_v, "decision": decision.action,
+                "jitter_ms": jitter_ms, "compute_ms": compute_ms,
+            })  # fmt: skip
+            model.advance()
+            next_t += dt
+            time.sleep(max(0.0, next_t - time.monotonic()))
+        return S.OK
+
+    def _model(self, controller, family: RefFamily) -> FlightModel:
+        model = FlightModel(self.make_env, controller, family)
+        model.act([0.0, 0.0, 0.0], [0.0, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0])  # warm-up (traces the policy)
+        model.env.reset()
+        controller.reset(model.env)
+        model.last_cmd = model.env.hover_action.clone()
+        return model
+
+    def _fly_phase(self, model: FlightModel, duration_s: float | None, origin: np.ndarray) -> str:
+        steps = int(round((duration_s or model.env.params.episode_steps * model.env.dt_s) * self.p.rate_hz))
+        result = self._tick_loop(model, steps, origin)
+        if result == S.LAND:
+            self._land(origin)
+        return result
+
+    def _land(self, origin: np.ndarray) -> None:
+        self._set_phase("LAND")
+        state = self.link.state()
+        here = (np.array(state.pos_m) if state is not None else origin) - origin
+        ground = np.array([here[0], here[1], -origin[2] + 0.05])
+        model = self._model(self.pid_factory(), Ramp(here, ground, self.p.land_s))
+        result = self._tick_loop(model, int((self.p.land_s + 0.5) * self.p.rate_hz), origin, allow_land=False)
+        if result == S.OK:
+            self.link.send_rates(0.0, 0.0, 0.0, 0)
+            reasons = [e["text"] for e in self.events if e["kind"] == "LAND"]
+            self.outcome = "landed" + (f" early: {reasons[0]}" if reasons else "")
+
+    # -- records ---------------------------------------------------------------------------
+    def _write(self) -> dict:
+        self.run_dir.mkdir(parents=True, exist_ok=True)
+        with open(self.run_dir / "flight.csv", "w", newline="") as f:
+            w = csv.writer(f)
+            w.writerow(["t_s", "phase", "x", "y", "z", "vx", "vy", "vz", "qw", "qx", "qy", "qz", "ref_x", "ref_y", "ref_z",
+                        "thrust_mps2", "wx", "wy", "wz", "thrust_cmd", "dhat_x", "dhat_y", "dhat_z", "vbat_v", "decision",
+                        "jitter_ms", "compute_ms"])  # fmt: skip
+            for r in self.rows:
+                w.writerow([f"{r['t_s']:.4f}", r["phase"], *r["pos"], *r["vel"], *r["quat"], *r["ref"], *r["action"],
+                            r["thrust_cmd"], *r["d_hat"], r["vbat"], r["decision"], f"{r['jitter_ms']:.3f}",
+                            f"{r['compute_ms']:.3f}"])  # fmt: skip
+        track = [r for r in self.rows if r["phase"] == "TRACK"]
+        err = [float(np.linalg.norm(np.array(r["pos"]) - np.array(r["ref"]))) for r in track]
+        jitter = np.array([r["jitter_ms"] for r in self.rows]) if self.rows else np.zeros(1)
+        compute = np.array([r["compute_ms"] for r in self.rows]) if self.rows else np.zeros(1)
+        summary = {
+            "outcome": self.outcome,
+            "track_steps": len(track),
+            "track_error_m": float(np.mean(err)) if err else None,
+            "ticks": len(self.rows),
+            "jitter_ms": {"median": float(np.median(np.abs(jitter))), "p99": float(np.percentile(np.abs(jitter), 99)),
+                          "max": float(np.max(np.abs(jitter)))},  # fmt: skip
+            "late_ticks": int(np.sum(jitter > self.p.late_tick_ms)),
+            "compute_ms": {"median": float(np.median(compute)), "p99": float(np.percentile(compute, 99))},
+            "events": self.events,
+        }
+        (self.run_dir / "events.json").write_text(json.dumps(summary, indent=2) + "\n")
+        if track:
+            self._plot(track)
+        return summary
+
+    def _plot(self, track: list[dict]) -> None:
+        from types import SimpleNamespace
+
+        from datt.eval.plots import plot_group_axes, plot_tracks
+
+        pos = torch.tensor([r["pos"] for r in track]).unsqueeze(0)
+        ref = torch.tensor([r["ref"] for r in track]).unsqueeze(0)
+        trace = SimpleNamespace(pos_m=pos, ref_m=ref, crashed_at=torch.tensor([len(track) - 1]))
+        plot_tracks(trace, ["track"], [1], self.run_dir / "tracks_flight.png", title="flight: reference vs flown", per_group=1)
+        plot_group_axes(trace, ["track"], [1], 1.0 / self.p.rate_hz, self.run_dir / "axes_flight.png", title="flight")
+
+
+class _Abort(RuntimeError):
+    pass

@@ -1,0 +1,101 @@
+"""Per-tick safety decision: OK, LAND (controlled landing) or KILL (motors off now).
+
+Checked every control tick, in this order (the first KILL wins, then the first LAND):
+
+KILL: operator e-stop; link lost; no state estimate or one older than ``max_state_age_s``;
+      non-finite state; outside the geofence by more than ``geofence_margin_m``; tilt above
+      ``max_tilt_deg``; non-finite command; battery below ``kill_battery_v``.
+LAND: outside the geofence box; speed above ``max_speed_mps``; external position (mocap) older
+      than ``max_mocap_age_s`` while a mocap source is configured; command out of range
+      (thrust or rates beyond the policy's bounds); battery below ``land_battery_v``.
+
+The runner acts on the decision (KILL sends the emergency stop before anything else) and logs
+the reason. All limits are ``conf/deploy/*.yaml`` key ``safety``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+OK, LAND, KILL = "OK", "LAND", "KILL"
+
+
+@dataclass
+class SafetyParams:
+    geofence_min_m: list = field(default_factory=lambda: [-2.0, -2.0, -0.1])
+    geofence_max_m: list = field(default_factory=lambda: [2.0, 2.0, 2.5])
+    geofence_margin_m: float = 0.5
+    max_tilt_deg: float = 75.0
+    max_speed_mps: float = 4.0
+    max_state_age_s: float = 0.1
+    max_mocap_age_s: float = 0.1
+    land_battery_v: float = 3.3
+    kill_battery_v: float = 3.0
+    max_thrust_mps2: float = 39.81
+    max_rate_radps: list = field(default_factory=lambda: [20.0, 20.0, 2.0])
+
+    def validate(self) -> None:
+        from datt.config import ConfigError
+
+        if any(lo >= hi for lo, hi in zip(self.geofence_min_m, self.geofence_max_m)) or len(self.geofence_min_m) != 3:
+            raise ConfigError("deploy.safety.geofence_min_m/max_m: need 3 values each with min < max")
+        if not self.kill_battery_v <= self.land_battery_v:
+            raise ConfigError("deploy.safety.kill_battery_v: must be <= land_battery_v")
+
+
+@dataclass
+class Decision:
+    action: str
+    reason: str = ""
+
+
+def tilt_deg(quat) -> float:
+    """Angle between body z and world z for a (w, x, y, z) quaternion."""
+    w, x, y, z = quat
+    cos_tilt = 1.0 - 2.0 * (x * x + y * y)
+    return math.degrees(math.acos(max(-1.0, min(1.0, cos_tilt))))
+
+
+def check(p: SafetyParams, *, now_s: float, state, command, estop: bool, link_lost: bool,
+          mocap_age_s: float | None) -> Decision:  # fmt: skip
+    """``state``: a :class:`~datt.deploy.link.StateSample` or None; ``command``: the action about
+    to be sent ``[thrust_mps2, wx, wy, wz]`` (or None before one exists); ``mocap_age_s``: None
+    when no mocap source is configured."""
+    if estop:
+        return Decision(KILL, "operator e-stop")
+    if link_lost:
+        return Decision(KILL, "link lost")
+    if state is None:
+        return Decision(KILL, "no state estimate")
+    age = now_s - state.t_s
+    if age > p.max_state_age_s:
+        return Decision(KILL, f"state estimate stale ({age * 1e3:.0f} ms > {p.max_state_age_s * 1e3:.0f} ms)")
+    values = [*state.pos_m, *state.vel_mps, *state.quat]
+    if not all(math.isfinite(v) for v in values):
+        return Decision(KILL, "non-finite state estimate")
+    lo, hi, margin = p.geofence_min_m, p.geofence_max_m, p.geofence_margin_m
+    outside = [max(lo[i] - state.pos_m[i], state.pos_m[i] - hi[i], 0.0) for i in range(3)]
+    if max(outside) > margin:
+        return Decision(KILL, f"geofence breached by {max(outside):.2f} m (> margin {margin} m)")
+    tilt = tilt_deg(state.quat)
+    if tilt > p.max_tilt_deg:
+        return Decision(KILL, f"tilt {tilt:.0f} deg > {p.max_tilt_deg:.0f} deg")
+    if command is not None and not all(math.isfinite(float(c)) for c in command):
+        return Decision(KILL, "non-finite command")
+    if state.vbat_v < p.kill_battery_v:
+        return Decision(KILL, f"battery {state.vbat_v:.2f} V < {p.kill_battery_v} V")
+    if max(outside) > 0:
+        return Decision(LAND, f"outside geofence by {max(outside):.2f} m")
+    speed = math.sqrt(sum(v * v for v in state.vel_mps))
+    if speed > p.max_speed_mps:
+        return Decision(LAND, f"speed {speed:.1f} m/s > {p.max_speed_mps} m/s")
+    if mocap_age_s is not None and mocap_age_s > p.max_mocap_age_s:
+        return Decision(LAND, f"mocap stale ({mocap_age_s * 1e3:.0f} ms > {p.max_mocap_age_s * 1e3:.0f} ms)")
+    if command is not None:
+        thrust, rates = float(command[0]), [abs(float(c)) for c in command[1:]]
+        if not 0.0 <= thrust <= p.max_thrust_mps2 or any(r > m + 1e-6 for r, m in zip(rates, p.max_rate_radps)):
+            return Decision(LAND, "command out of range")
+    if state.vbat_v < p.land_battery_v:
+        return Decision(LAND, f"battery {state.vbat_v:.2f} V < {p.land_battery_v} V")
+    return Decision(OK)

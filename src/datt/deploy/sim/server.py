@@ -1,0 +1,350 @@
+"""A simulated Crazyflie that real cflib connects to over UDP (``udp://127.0.0.1:19850``).
+
+It answers CRTP one packet per datagram (cflib's ``udpdriver``) on the ports cflib uses while
+connecting and flying: link (magic string), platform (protocol version 12), log (TOC v2, blocks,
+periodic data), param (TOC v2, read, write), mem (no memories), commander (legacy RPYT setpoints),
+localization (external position), supervisor (arm, emergency stop). Behind it one drone of
+:mod:`datt.sim` flies in real time at ``dt_s`` with a disturbance model and a ground plane.
+
+Firmware behaviour that matters for safety is emulated:
+
+* **thrust lock**: after start-up (and after an emergency stop is cleared by a restart) setpoints
+  with thrust > 0 are ignored until one with thrust 0 arrives;
+* **setpoint watchdog**: 0.5 s without a setpoint -> level attitude at the last thrust; 2 s ->
+  motors off (``commander`` watchdog of the firmware);
+* **emergency stop**: motors off and locked until the server restarts;
+* **battery**: ``pm.vbat`` falls linearly with motor-on time (``battery_drain_vps``); tests can
+  set it (``server.battery_v``).
+
+The onboard estimate logged back is the true state, with the position replaced by the latest
+external position when one arrived within 0.2 s (as the Kalman filter would converge to it).
+"""
+
+from __future__ import annotations
+
+import math
+import socket
+import struct
+import threading
+import time
+import zlib
+from dataclasses import dataclass, field
+
+import torch
+
+from datt.deploy import crtp
+from datt.deploy.thrust import ThrustMap, ThrustParams
+from datt.sim.quadrotor import Quadrotor, QuadrotorParams
+
+LOG_VARS = [  # (group, name, type)
+    ("stateEstimate", "x", "float"), ("stateEstimate", "y", "float"), ("stateEstimate", "z", "float"),
+    ("stateEstimate", "vx", "float"), ("stateEstimate", "vy", "float"), ("stateEstimate", "vz", "float"),
+    ("stateEstimate", "qx", "float"), ("stateEstimate", "qy", "float"), ("stateEstimate", "qz", "float"),
+    ("stateEstimate", "qw", "float"), ("pm", "vbat", "float"), ("sys", "armed", "uint8_t"),
+]  # fmt: skip
+PARAMS = [  # (group, name, type, default)
+    ("flightmode", "stabModeRoll", "uint8_t", 1), ("flightmode", "stabModePitch", "uint8_t", 1),
+    ("stabilizer", "estimator", "uint8_t", 2), ("stabilizer", "controller", "uint8_t", 1),
+    ("commander", "enHighLevel", "uint8_t", 0), ("locSrv", "extPosStdDev", "float", 0.01),
+]  # fmt: skip
+WATCHDOG_LEVEL_S, WATCHDOG_OFF_S = 0.5, 2.0
+
+
+def _toc_crc(entries: list[tuple]) -> int:
+    return zlib.crc32(repr(entries).encode()) & 0xFFFFFFFF
+
+
+@dataclass
+class SimCrazyflieParams:
+    host: str = "127.0.0.1"
+    port: int = 19850
+    dt_s: float = 0.02
+    battery_v: float = 4.1
+    battery_drain_vps: float = 0.002
+    start_pos_m: tuple = (0.0, 0.0, 0.0)
+    thrust: ThrustParams = field(default_factory=ThrustParams)
+
+
+class SimCrazyflie:
+    """UDP CRTP server + real-time physics thread. ``start()`` / ``stop()``; ``kill()`` drops the
+    link without a goodbye (fault injection: "server died mid-flight")."""
+
+    def __init__(self, params: SimCrazyflieParams | None = None, disturbance=None, quad: QuadrotorParams | None = None):
+        self.p = params or SimCrazyflieParams()
+        self.thrust_map = ThrustMap(self.p.thrust)
+        self.quad = Quadrotor(1, quad or QuadrotorParams(), dt_s=self.p.dt_s)
+        self.quad.reset(pos_m=torch.tensor([list(self.p.start_pos_m)]))
+        self.quad.state.thrust_mps2.zero_()
+        self.quad.latency.fill_all(torch.zeros(4))
+        self.disturbance = disturbance
+        if disturbance is not None:
+            disturbance.bind(1, self.p.dt_s, torch.Generator().manual_seed(0), "cpu", torch.float32)
+            disturbance.reset(torch.arange(1), self.quad.state)
+        self.battery_v = self.p.battery_v
+        self.params = {f"{g}.{n}": v for g, n, _, v in PARAMS}
+        self.log_blocks: dict[int, dict] = {}
+        self.armed = False
+        self.thrust_locked = True
+        self.emergency_stopped = False
+        self.cmd = (0.0, 0.0, 0.0, 0)  # wx, wy, wz (rad/s), thrust command
+        self.last_setpoint_t = -math.inf
+        self.extpos: tuple[float, float, float] | None = None
+        self.extpos_t = -math.inf
+        self.client = None
+        self.sim_time_s = 0.0
+        self.events: list[tuple[float, str]] = []
+        self._lock = threading.Lock()
+        self._running = threading.Event()
+        self._threads: list[threading.Thread] = []
+
+    # -- lifecycle -------------------------------------------------------------------------
+    def start(self) -> "SimCrazyflie":
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        self.sock.bind((self.p.host, self.p.port))
+        self.sock.settimeout(0.05)
+        self._running.set()
+        self._t0 = time.monotonic()
+        for target in (self._rx_loop, self._physics_loop):
+            t = threading.Thread(target=target, daemon=True)
+            t.start()
+            self._threads.append(t)
+        return self
+
+    def stop(self) -> None:
+        self._running.clear()
+        for t in self._threads:
+            t.join(timeout=1.0)
+        self.sock.close()
+
+    kill = stop  # the link just goes silent, as when the vehicle loses power
+
+    def __enter__(self) -> "SimCrazyflie":
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+    # -- state -----------------------------------------------------------------------------
+    @property
+    def motors_on(self) -> bool:
+        return self.cmd[3] > 0 and not self.emergency_stopped
+
+    def true_state(self) -> dict:
+        s = self.quad.state
+        return {"pos_m": s.pos_m[0].tolist(), "vel_mps": s.vel_mps[0].tolist(), "quat": s.quat[0].tolist()}
+
+    def _event(self, text: str) -> None:
+        self.events.append((self.sim_time_s, text))
+
+    # -- physics ---------------------------------------------------------------------------
+    def _physics_loop(self) -> None:
+        next_t = time.monotonic()
+        while self._running.is_set():
+            with self._lock:
+                self._physics_step()
+                self._send_logs()
+            next_t += self.p.dt_s
+            time.sleep(max(0.0, next_t - time.monotonic()))
+
+    def _physics_step(self) -> None:
+        now = self.sim_time_s
+        wx, wy, wz, command = self.cmd
+        age = now - self.last_setpoint_t
+        if self.emergency_stopped or age > WATCHDOG_OFF_S:
+            if command and not self.emergency_stopped:
+                self._event("watchdog: no setpoint for 2 s, motors off")
+            command, wx, wy, wz = 0, 0.0, 0.0, 0.0
+            self.cmd = (0.0, 0.0, 0.0, 0)
+        elif age > WATCHDOG_LEVEL_S:
+            # level the attitude (P on the tilt) at the last thrust, as the firmware's watchdog
+            q = self.quad.state.quat[0]
+            wx, wy, wz = -8.0 * float(q[1]) * 2, -8.0 * float(q[2]) * 2, 0.0
+        thrust = self.thrust_map.thrust_mps2(command) if self.armed else 0.0
+        d = torch.zeros(1, 3)
+        if self.disturbance is not None and self.motors_on:
+            d = self.disturbance.current_mps2
+        self.quad.step(torch.tensor([[thrust, wx, wy, wz]]), d)
+        if self.disturbance is not None:
+            self.disturbance.update(self.quad.state)
+        s = self.quad.state
+        if s.pos_m[0, 2] < 0:  # ground: no penetration; at rest when not lifting off
+            s.pos_m[0, 2] = 0.0
+            s.vel_mps[0].zero_()
+            s.rate_radps[0].zero_()
+            s.quat[0] = torch.tensor([1.0, 0.0, 0.0, 0.0])
+        if self.motors_on:
+            self.battery_v -= self.p.battery_drain_vps * self.p.dt_s
+        self.sim_time_s += self.p.dt_s
+
+    def _estimate(self) -> list[float]:
+        s = self.quad.state
+        pos = s.pos_m[0].tolist()
+        if self.extpos is not None and self.sim_time_s - self.extpos_t < 0.2:
+            pos = list(self.extpos)
+        q = s.quat[0].tolist()  # (w, x, y, z) -> firmware order qx, qy, qz, qw
+        return [*pos, *s.vel_mps[0].tolist(), q[1], q[2], q[3], q[0], self.battery_v, float(self.armed)]
+
+    def _send_logs(self) -> None:
+        if self.client is None:
+            return
+        values = self._estimate()
+        ms = int(self.sim_time_s * 1000)
+        for block_id, block in list(self.log_blocks.items()):
+            if not block["started"]:
+                continue
+            block["acc_s"] += self.p.dt_s
+            if block["acc_s"] + 1e-9 < block["period_s"]:
+                continue
+            block["acc_s"] = 0.0
+            payload = b"".join(struct.pack(crtp.LOG_TYPES[LOG_VARS[i][2]][1], values[i]) for i in block["vars"])
+            self._send(crtp.log_data(block_id, ms, payload))
+
+    # -- radio -----------------------------------------------------------------------------
+    def _send(self, data: bytes) -> None:
+        if self.client is not None:
+            try:
+                self.sock.sendto(data, self.client)
+            except OSError:
+                pass
+
+    def _rx_loop(self) -> None:
+        while self._running.is_set():
+            try:
+                data, addr = self.sock.recvfrom(64)
+            except (TimeoutError, socket.timeout):
+                continue
+            except OSError:
+                return
+            if not data:
+                continue
+            self.client = addr
+            with self._lock:
+                self._handle(data)
+
+    def _handle(self, datagram: bytes) -> None:
+        if datagram == b"\xff":  # scan probe / null packet
+            self._send(b"\xff")
+            return
+        port, ch, data = crtp.split(datagram)
+        handler = {
+            crtp.PORT_LINK: self._on_link, crtp.PORT_PLATFORM: self._on_platform, crtp.PORT_LOG: self._on_log,
+            crtp.PORT_PARAM: self._on_param, crtp.PORT_MEM: self._on_mem, crtp.PORT_COMMANDER: self._on_commander,
+            crtp.PORT_LOCALIZATION: self._on_localization, crtp.PORT_SUPERVISOR: self._on_supervisor,
+            crtp.PORT_COMMANDER_GENERIC: self._on_generic_commander,
+        }.get(port)  # fmt: skip
+        if handler is not None:
+            handler(ch, data)
+
+    def _on_link(self, ch: int, data: bytes) -> None:
+        if ch == 0:  # echo
+            self._send(crtp.packet(crtp.PORT_LINK, 0, data))
+        elif ch == 1:  # source: the magic string that says "protocol versioning supported"
+            self._send(crtp.packet(crtp.PORT_LINK, 1, b"Bitcraze Crazyflie"))
+
+    def _on_platform(self, ch: int, data: bytes) -> None:
+        if ch == 1 and data and data[0] == 0:  # VERSION_GET_PROTOCOL
+            self._send(crtp.packet(crtp.PORT_PLATFORM, 1, bytes([0, 12])))
+
+    def _toc(self, port: int, entries: list[tuple], types: dict, data: bytes) -> None:
+        if data[0] == 3:  # info v2
+            self._send(crtp.toc_info(port, len(entries), _toc_crc(entries)))
+        elif data[0] == 2 and len(data) >= 3:  # item v2
+            ident = data[1] | (data[2] << 8)
+            if ident < len(entries):
+                group, name, ctype = entries[ident][:3]
+                self._send(crtp.toc_item(port, ident, types[ctype][0], group, name))
+
+    def _on_log(self, ch: int, data: bytes) -> None:
+        if not data:
+            return
+        if ch == 0:
+            self._toc(crtp.PORT_LOG, LOG_VARS, crtp.LOG_TYPES, data)
+            return
+        cmd = data[0]
+        if cmd == 5:  # reset
+            self.log_blocks.clear()
+            self._send(crtp.packet(crtp.PORT_LOG, 1, bytes([5, 0, 0])))
+        elif cmd in (6, 7):  # create / append block v2: (type, id lo, id hi) triples
+            block_id, items = data[1], data[2:]
+            ids = [items[i + 1] | (items[i + 2] << 8) for i in range(0, len(items) - 2, 3)]
+            block = self.log_blocks.setdefault(block_id, {"vars": [], "started": False, "period_s": 0.1, "acc_s": 0.0})
+            block["vars"] += ids
+            size = sum(struct.calcsize(crtp.LOG_TYPES[LOG_VARS[i][2]][1]) for i in block["vars"])
+            err = 7 if size > crtp.MAX_LOG_BLOCK_BYTES else 0  # E2BIG, as the firmware
+            self._send(crtp.packet(crtp.PORT_LOG, 1, bytes([cmd, block_id, err])))
+        elif cmd == 3:  # start: period in 10 ms units
+            block = self.log_blocks.get(data[1])
+            if block is not None:
+                block["started"], block["period_s"] = True, max(data[2], 1) * 0.01
+            self._send(crtp.packet(crtp.PORT_LOG, 1, bytes([3, data[1], 0 if block else 2])))
+        elif cmd in (2, 4):  # delete / stop
+            block = self.log_blocks.get(data[1])
+            if block is not None:
+                block["started"] = False
+                if cmd == 2:
+                    del self.log_blocks[data[1]]
+            self._send(crtp.packet(crtp.PORT_LOG, 1, bytes([cmd, data[1], 0])))
+
+    def _on_param(self, ch: int, data: bytes) -> None:
+        if not data:
+            return
+        if ch == 0:
+            self._toc(crtp.PORT_PARAM, PARAMS, crtp.PARAM_TYPES, data)
+            return
+        if len(data) < 2:
+            return
+        ident = data[0] | (data[1] << 8)
+        if ident >= len(PARAMS):
+            return
+        group, name, ctype, _ = PARAMS[ident]
+        fmt = crtp.PARAM_TYPES[ctype][1]
+        key = f"{group}.{name}"
+        if ch == 2:  # write, echoed back as the firmware does
+            self.params[key] = struct.unpack(fmt, data[2 : 2 + struct.calcsize(fmt)])[0]
+            self._event(f"param {key} = {self.params[key]}")
+        if ch in (1, 2):
+            status = b"\0" if ch == 1 else b""
+            self._send(crtp.packet(crtp.PORT_PARAM, ch, data[:2] + status + struct.pack(fmt, self.params[key])))
+
+    def _on_mem(self, ch: int, data: bytes) -> None:
+        if ch == 0 and data and data[0] == 1:  # number of memories: none
+            self._send(crtp.packet(crtp.PORT_MEM, 0, bytes([1, 0])))
+
+    def _on_commander(self, ch: int, data: bytes) -> None:
+        if ch != 0 or len(data) < 14 or self.emergency_stopped:
+            return
+        roll, pitch_wire, yaw, thrust = struct.unpack("<fffH", data[:14])
+        self.last_setpoint_t = self.sim_time_s
+        if self.thrust_locked:
+            if thrust == 0:
+                self.thrust_locked = False
+                self._event("thrust unlocked")
+            return
+        if self.params["flightmode.stabModeRoll"] != 0 or self.params["flightmode.stabModePitch"] != 0:
+            self._event("setpoint ignored: not in rate mode (flightmode.stabModeRoll/Pitch must be 0)")
+            return
+        wx, wy, wz = ThrustMap.body_rates_from_wire(roll, pitch_wire, yaw)
+        self.cmd = (wx, wy, wz, int(thrust))
+
+    def _on_generic_commander(self, ch: int, data: bytes) -> None:
+        if ch == 0 and data and data[0] == 0:  # stop setpoint
+            self.cmd = (0.0, 0.0, 0.0, 0)
+            self.last_setpoint_t = self.sim_time_s
+
+    def _on_localization(self, ch: int, data: bytes) -> None:
+        if ch == 0 and len(data) >= 12:
+            self.extpos = struct.unpack("<fff", data[:12])
+            self.extpos_t = self.sim_time_s
+
+    def _on_supervisor(self, ch: int, data: bytes) -> None:
+        if ch != 1 or not data:
+            return
+        if data[0] == 1:  # arm / disarm
+            self.armed = bool(data[1]) if len(data) > 1 else False
+            self._event("armed" if self.armed else "disarmed")
+            self._send(crtp.packet(crtp.PORT_SUPERVISOR, 1, bytes([0x81, 1, int(self.armed)])))
+        elif data[0] == 3:  # emergency stop
+            self.emergency_stopped = True
+            self.cmd = (0.0, 0.0, 0.0, 0)
+            self._event("emergency stop")
