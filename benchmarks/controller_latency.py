@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import argparse
 
-import torch
 from _common import write_result
 
 from datt.cli import build_controller

@@ -449,7 +449,7 @@ def run_deploy(cfg: DictConfig, run_dir: Path | None = None, estop=None, server_
     from datt.control.pid import PidController
     from datt.deploy import mocap as M
     from datt.deploy.link import CrazyflieLink, LinkError
-    from datt.deploy.runner import FlightParams, FlightRunner, Shifted
+    from datt.deploy.runner import FlightParams, FlightRunner
     from datt.deploy.safety import SafetyParams
     from datt.deploy.thrust import ThrustMap, ThrustParams
 

@@ -46,16 +46,6 @@ class Ramp(RefFamily):
         return (self.start + u * (self.end - self.start)).to(t_s.dtype).expand(n, len(t_s), 3).clone()
 
 
-class Shifted(RefFamily):
-    """A family's references with a constant offset (the track starts where the drone is)."""
-
-    def __init__(self, family: RefFamily, offset) -> None:
-        self.family, self.offset = family, torch.tensor(offset, dtype=torch.float64)
-
-    def sample(self, n, t_s, generator):
-        return self.family.sample(n, t_s, generator) + self.offset.to(t_s.dtype)
-
-
 class FlightModel:
     """A controller flying from measurements: a one-drone env whose state is set each tick."""
 
