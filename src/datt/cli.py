@@ -473,8 +473,11 @@ def run_deploy(cfg: DictConfig, run_dir: Path | None = None, estop=None, server_
         url = urlparse(str(d.uri))
         if url.scheme != "udp":
             raise ConfigError(f"deploy.uri: the simulated Crazyflie listens on udp://host:port, got {d.uri!r}")
-        sp = SimCrazyflieParams(host=url.hostname, port=url.port, thrust=thrust_params,
-                                **{k: (tuple(v) if OmegaConf.is_list(v) else v) for k, v in d.server.items()})  # fmt: skip
+        server_cfg = {k: (tuple(v) if OmegaConf.is_list(v) else v) for k, v in d.server.items()}
+        # the simulated vehicle's motors follow the model at its true mass (never the user's calibration)
+        true_mass = server_cfg.pop("mass_kg", None) or thrust_params.mass_kg
+        vehicle = ThrustParams(mass_kg=float(true_mass), k2=thrust_params.k2, k1=thrust_params.k1, k0=thrust_params.k0)
+        sp = SimCrazyflieParams(host=url.hostname, port=url.port, thrust=vehicle, **server_cfg)
         server = SimCrazyflie(sp, disturbance=instantiate_option(cfg, "disturbance")).start()
     source = str(d.mocap.get("source", "none"))
     if source == "none":
@@ -495,8 +498,11 @@ def run_deploy(cfg: DictConfig, run_dir: Path | None = None, estop=None, server_
                           ThrustMap(thrust_params), run_dir, estop=estop, console=console)  # fmt: skip
     if server_hook is not None:
         server_hook(server, runner)
+    mode = str(d.get("mode", "fly"))
+    if mode not in ("fly", "calibrate"):
+        raise ConfigError(f"deploy.mode: unknown mode {mode!r}; allowed: fly, calibrate")
     try:
-        summary = runner.fly()
+        summary = runner.fly() if mode == "fly" else runner.calibrate(float(d.get("calibrate_hover_s", 4.0)))
     except LinkError as exc:
         raise ConfigError(str(exc)) from None
     finally:
@@ -504,6 +510,9 @@ def run_deploy(cfg: DictConfig, run_dir: Path | None = None, estop=None, server_
             server.stop()
     summary["controller"] = labels
     (run_dir / "events.json").write_text(json.dumps(summary, indent=2, default=str) + "\n")
+    if mode == "calibrate":
+        console.print(f"calibration: {summary['outcome']}; hover command {summary['hover_command']} "
+                      f"(set deploy.thrust.hover_command)")  # fmt: skip
     err = summary["track_error_m"]
     console.print(f"flight: {summary['outcome']}; tracking error {err if err is None else f'{err:.3f} m'} over "
                   f"{summary['track_steps']} steps; tick jitter median {summary['jitter_ms']['median']:.2f} ms, "

@@ -19,7 +19,9 @@ from datt.config import compose  # noqa: E402
 from datt.deploy import safety as S  # noqa: E402
 
 _ports = itertools.count(19900)
-SHORT = ["deploy.flight.takeoff_s=1.5", "deploy.flight.hover_s=0.5", "deploy.flight.track_s=3.0", "deploy.flight.land_s=1.5"]
+SHORT = ["deploy.flight.takeoff_s=1.5", "deploy.flight.hover_s=0.5", "deploy.flight.track_s=3.0", "deploy.flight.land_s=1.5",
+         # a loaded CI machine can stall the server's threads for ~0.2 s; the default 0.1 s would KILL
+         "deploy.safety.max_state_age_s=0.4", "deploy.safety.max_mocap_age_s=0.4"]
 
 
 def fly(tmp_path, overrides=(), hook=None, estop=None):
@@ -58,6 +60,9 @@ def test_nominal_flight_tracks_and_lands(tmp_path):
     phases = [e["text"] for e in summary["events"] if e["kind"] == "phase"]
     assert phases == ["CONNECT", "PREFLIGHT", "ARM", "TAKEOFF", "TRACK", "LAND", "DISARM"]
     assert (tmp_path / "tracks_flight.png").is_file()
+    # the firmware was put in rate mode and streams both log blocks within its 26-byte limit
+    assert server.params["flightmode.stabModeRoll"] == 0 and server.params["flightmode.stabModePitch"] == 0
+    assert len(server.log_blocks) == 2 and all(b["started"] for b in server.log_blocks.values())
 
 
 def test_estop_kills_first(tmp_path):
@@ -150,3 +155,17 @@ def test_real_crazyflie_connects_and_logs():  # pragma: no cover - needs a Crazy
         assert link.state() is not None
     finally:
         link.close()
+
+
+def test_hover_calibration_finds_the_true_hover_command(tmp_path):
+    from datt.deploy.thrust import ThrustMap, ThrustParams
+
+    # the vehicle is 6 % heavier than the configured mass: the nominal hover command is 4 % low
+    cfg = compose("deploy", [f"deploy.uri=udp://127.0.0.1:{next(_ports)}", *SHORT, "deploy.mode=calibrate",
+                             "deploy.server.mass_kg=0.036", "deploy.calibrate_hover_s=3.0"])  # fmt: skip
+    summary = run_deploy(cfg, run_dir=tmp_path)
+    true_hover = ThrustMap(ThrustParams(mass_kg=0.036)).hover_command
+    nominal = ThrustMap().hover_command
+    assert abs(nominal - true_hover) / true_hover > 0.03
+    assert summary["outcome"] == "landed"
+    assert abs(summary["hover_command"] - true_hover) / true_hover < 0.01

@@ -118,6 +118,7 @@ class FlightRunner:
         self.phase = "CONNECT"
         self.t0 = time.monotonic()
         self.outcome = "incomplete"
+        self._excitation = None  # calibration: extra thrust (m/s²) as a function of the tick index
 
     # -- helpers ---------------------------------------------------------------------------
     def _event(self, kind: str, text: str = "", **extra) -> None:
@@ -197,6 +198,60 @@ class FlightRunner:
             summary = self._write()
         return summary
 
+    def calibrate(self, hover_s: float = 4.0, excitation_mps2: float = 1.0, lag_ticks: int = 3) -> dict:
+        """Hover calibration flight: takeoff, then hold the hover point with the PID while a slow
+        square wave of ±``excitation_mps2`` is added to its thrust; fit the command at which the
+        vertical acceleration (from the logged velocity, ``lag_ticks`` after the command) is zero
+        (:func:`~datt.deploy.thrust.fit_hover_command`), then land. Returns the summary with
+        ``hover_command`` (set it as ``deploy.thrust.hover_command``)."""
+        from datt.deploy.thrust import fit_hover_command
+
+        fitted = None
+        try:
+            self._set_phase("CONNECT")
+            self.link.connect()
+            if self.mocap is not None:
+                self.mocap.start()
+            self._set_phase("PREFLIGHT")
+            start = self._preflight()
+            self._set_phase("ARM")
+            self.link.arm(True)
+            self.link.send_rates(0.0, 0.0, 0.0, 0)
+            time.sleep(0.05)
+            origin = self._origin()
+            takeoff = self._model(self.pid_factory(), Ramp(start - origin, [0.0, 0.0, 0.0], self.p.takeoff_s))
+            self._set_phase("TAKEOFF")
+            if self._fly_phase(takeoff, self.p.takeoff_s + self.p.hover_s, origin) == S.OK:
+                self._set_phase("CALIBRATE")
+                hold = self._model(self.pid_factory(), Ramp([0.0, 0.0, 0.0], [0.0, 0.0, 0.0], 1.0))
+                steps = int(hover_s * self.p.rate_hz)
+                self._excitation = lambda k: excitation_mps2 * (1.0 if (k // int(self.p.rate_hz / 2)) % 2 else -1.0)
+                first = len(self.rows)
+                if self._tick_loop(hold, steps, origin) == S.OK:
+                    rows = self.rows[first:]
+                    vz = np.array([r["vel"][2] for r in rows])
+                    acc = np.diff(vz) * self.p.rate_hz
+                    cmds = [float(r["thrust_cmd"]) for r in rows[: len(acc) - lag_ticks]]
+                    fitted = fit_hover_command(cmds, list(acc[lag_ticks:]))
+                    self._event("calibrated", f"hover command {fitted:.0f}")
+                self._excitation = None
+                self._land(origin)
+        except _Abort:
+            pass
+        finally:
+            self._set_phase("DISARM")
+            try:
+                self.link.send_rates(0.0, 0.0, 0.0, 0)
+                self.link.arm(False)
+            except Exception as exc:
+                self._event("disarm failed", str(exc))
+            if self.mocap is not None:
+                self.mocap.stop()
+            self.link.close()
+            summary = self._write()
+        summary["hover_command"] = fitted
+        return summary
+
     def _preflight(self) -> np.ndarray:
         deadline = time.monotonic() + self.p.preflight_timeout_s
         state = None
@@ -230,7 +285,7 @@ class FlightRunner:
     def _tick_loop(self, model: FlightModel, steps: int, origin: np.ndarray, allow_land: bool = True) -> str:
         dt = 1.0 / self.p.rate_hz
         next_t = time.monotonic()
-        for _ in range(steps):
+        for k in range(steps):
             scheduled = next_t
             now = time.monotonic()
             jitter_ms = (now - scheduled) * 1e3
@@ -240,6 +295,8 @@ class FlightRunner:
             if state is not None and all(math.isfinite(v) for v in (*state.pos_m, *state.vel_mps, *state.quat)):
                 pos = np.array(state.pos_m) - origin
                 action = model.act(pos, state.vel_mps, state.quat)
+                if self._excitation is not None:
+                    action[0] += self._excitation(k)
             decision = S.check(self.safety, now_s=time.monotonic(), state=state, command=action, estop=self.estop.is_set(),
                                link_lost=self.link.link_lost.is_set(), mocap_age_s=mocap_age)  # fmt: skip
             if decision.action == S.KILL:
