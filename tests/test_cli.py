@@ -24,6 +24,7 @@ def test_eval_py_on_checkpoint_writes_metrics(tmp_path, tiny_policy_checkpoint):
         assert cond["groups"]["zigzag"]["episodes"] == 10 and cond["groups"]["star"]["episodes"] == 1
     assert (tmp_path / "tracks_datt_brownian_l1_seed_0.png").exists()
     assert (tmp_path / "axes_datt_brownian_l1_seed_0.png").exists()
+    assert (tmp_path / "trace_seed1.pt").exists()
     assert "zigzag error (m)" in proc.stdout
     timing = metrics["inference_ms"]
     assert timing["batch"] == 1 and timing["steps"] == 200 and 0 < timing["median_ms"] <= timing["p95_ms"]

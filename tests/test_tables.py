@@ -117,6 +117,16 @@ def test_main_table_pools_seeds_and_reports_inference(tmp_path):
     assert rows["Nonlinear tracking control (PID)"][2] == "0.300 ± 0.000 (2/4 failed)"
     assert rows["DATT (d̂ = 0)"][1] == "0.040 ± 0.010" and rows["DATT (d̂ = 0)"][3] == "0.10"
     assert rows["DATT (d̂ = 0)"][5] == "0.089 ± 0.026"  # paper column
+    # side-by-side plot from the traces eval.py saves
+    import torch
+
+    for num in (0, 1):
+        pos = torch.zeros(3, 11, 3)
+        torch.save({"pos_m": pos, "ref_m": pos + 0.1 * num, "err_m": torch.full((3, 10), 0.1 * num),
+                    "crashed_at": torch.tensor([10, 10, 10]), "names": ["smooth", "zigzag"], "counts": [2, 1]},
+                   tmp_path / str(num) / "trace_seed0.pt")  # fmt: skip
+    png = T.plot_side_by_side_from_jobs(T.find_jobs([tmp_path]), "zigzag", 0, tmp_path / "sbs.png")
+    assert png is not None and png.stat().st_size > 1000
 
 
 def test_unknown_table_and_missing_sweep_are_one_line(tmp_path):

@@ -135,7 +135,8 @@ def print_metrics(title: str, conditions: dict) -> None:
     console.print(table)
 
 
-def evaluate_conditions(cfg: DictConfig, policy, conditions: dict, run_dir: Path, plots: bool, tag: str) -> dict:
+def evaluate_conditions(cfg: DictConfig, policy, conditions: dict, run_dir: Path, plots: bool, tag: str,
+                        trace_path: Path | None = None) -> dict:  # fmt: skip
     """Fly the bank under each condition with ``policy``: a trained actor, a ready
     :class:`~datt.control.Controller`, or None (hovering, the reference point)."""
     from datt.control import Controller, DattController, HoverController
@@ -155,6 +156,10 @@ def evaluate_conditions(cfg: DictConfig, policy, conditions: dict, run_dir: Path
             continue
         res = evaluate(eval_cfg, factory, cond["disturbance"], cond["adaptation"], seed=int(cfg.eval.get("seed", 0)))
         labels = {k: v if isinstance(v, str) else OmegaConf.to_container(v) for k, v in cond.items()}
+        if trace_path is not None:  # for side-by-side plots across controllers (tables.py main)
+            tr = res["trace"]
+            torch.save({"pos_m": tr.pos_m, "ref_m": tr.ref_m, "err_m": tr.err_m, "crashed_at": tr.crashed_at,
+                        "names": res["names"], "counts": res["counts"]}, trace_path)  # fmt: skip
         results[name] = {**labels, "groups": res["groups"]}
         if plots:
             slug = "".join(c if c.isalnum() else "_" for c in name)
@@ -368,7 +373,8 @@ def run_eval(cfg: DictConfig, run_dir: Path | None = None) -> dict:
     results = {}
     for seed in cfg.eval.seeds:
         merged.eval.seed = int(seed)
-        results.update(evaluate_conditions(merged, controller, {f"{label} seed {seed}": cond}, run_dir, cfg.eval.plots, name))
+        results.update(evaluate_conditions(merged, controller, {f"{label} seed {seed}": cond}, run_dir, cfg.eval.plots, name,
+                                           trace_path=run_dir / f"trace_seed{seed}.pt" if cfg.eval.get("save_trace") else None))
     metrics = {**labels, "conditions": results}
     print_metrics(f"{name} on the seeded bank", results)
     inference = measure_inference(merged, controller)
@@ -415,6 +421,10 @@ def run_tables(cfg: DictConfig, run_dir: Path | None = None) -> dict:
     files = T.write(spec, rendered, out_dir)
     if cfg.get("plots", True) and spec.kind == "train":
         files += T.plot_train_sweep(spec, rows, jobs, out_dir)
+    if cfg.get("plots", True) and spec.kind == "eval":
+        sbs = cfg.get("side_by_side") or {}
+        path = T.plot_side_by_side_from_jobs(jobs, str(sbs.get("group", "zigzag")), int(sbs.get("index", 0)), out_dir / f"{spec.name}_side_by_side.png")
+        files += [path] if path else []
     table = Table(title=spec.title)
     for h in rendered["header"]:
         table.add_column(h)

@@ -411,3 +411,28 @@ def plot_train_sweep(spec: TableSpec, rows: dict[str, list[Cell]], jobs: list[Jo
         fig.savefig(paths[-1], dpi=90)
         plt.close(fig)
     return paths
+
+
+def plot_side_by_side_from_jobs(jobs: list[Job], group: str, index: int, path: Path) -> Path | None:
+    """Every eval job's saved trace (``trace_seed<k>.pt``, first seed) on one reference: the
+    ``index``-th of ``group``. None when no job saved a trace."""
+    import torch
+    from types import SimpleNamespace
+
+    from datt.eval.plots import plot_side_by_side
+
+    traces, dt_s = {}, 0.02
+    for job in jobs:
+        files = sorted(job.path.glob("trace_seed*.pt"))
+        if job.metrics is None or not files:
+            continue
+        data = torch.load(files[0], weights_only=True)
+        if group not in data["names"]:
+            continue
+        start = sum(data["counts"][: data["names"].index(group)])
+        traces[job.metrics.get("controller", job.path.name)] = (SimpleNamespace(**data), start + index)
+    if not traces:
+        return None
+    ordered = {name: tr for name, (tr, _) in traces.items()}
+    idx = next(iter(traces.values()))[1]
+    return plot_side_by_side(ordered, idx, dt_s, path, title=f"{group} #{index}: controllers side by side")
