@@ -73,7 +73,8 @@ class CrazyflieLink:
         self.cf.open_link(self.uri)
         if not done.wait(self.connect_timeout_s) or error:
             self.close()
-            why = error[0] if error else f"no answer within {self.connect_timeout_s:.0f} s"
+            lines = [ln.strip() for ln in str(error[0]).splitlines() if ln.strip()][:2] if error else []
+            why = "; ".join(lines) if lines else f"no answer within {self.connect_timeout_s:.0f} s"
             raise LinkError(f"connect: {self.uri}: {why}")
         self.cf.param.set_value("flightmode.stabModeRoll", 0)
         self.cf.param.set_value("flightmode.stabModePitch", 0)

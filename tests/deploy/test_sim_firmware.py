@@ -1,0 +1,94 @@
+"""Firmware behaviour of the simulated Crazyflie, driven through real cflib: thrust lock, setpoint
+watchdog (level after 0.5 s, motors off after 2 s), emergency stop, log block size limit."""
+
+import itertools
+import time
+
+import pytest
+
+pytest.importorskip("cflib")
+
+from datt.deploy.link import CrazyflieLink, LinkError  # noqa: E402
+from datt.deploy.sim import SimCrazyflie, SimCrazyflieParams  # noqa: E402
+from datt.deploy.thrust import ThrustMap  # noqa: E402
+
+_ports = itertools.count(19950)
+
+
+@pytest.fixture
+def vehicle():
+    port = next(_ports)
+    server = SimCrazyflie(SimCrazyflieParams(port=port)).start()
+    link = CrazyflieLink(f"udp://127.0.0.1:{port}").connect()
+    yield server, link
+    link.close()
+    server.stop()
+
+
+def hold(link, seconds, thrust_cmd, roll=0.0):
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        link.send_rates(roll, 0.0, 0.0, thrust_cmd)
+        time.sleep(0.02)
+
+
+def test_thrust_lock_until_a_zero_setpoint(vehicle):
+    server, link = vehicle
+    link.arm(True)
+    climb = ThrustMap().command(12.0)
+    hold(link, 0.3, climb)
+    assert server.cmd[3] == 0 and server.true_state()["pos_m"][2] == 0.0  # locked: ignored
+    hold(link, 0.1, 0)
+    hold(link, 0.5, climb)
+    assert server.cmd[3] == climb and server.true_state()["pos_m"][2] > 0.05
+
+
+def test_setpoint_watchdog_levels_then_cuts_the_motors(vehicle):
+    server, link = vehicle
+    link.arm(True)
+    hold(link, 0.1, 0)
+    hover = ThrustMap().command(9.81)
+    hold(link, 0.8, ThrustMap().command(11.0))
+    hold(link, 0.3, hover, roll=20.0)  # tilt it, then go silent
+    assert abs(server.true_state()["quat"][1]) > 0.02
+    time.sleep(1.2)  # > 0.5 s: levelled at the last thrust
+    assert abs(server.true_state()["quat"][1]) < 0.02 and server.cmd[3] == hover
+    time.sleep(1.2)  # > 2 s: motors off
+    assert server.cmd[3] == 0
+    assert any("watchdog" in text for _, text in server.events)
+
+
+def test_emergency_stop_locks_the_motors(vehicle):
+    server, link = vehicle
+    link.arm(True)
+    hold(link, 0.1, 0)
+    hold(link, 0.3, ThrustMap().command(12.0))
+    link.emergency_stop()
+    time.sleep(0.1)
+    hold(link, 0.3, ThrustMap().command(12.0))
+    assert server.emergency_stopped and server.cmd[3] == 0
+
+
+def test_log_block_over_26_bytes_is_refused():
+    import socket
+    import struct
+
+    from datt.deploy import crtp
+
+    port = next(_ports)
+    with SimCrazyflie(SimCrazyflieParams(port=port)):
+        sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        sock.settimeout(1.0)
+        items = b"".join(struct.pack("<BH", 0x07, i) for i in range(7))  # 7 floats = 28 bytes
+        sock.sendto(crtp.packet(crtp.PORT_LOG, 1, bytes([6, 1]) + items), ("127.0.0.1", port))
+        assert sock.recv(64) == crtp.packet(crtp.PORT_LOG, 1, bytes([6, 1, 7]))  # E2BIG, as the firmware
+        sock.sendto(crtp.packet(crtp.PORT_LOG, 1, bytes([6, 2]) + items[:18]), ("127.0.0.1", port))
+        assert sock.recv(64) == crtp.packet(crtp.PORT_LOG, 1, bytes([6, 2, 0]))  # 6 floats fit
+        sock.close()
+
+
+def test_connect_to_nothing_fails_with_one_line():
+    link = CrazyflieLink(f"udp://127.0.0.1:{next(_ports)}", connect_timeout_s=1.0)
+    with pytest.raises(LinkError, match=r"^connect: udp://127.0.0.1:\d+: ") as info:
+        link.connect()
+    assert "\n" not in str(info.value)
