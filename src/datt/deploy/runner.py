@@ -156,7 +156,10 @@ class FlightRunner:
         self.outcome = f"killed: {reason}"
 
     # -- flight ----------------------------------------------------------------------------
-    def fly(self) -> dict:
+    def _flight(self, build, airborne) -> dict:
+        """CONNECT -> PREFLIGHT -> ``build(start)`` -> ARM -> ``airborne(origin, built)`` -> DISARM;
+        the flight log is written whatever happens. Models are built (and the policy traced)
+        before the motors spin, so nothing stalls the control loop mid-flight."""
         try:
             self._set_phase("CONNECT")
             self.link.connect()
@@ -164,23 +167,13 @@ class FlightRunner:
                 self.mocap.start()
             self._set_phase("PREFLIGHT")
             start = self._preflight()
+            origin = self._origin()
+            built = build(start - origin)
             self._set_phase("ARM")
             self.link.arm(True)
             self.link.send_rates(0.0, 0.0, 0.0, 0)  # unlocks the firmware's thrust lock
             time.sleep(0.05)
-            origin = self._origin()
-            # models are built (and the policy traced) before the motors spin: no stall mid-flight
-            phases = [
-                ("TAKEOFF", self._model(self.pid_factory(), Ramp(start - origin, [0.0, 0.0, 0.0], self.p.takeoff_s)),
-                 self.p.takeoff_s + self.p.hover_s),
-                ("TRACK", self._model(self.track_controller, self.track_family), self.p.track_s),
-            ]  # fmt: skip
-            for name, model, duration in phases:
-                self._set_phase(name)
-                if self._fly_phase(model, duration, origin) != S.OK:
-                    break
-            else:
-                self._land(origin)
+            airborne(origin, built)
         except _Abort:
             pass
         except KeyboardInterrupt:
@@ -198,6 +191,25 @@ class FlightRunner:
             summary = self._write()
         return summary
 
+    def _takeoff(self, start_rel: np.ndarray) -> tuple:
+        model = self._model(self.pid_factory(), Ramp(start_rel, [0.0, 0.0, 0.0], self.p.takeoff_s))
+        return ("TAKEOFF", model, self.p.takeoff_s + self.p.hover_s)
+
+    def fly(self) -> dict:
+        """Takeoff, track the reference with the configured controller, land."""
+
+        def build(start_rel):
+            return [self._takeoff(start_rel), ("TRACK", self._model(self.track_controller, self.track_family), self.p.track_s)]
+
+        def airborne(origin, phases):
+            for name, model, duration in phases:
+                self._set_phase(name)
+                if self._fly_phase(model, duration, origin) != S.OK:
+                    return  # killed, or already landed
+            self._land(origin)
+
+        return self._flight(build, airborne)
+
     def calibrate(self, hover_s: float = 4.0, excitation_mps2: float = 1.0, lag_ticks: int = 3) -> dict:
         """Hover calibration flight: takeoff, then hold the hover point with the PID while a slow
         square wave of ±``excitation_mps2`` is added to its thrust; fit the command at which the
@@ -206,50 +218,33 @@ class FlightRunner:
         ``hover_command`` (set it as ``deploy.thrust.hover_command``)."""
         from datt.deploy.thrust import fit_hover_command
 
-        fitted = None
-        try:
-            self._set_phase("CONNECT")
-            self.link.connect()
-            if self.mocap is not None:
-                self.mocap.start()
-            self._set_phase("PREFLIGHT")
-            start = self._preflight()
-            self._set_phase("ARM")
-            self.link.arm(True)
-            self.link.send_rates(0.0, 0.0, 0.0, 0)
-            time.sleep(0.05)
-            origin = self._origin()
-            takeoff = self._model(self.pid_factory(), Ramp(start - origin, [0.0, 0.0, 0.0], self.p.takeoff_s))
-            self._set_phase("TAKEOFF")
-            if self._fly_phase(takeoff, self.p.takeoff_s + self.p.hover_s, origin) == S.OK:
-                self._set_phase("CALIBRATE")
-                hold = self._model(self.pid_factory(), Ramp([0.0, 0.0, 0.0], [0.0, 0.0, 0.0], 1.0))
-                steps = int(hover_s * self.p.rate_hz)
-                self._excitation = lambda k: excitation_mps2 * (1.0 if (k // int(self.p.rate_hz / 2)) % 2 else -1.0)
-                first = len(self.rows)
-                if self._tick_loop(hold, steps, origin) == S.OK:
-                    rows = self.rows[first:]
-                    vz = np.array([r["vel"][2] for r in rows])
-                    acc = np.diff(vz) * self.p.rate_hz
-                    cmds = [float(r["thrust_cmd"]) for r in rows[: len(acc) - lag_ticks]]
-                    fitted = fit_hover_command(cmds, list(acc[lag_ticks:]))
-                    self._event("calibrated", f"hover command {fitted:.0f}")
-                self._excitation = None
+        fitted = {}
+
+        def build(start_rel):
+            return self._takeoff(start_rel), self._model(self.pid_factory(), Ramp([0.0] * 3, [0.0] * 3, 1.0))
+
+        def airborne(origin, built):
+            (name, takeoff, duration), hold = built
+            self._set_phase(name)
+            if self._fly_phase(takeoff, duration, origin) != S.OK:
+                return
+            self._set_phase("CALIBRATE")
+            half_period = int(self.p.rate_hz / 2)
+            self._excitation = lambda k: excitation_mps2 * (1.0 if (k // half_period) % 2 else -1.0)
+            first = len(self.rows)
+            result = self._tick_loop(hold, int(hover_s * self.p.rate_hz), origin)
+            self._excitation = None
+            if result == S.OK:
+                rows = self.rows[first:]
+                acc = np.diff([r["vel"][2] for r in rows]) * self.p.rate_hz
+                cmds = [float(r["thrust_cmd"]) for r in rows[: len(acc) - lag_ticks]]
+                fitted["hover_command"] = fit_hover_command(cmds, list(acc[lag_ticks:]))
+                self._event("calibrated", f"hover command {fitted['hover_command']:.0f}")
+            if result != S.KILL:
                 self._land(origin)
-        except _Abort:
-            pass
-        finally:
-            self._set_phase("DISARM")
-            try:
-                self.link.send_rates(0.0, 0.0, 0.0, 0)
-                self.link.arm(False)
-            except Exception as exc:
-                self._event("disarm failed", str(exc))
-            if self.mocap is not None:
-                self.mocap.stop()
-            self.link.close()
-            summary = self._write()
-        summary["hover_command"] = fitted
+
+        summary = self._flight(build, airborne)
+        summary["hover_command"] = fitted.get("hover_command")
         return summary
 
     def _preflight(self) -> np.ndarray:
