@@ -315,16 +315,14 @@ def build_controller(cfg: DictConfig):
     observation layout (horizon, ablations) comes from its training config. An ``adaptation`` key
     in the controller option fixes the estimator it flies with (l1_pid, l1_mppi, datt_l1, ...).
     """
-    from datt.config import instantiate_option, load_option
+    from datt.config import instantiate_option, with_options
     from datt.control import DattController
 
     node = OmegaConf.to_container(cfg.controller, resolve=True)
     name, forced = str(node.pop("name")), node.pop("adaptation", None)
-    merged = OmegaConf.create(OmegaConf.to_container(cfg, resolve=True))
-    OmegaConf.set_struct(merged, False)
+    # a resolved, non-struct copy, with the controller's own estimator if it fixes one
+    merged = with_options(cfg, **({"adaptation": str(forced)} if forced else {}))
     labels = {"controller": name, "disturbance": _choice("disturbance"), "adaptation": forced or _choice("adaptation")}
-    if forced:
-        merged.adaptation = load_option("adaptation", str(forced))
     if "_target_" in node:
         return instantiate_option(OmegaConf.create({"controller": node}), "controller"), merged, labels
     actor, train_cfg, data = load_actor(cfg.checkpoint)

@@ -384,6 +384,7 @@ def plot_train_sweep(spec: TableSpec, rows: dict[str, list[Cell]], jobs: list[Jo
         fig.savefig(paths[-1], dpi=90)
         plt.close(fig)
     curves: dict[str, list[tuple[np.ndarray, np.ndarray]]] = {}
+    varying = varying_keys(jobs)
     for job in jobs:
         f = job.path / "metrics.csv"
         if not f.is_file():
@@ -393,7 +394,7 @@ def plot_train_sweep(spec: TableSpec, rows: dict[str, list[Cell]], jobs: list[Jo
         if data and "tracking_error_m" in data[0]:
             x = np.array([float(r["frames"]) for r in data])
             y = np.array([float(r["tracking_error_m"]) for r in data])
-            curves.setdefault(_row_key(job, spec, varying_keys(jobs)), []).append((x, y))
+            curves.setdefault(_row_key(job, spec, varying), []).append((x, y))
     if curves:
         fig, ax = plt.subplots(figsize=(7, 4))
         for key in [k for k in spec.row_order if k in curves] + sorted(k for k in curves if k not in spec.row_order):
