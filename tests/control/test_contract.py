@@ -57,3 +57,36 @@ def test_datt_fast_path_equals_torchrl_deterministic_action(tiny_policy_checkpoi
     with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
         expected = actor(td.clone())["action"]
     torch.testing.assert_close(DattController(actor).act(None, td), expected, rtol=1e-5, atol=1e-5)
+
+
+@pytest.mark.parametrize(
+    "encoder, body_frame, feedback, use_d_hat, error_scale",
+    [("conv", True, True, True, 1.0), ("conv", True, True, True, 8.0), ("conv", False, True, True, 1.0),
+     ("conv", True, False, False, 1.0), ("mlp", True, True, True, 8.0), ("none", True, True, True, 8.0)],
+)  # fmt: skip
+def test_datt_frozen_path_equals_observation_plus_network(encoder, body_frame, feedback, use_d_hat, error_scale):
+    """The frozen path (bilinear rotation, dense-lowered encoder, traced) computes the same
+    action as the env's observation fed to the actor's network, on tilted, moving drones."""
+    from datt.control import DattController
+    from datt.envs.tracking import action_bounds
+    from datt.policies.networks import PolicyParams, make_actor
+    from datt.sim.frames import quat_from_euler
+
+    cfg = compose("eval", ["disturbance=brownian", "adaptation=privileged", "horizon=7",
+                           f"env.obs.body_frame={body_frame}", f"env.obs.feedback={feedback}"])  # fmt: skip
+    env = make_env(cfg, num_envs=5, seed=3)
+    actor = make_actor(7, *action_bounds(env.params), PolicyParams(encoder=encoder, use_d_hat=use_d_hat, error_scale=error_scale))
+    with torch.no_grad():  # weights of a trained net's scale, not the near-constant initial head
+        for param in actor.parameters():
+            param.normal_(0.0, 0.3)
+    env.reset()
+    g = torch.Generator().manual_seed(0)
+    s = env.sim.state
+    s.quat.copy_(quat_from_euler(*(0.6 * torch.randn(3, 5, generator=g))))
+    s.vel_mps.copy_(torch.randn(5, 3, generator=g))
+    td = env._observe()[0]
+    plain, frozen = DattController(actor, frozen=False), DattController(actor, frozen=True)
+    plain.reset(env), frozen.reset(env)
+    expected = plain.act(env, td)
+    torch.testing.assert_close(frozen.act(env, td), expected, rtol=1e-4, atol=1e-4)
+    assert (expected - expected[:1]).abs().max() > 1e-2  # the drones' states really differ

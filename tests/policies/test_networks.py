@@ -49,7 +49,23 @@ def test_d_hat_input_can_be_disabled():
 
 
 @pytest.mark.parametrize("kwargs, key", [({"encoder": "lstm"}, "policy.encoder"), ({"kernel_size": 2}, "policy.kernel_size"),
-                                         ({"hidden": []}, "policy.hidden")])  # fmt: skip
+                                         ({"hidden": []}, "policy.hidden"),
+                                         ({"error_scale": 0.0}, "policy.error_scale")])  # fmt: skip
 def test_bad_policy_params(kwargs, key):
     with pytest.raises(ConfigError, match=key):
         PolicyParams(**kwargs).validate()
+
+
+def test_error_scale_multiplies_exactly_the_error_inputs():
+    """error_scale = s equals the unscaled net fed s x (feedback error, feedforward errors) and
+    the other inputs unchanged (position, velocity, quaternion, d_hat)."""
+    from datt.policies.networks import TrackingNet
+
+    torch.manual_seed(0)
+    scaled, plain = TrackingNet(10, 8, PolicyParams(error_scale=5.0)), TrackingNet(10, 8, PolicyParams())
+    plain.load_state_dict(scaled.state_dict())
+    state, ref, d_hat = torch.randn(4, 13), torch.randn(4, 10, 3), torch.randn(4, 3)
+    by_hand = state.clone()
+    by_hand[:, 10:] *= 5.0
+    torch.testing.assert_close(scaled(state, ref, d_hat), plain(by_hand, 5.0 * ref, d_hat))
+    assert not torch.allclose(scaled(state, ref, d_hat), plain(state, ref, d_hat))

@@ -4,12 +4,14 @@ import torch
 
 from datt.sim.frames import (
     quat_body_z,
+    quat_body_z_bilinear,
     quat_exp_rotvec,
     quat_from_euler,
     quat_mul,
     quat_rotate,
     quat_rotate_inverse,
     quat_to_rotmat,
+    quat_to_rotmat_bilinear,
     quat_yaw,
     wrap_angle,
 )
@@ -29,6 +31,13 @@ def test_rotate_matches_rotation_matrix_and_inverse():
     assert torch.allclose(quat_rotate_inverse(q, quat_rotate(q, v)), v, atol=1e-12)
     assert torch.allclose(quat_body_z(q), r[..., :, 2], atol=1e-12)
     assert torch.allclose(r @ r.transpose(-1, -2), torch.eye(3, dtype=torch.float64).expand(64, 3, 3), atol=1e-12)
+
+
+def test_bilinear_forms_equal_the_rotation_matrix_for_unit_quaternions():
+    q = random_quats(64, seed=3)
+    assert torch.allclose(quat_to_rotmat_bilinear(q), quat_to_rotmat(q), atol=1e-12)
+    assert torch.allclose(quat_body_z_bilinear(q), quat_body_z(q), atol=1e-12)
+    assert torch.allclose(quat_body_z_bilinear(q.float()), quat_body_z(q.float()), atol=1e-6)
 
 
 def test_euler_yaw_round_trip_and_composition():

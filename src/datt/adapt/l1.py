@@ -32,8 +32,7 @@ import torch
 from torch import Tensor
 
 from datt.adapt.base import Adaptation
-from datt.sim.frames import quat_body_z
-from datt.sim.quadrotor import CommandLatency
+from datt.sim.frames import BODY_Z_QUADRATIC_FORM, quat_body_z_bilinear
 
 
 class L1Adaptation(Adaptation):
@@ -67,19 +66,21 @@ class L1Adaptation(Adaptation):
         self.law_gain = -self.a_s * e / (e - 1.0)  # scalar of eq. 7b (≈ −1/dt for small |a_s|)
         self.alpha = math.exp(-dt_s / self.cutoff_tau_s) if self.cutoff_tau_s > 0 else 0.0
         self.gravity = torch.tensor([0.0, 0.0, -gravity_mps2], **kw)
+        self.body_z_form = BODY_Z_QUADRATIC_FORM.to(**kw)
         self.v_hat = torch.zeros(n, 3, **kw)
         self.sigma_hat = torch.zeros(n, 3, **kw)
         self.prev_vel = torch.zeros(n, 3, **kw)
         self.prev_quat = torch.zeros(n, 4, **kw)
         self.prev_quat[:, 0] = 1.0
         self.thrust_est = torch.full((n,), gravity_mps2, **kw)
-        self.latency = CommandLatency(self.latency_steps, torch.tensor(gravity_mps2, **kw), n)
+        # thrust commands still in flight, oldest first ([latency_steps, N]; none without the model)
+        self.thrust_queue = torch.full((self.latency_steps if self.actuator_model else 0, n), gravity_mps2, **kw)
 
     def reset(self, idx: Tensor, true_d_mps2: Tensor | None = None, state=None) -> None:
         super().reset(idx, true_d_mps2, state)
         self.sigma_hat[idx] = 0.0
         self.thrust_est[idx] = self.gravity_mps2
-        self.latency.reset(idx)
+        self.thrust_queue[:, idx] = self.gravity_mps2
         if state is not None:
             self.v_hat[idx] = state.vel_mps[idx]
             self.prev_vel[idx] = state.vel_mps[idx]
@@ -92,12 +93,12 @@ class L1Adaptation(Adaptation):
     def update(self, state, cmd: Tensor, true_d_mps2: Tensor | None = None) -> Tensor:
         """``state``: measured state after the step (``vel_mps [N, 3]``, ``quat [N, 4]``);
         ``cmd [N, 4]`` the command sent at the start of the step."""
-        thrust_sent = self.latency.push(cmd[:, 0]) if self.actuator_model else cmd[:, 0]
         k = self.k_thrust if self.actuator_model else 1.0
-        self.v_hat, self.sigma_hat, self.d_hat, self.thrust_est, self.prev_vel, self.prev_quat = self._step(
-            self.v_hat, self.sigma_hat, self.d_hat, self.prev_vel, self.prev_quat, self.thrust_est, thrust_sent,
-            state.vel_mps, state.quat, self.gravity, self.dt_s, self.a_s, self.law_gain, self.alpha, k,
-            self.predictor_uses_filtered,
+        (self.v_hat, self.sigma_hat, self.d_hat, self.thrust_est, self.thrust_queue, self.prev_vel,
+         self.prev_quat) = self._step(
+            self.v_hat, self.sigma_hat, self.d_hat, self.prev_vel, self.prev_quat, self.thrust_est,
+            self.thrust_queue, cmd, state.vel_mps, state.quat, self.gravity, self.body_z_form, self.dt_s, self.a_s, self.law_gain,
+            self.alpha, k, self.predictor_uses_filtered,
         )  # fmt: skip
         return self.d_hat
 
@@ -127,16 +128,22 @@ class L1Adaptation(Adaptation):
 
 def l1_step(
     v_hat: Tensor, sigma_hat: Tensor, d_hat: Tensor, prev_vel: Tensor, prev_quat: Tensor, thrust_est: Tensor,
-    thrust_sent: Tensor, vel: Tensor, quat: Tensor, gravity: Tensor, dt: float, a_s: float, law_gain: float,
-    alpha: float, k_thrust: float, predictor_uses_filtered: bool,
-) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor, Tensor]:  # fmt: skip
-    """One step of eq. 7 (pure; compilable): actuator model, predictor, adaptation law, low-pass
-    filter. Shapes ``[N, 3]`` (quaternions ``[N, 4]``, thrusts ``[N]``); ``k_thrust = 1`` means no
-    actuator model (the thrust sent acts at once). Returns (v̂, σ̂, d̂, thrust_est, prev_vel, prev_quat)."""
-    thrust = torch.lerp(thrust_est, thrust_sent, k_thrust)
-    f = quat_body_z(prev_quat) * thrust.unsqueeze(-1) + gravity
+    thrust_queue: Tensor, cmd: Tensor, vel: Tensor, quat: Tensor, gravity: Tensor, body_z_form: Tensor, dt: float, a_s: float,
+    law_gain: float, alpha: float, k_thrust: float, predictor_uses_filtered: bool,
+) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor, Tensor, Tensor]:  # fmt: skip
+    """One step of eq. 7 (pure; compilable, one call per control step): command latency, actuator
+    model, predictor, adaptation law, low-pass filter. Shapes ``[N, 3]`` (quaternions ``[N, 4]``,
+    commands ``cmd [N, 4]``, thrusts ``[N]``, ``thrust_queue [L, N]`` the L commands in flight,
+    oldest first); ``k_thrust = 1`` with ``L = 0`` means no actuator model (the thrust sent acts at
+    once). Returns (v̂, σ̂, d̂, thrust_est, thrust_queue, prev_vel, prev_quat)."""
+    # Written with fused ops (addcmul, add with alpha, lerp, the bilinear thrust axis): at batch 1
+    # the cost is per-op dispatch, and this is half the ops of the textbook form.
+    in_flight = torch.cat((thrust_queue, cmd[:, :1].T), 0)  # [L + 1, N]: the oldest acts now
+    thrust = torch.lerp(thrust_est, in_flight[0], k_thrust)
+    f = torch.addcmul(gravity, quat_body_z_bilinear(prev_quat, body_z_form), thrust.unsqueeze(-1))  # R e3 T + g
     feedback = d_hat if predictor_uses_filtered else sigma_hat
-    v_hat = v_hat + dt * (f + feedback + a_s * (v_hat - prev_vel))
+    # v̂ + dt (f + fb + a_s (v̂ − v)) = (1 + dt a_s) v̂ − dt a_s v + dt (f + fb)
+    v_hat = torch.add(torch.add(v_hat * (1.0 + dt * a_s), prev_vel, alpha=-dt * a_s), f + feedback, alpha=dt)
     sigma_hat = law_gain * (v_hat - vel)
-    d_hat = alpha * d_hat + (1.0 - alpha) * sigma_hat
-    return v_hat, sigma_hat, d_hat, thrust, vel.clone(), quat.clone()
+    d_hat = torch.lerp(sigma_hat, d_hat, alpha)  # α d̂ + (1 − α) σ̂
+    return v_hat, sigma_hat, d_hat, thrust, in_flight[1:], vel.clone(), quat.clone()

@@ -9,7 +9,8 @@ from tensordict import TensorDictBase
 from torch import nn
 
 from datt.control.base import Controller
-from datt.envs.observations import build_observation
+from datt.policies.networks import InferenceNet
+from datt.sim.frames import ROTMAT_QUADRATIC_FORM, quat_to_rotmat_bilinear
 
 
 class DattController(Controller):
@@ -23,8 +24,9 @@ class DattController(Controller):
 
     ``frozen=True`` (evaluation, deployment) builds the observation itself from the simulator's
     (measured) state, the reference window and the adaptation's d̂, and runs observation + network
-    as one TorchScript graph traced and frozen once per input shape (about 3x faster at batch 1);
-    the weights must not change afterwards. ``frozen=False`` (training-time uses such as RMA
+    as one TorchScript graph traced and frozen once per input shape, with the network rewritten
+    for batch 1 (:class:`~datt.policies.networks.InferenceNet`; a test checks it computes the same
+    actions); the weights must not change afterwards. ``frozen=False`` (training-time uses such as RMA
     fitting) reads the env's observation ``td``, including any observation noise.
     """
 
@@ -53,7 +55,7 @@ class DattController(Controller):
         key = (tuple(future.shape), s.pos_m.dtype, obs.body_frame, obs.feedback)
         fn = self._traced.get(key)
         if fn is None:
-            module = _ObservePolicy(self.net, self.center, self.half, obs.body_frame, obs.feedback).eval()
+            module = _ObservePolicy(self.net, future.shape[0], self.center, self.half, obs.body_frame, obs.feedback).eval()
             with warnings.catch_warnings():  # TorchScript's deprecation notices
                 warnings.simplefilter("ignore")
                 traced = torch.jit.trace(module, (s.pos_m, s.vel_mps, s.quat, future, d_hat), check_trace=False)
@@ -64,15 +66,26 @@ class DattController(Controller):
 class _ObservePolicy(nn.Module):
     """Observation building + network + squashing as one graph (traced and frozen by
     :class:`DattController` with ``frozen=True``): the controller's whole per-step computation
-    from the measured state, the future reference ``[H, N, 3]`` and d̂ to the action."""
+    from the measured state, the future reference ``[H, N, 3]`` and d̂ to the action.
 
-    def __init__(self, net: nn.Module, center: torch.Tensor, half: torch.Tensor, body_frame: bool, feedback: bool) -> None:
+    Same function as :func:`~datt.envs.observations.build_observation` followed by the net, with
+    fewer tensor ops: ``R(q)`` as one bilinear form and one batched matmul rotating every vector,
+    and the net as its :class:`~datt.policies.networks.InferenceNet` (dense encoder, loc rows only).
+    """
+
+    def __init__(self, net: nn.Module, horizon: int, center: torch.Tensor, half: torch.Tensor, body_frame: bool, feedback: bool) -> None:
         super().__init__()
-        self.net, self.body_frame, self.feedback = net, body_frame, feedback
+        self.net, self.body_frame, self.feedback = InferenceNet(net, horizon, 4), body_frame, feedback
         self.register_buffer("action_center", center)
         self.register_buffer("action_half", half)
+        self.register_buffer("rotmat_form", ROTMAT_QUADRATIC_FORM.float())  # cast to the state dtype per trace
 
     def forward(self, pos, vel, quat, future, d_hat):
-        state, ref = build_observation(pos, vel, quat, future, self.body_frame, self.feedback)
-        loc = self.net(state, ref, d_hat)[..., :4]
+        n = pos.shape[0]
+        vecs = torch.cat((pos.unsqueeze(0), vel.unsqueeze(0), pos.unsqueeze(0) - future), 0).transpose(0, 1)  # [N, 2+H, 3]
+        if self.body_frame:  # row vectors: v^T R = (R^T v)^T
+            vecs = torch.bmm(vecs, quat_to_rotmat_bilinear(quat, self.rotmat_form.to(quat.dtype)))
+        e_now = vecs[:, 2] if self.feedback else torch.zeros_like(vecs[:, 2])
+        state = torch.cat((vecs[:, 0], vecs[:, 1], quat, e_now), dim=-1)
+        loc = self.net(state, vecs[:, 2:].reshape(n, -1), d_hat)
         return self.action_center + self.action_half * torch.tanh(loc)

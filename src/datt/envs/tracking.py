@@ -212,12 +212,17 @@ class TrackingEnv(EnvBase):
         td = TensorDict._new_unsafe(values, batch_size=self.batch_size, device=self.device)
         return td, err_m, cost
 
-    def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
-        action = tensordict.get("action")
+    def advance_plant(self, action: torch.Tensor):
+        """The plant's half of a step: clamp the command, integrate, move the references on and
+        update the disturbance. Returns ``(state, cmd, d)`` for the controller's half
+        (adaptation update, observation), which :meth:`_step` and the latency timer run next."""
         cmd = torch.clamp(action, self.action_low, self.action_high)
         s = self.sim.step(cmd, self.disturbance.current_mps2)
         self._advance_refs()
-        d = self.disturbance.update(s)
+        return s, cmd, self.disturbance.update(s)
+
+    def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
+        s, cmd, d = self.advance_plant(tensordict.get("action"))
         self.adaptation.update(s, cmd, d)
         out, err_m, cost = self._observe()
 

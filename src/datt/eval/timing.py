@@ -55,10 +55,7 @@ def _timed_loop(env, controller: Controller, steps: int, warmup_steps: int, cloc
     action = controller.act(env, td)
     times = []
     for k in range(warmup_steps + steps):
-        cmd = torch.clamp(action, env.action_low, env.action_high)
-        s = env.sim.step(cmd, env.disturbance.current_mps2)
-        env._advance_refs()
-        d = env.disturbance.update(s)
+        s, cmd, d = env.advance_plant(action)
         t0 = clock()
         env.adaptation.update(s, cmd, d)
         if not controller.builds_observation:

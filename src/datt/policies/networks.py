@@ -15,6 +15,7 @@ H = 1 ablation. ``encoder=mlp`` (two linear layers over the flattened points) an
 
 from __future__ import annotations
 
+import copy
 import math
 from dataclasses import dataclass, field
 from typing import Any
@@ -47,8 +48,16 @@ class PolicyParams:
     # within ~1 s, so every early episode crashes); 0.05 ≈ 1 rad/s, the SB3 default std.
     # A single number applies to all four.
     init_std: Any = field(default_factory=lambda: [0.1, 0.05, 0.05, 0.1])
+    # Fixed gain on the tracking-error inputs (feedback and feedforward, metres) before the net.
+    # Tracking errors are O(0.01-0.1 m) while the other inputs are O(1): unscaled, a 2 cm error
+    # moves the first layer by ~1e-3, and PPO (Adam steps of ~lr per weight) takes a long time to
+    # grow the large input weights a precise controller needs. 1 = the paper's raw inputs (and
+    # what checkpoints without this key were trained with).
+    error_scale: float = 1.0
 
     def validate(self) -> None:
+        if not self.error_scale > 0:
+            raise ConfigError(f"policy.error_scale: must be > 0, got {self.error_scale}")
         if self.encoder not in ENCODERS:
             raise ConfigError(f"policy.encoder: unknown value {self.encoder!r}; allowed: {', '.join(ENCODERS)}")
         if self.kernel_size < 1 or self.kernel_size % 2 == 0:
@@ -104,6 +113,10 @@ class TrackingNet(nn.Module):
     def __init__(self, horizon: int, out_dim: int, p: PolicyParams) -> None:
         super().__init__()
         self.use_d_hat = p.use_d_hat
+        self.error_scale = float(p.error_scale)
+        state_scale = torch.ones(STATE_DIM)
+        state_scale[STATE_DIM - 3 :] = self.error_scale  # the feedback error R^T (p − p_d(t))
+        self.register_buffer("state_scale", state_scale, persistent=False)
         self.encoder = RefEncoder(horizon, p)
         dims = [STATE_DIM + self.encoder.out_dim + (3 if p.use_d_hat else 0), *p.hidden]
         layers: list[nn.Module] = []
@@ -113,6 +126,8 @@ class TrackingNet(nn.Module):
         self.head = nn.Linear(dims[-1], out_dim)
 
     def forward(self, state: torch.Tensor, ref: torch.Tensor, d_hat: torch.Tensor) -> torch.Tensor:
+        if self.error_scale != 1.0:
+            state, ref = state * self.state_scale, ref * self.error_scale
         parts = [state, self.encoder(ref)] + ([d_hat] if self.use_d_hat else [])
         return self.head(self.mlp(torch.cat(parts, dim=-1)))
 
@@ -145,6 +160,65 @@ def make_actor(horizon: int, action_low: torch.Tensor, action_high: torch.Tensor
 def make_critic(horizon: int, p: PolicyParams) -> ValueOperator:
     p.validate()
     return ValueOperator(TrackingNet(horizon, 1, p), in_keys=OBS_KEYS)
+
+
+class InferenceNet(nn.Module):
+    """A trained :class:`TrackingNet` rewritten for fast batch-1 inference, same function.
+
+    ``(state [N, 13], ref_flat [N, 3H] (H-major: point 0 xyz, point 1 xyz, ...), d_hat [N, 3]) ->
+    [N, out]``. Each Conv1d over the fixed H points is a linear map, so the conv encoder becomes
+    dense layers (the first one's columns permuted to read the H-major layout without a
+    transpose), and the head keeps only the first ``out`` rows. At batch 1 per-op dispatch,
+    not arithmetic, is the cost; this halves the op count. Copies the weights: rebuild it after
+    the net changes.
+    """
+
+    def __init__(self, net: TrackingNet, horizon: int, out: int) -> None:
+        super().__init__()
+        enc, self.use_d_hat = net.encoder, net.use_d_hat
+        layers: list[nn.Module] = []
+        if enc.kind == "conv":
+            convs = [m for m in enc.conv if isinstance(m, nn.Conv1d)]
+            for i, conv in enumerate(convs):
+                weight, bias = _dense_conv1d(conv, horizon)
+                if i == 0:  # H-major input index -> channel-major column of the conv's matrix; error gain
+                    weight = weight[:, torch.arange(3 * horizon).reshape(3, horizon).T.reshape(-1)] * net.error_scale
+                layers += [_linear(weight, bias), nn.ReLU()]
+            layers += [copy.deepcopy(enc.proj), nn.ReLU()]
+        elif enc.kind == "mlp":
+            layers += [copy.deepcopy(enc.net), nn.ReLU()]
+            with torch.no_grad():
+                layers[0][0].weight.mul_(net.error_scale)
+        self.encoder = nn.Sequential(*layers)
+        self.mlp = copy.deepcopy(net.mlp)
+        with torch.no_grad():  # the feedback columns of the first layer take the error gain
+            self.mlp[0].weight[:, STATE_DIM - 3 : STATE_DIM].mul_(net.error_scale)
+        # encoder "none" feeds the raw error points to the MLP (columns after the state)
+        self.ref_scale = net.error_scale if enc.kind == "none" else 1.0
+        self.head = _linear(net.head.weight.detach()[:out], net.head.bias.detach()[:out])
+
+    def forward(self, state: torch.Tensor, ref_flat: torch.Tensor, d_hat: torch.Tensor) -> torch.Tensor:
+        if self.ref_scale != 1.0:
+            ref_flat = ref_flat * self.ref_scale
+        parts = [state, self.encoder(ref_flat)] + ([d_hat] if self.use_d_hat else [])
+        return self.head(self.mlp(torch.cat(parts, dim=-1)))
+
+
+def _dense_conv1d(conv: nn.Conv1d, length: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """``conv`` over inputs of ``length`` as ``(W [C_out L', C_in L], b)`` on channel-major flattening."""
+    size = conv.in_channels * length
+    basis = torch.eye(size, dtype=conv.weight.dtype).reshape(size, conv.in_channels, length)
+    with torch.no_grad():
+        out = conv._conv_forward(basis, conv.weight, None)  # [size, C_out, L']
+    return out.reshape(size, -1).T.contiguous(), conv.bias.detach().repeat_interleave(out.shape[-1])
+
+
+def _linear(weight: torch.Tensor, bias: torch.Tensor) -> nn.Linear:
+    layer = nn.Linear(weight.shape[1], weight.shape[0], dtype=weight.dtype)
+    with torch.no_grad():
+        layer.weight.copy_(weight)
+        layer.bias.copy_(bias)
+    return layer
 
 
 class _Args(nn.Module):
