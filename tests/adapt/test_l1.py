@@ -110,3 +110,29 @@ def test_law_gain_matches_eq_7b():
     e = math.exp(-0.01 * 0.02)
     assert est.law_gain == pytest.approx(-(1 / (e - 1)) * -0.01 * e)
     assert est.law_gain == pytest.approx(-50.0, rel=1e-3)
+
+
+def test_compiled_kernel_only_for_large_batches_and_same_estimates():
+    """compile() keeps the eager kernel below COMPILE_MIN_BATCH drones (cheaper at batch 1) and
+    uses the compiled one above; both give the same estimates."""
+    from types import SimpleNamespace
+
+    from datt.adapt.l1 import COMPILE_MIN_BATCH, l1_step
+
+    n = COMPILE_MIN_BATCH
+    g = torch.Generator().manual_seed(0)
+    vel = torch.randn(20, n, 3, generator=g)
+    cmd = torch.randn(20, n, 4, generator=g) + torch.tensor([9.81, 0, 0, 0])
+    quat = torch.tensor([[1.0, 0, 0, 0]]).expand(n, 4)
+    small, big, eager = L1Adaptation(), L1Adaptation(), L1Adaptation()
+    small.bind(1, 0.02, 9.81, "cpu", torch.float32)
+    small.compile(backend="eager")
+    assert small._step is l1_step
+    for est in (big, eager):
+        est.bind(n, 0.02, 9.81, "cpu", torch.float32)
+    big.compile(backend="eager")
+    assert big._step is not l1_step and eager._step is l1_step
+    for k in range(20):
+        state = SimpleNamespace(vel_mps=vel[k], quat=quat)
+        torch.testing.assert_close(big.update(state, cmd[k]), eager.update(state, cmd[k]))
+    assert big.d_hat.abs().max() > 0.1
