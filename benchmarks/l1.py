@@ -24,14 +24,19 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import write_result  # noqa: E402
 
 from datt.adapt import L1Adaptation  # noqa: E402
+from datt.adapt.l1 import l1_step  # noqa: E402
 from datt.sim import Brownian, Quadrotor, Wind  # noqa: E402
 
 TAUS = [0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0]
 
 
-def step_cost_ms(n: int, repeats: int = 2000) -> dict:
+def step_cost_ms(n: int, repeats: int = 2000, compiled: bool = True) -> dict:
+    """``compiled=True``: as the env runs it after ``compile_kernels`` (compiled kernel from
+    ``COMPILE_MIN_BATCH`` drones on, eager below)."""
     est = L1Adaptation()
     est.bind(n, 0.02, 9.81, "cpu", torch.float32)
+    if compiled:
+        est.compile()
     state = SimpleNamespace(vel_mps=torch.randn(n, 3), quat=torch.tensor([[1.0, 0, 0, 0]]).expand(n, 4).contiguous())
     cmd = torch.tensor([[9.81, 0.0, 0.0, 0.0]]).expand(n, 4).contiguous()
     for _ in range(100):
@@ -42,7 +47,8 @@ def step_cost_ms(n: int, repeats: int = 2000) -> dict:
         est.update(state, cmd)
         times.append(1e3 * (time.perf_counter() - t0))
     times.sort()
-    return {"batch": n, "median_ms": statistics.median(times), "p95_ms": times[int(0.95 * len(times))]}
+    kernel = "compiled" if est._step is not l1_step else "eager"
+    return {"batch": n, "kernel": kernel, "median_ms": statistics.median(times), "p95_ms": times[int(0.95 * len(times))]}
 
 
 def tracking_rmse(tau: float, disturbance: str, vel_noise: float, n: int = 256, steps: int = 1000) -> float:
@@ -72,7 +78,8 @@ def tracking_rmse(tau: float, disturbance: str, vel_noise: float, n: int = 256, 
 
 def main() -> None:
     torch.set_num_threads(1)
-    cost = [step_cost_ms(1), step_cost_ms(4096, repeats=500)]
+    cost = [step_cost_ms(1), step_cost_ms(1, compiled=False), step_cost_ms(4096, repeats=500),
+            step_cost_ms(4096, repeats=500, compiled=False)]
     rows = []
     for disturbance in ("brownian", "wind"):
         for noise in (0.0, 0.02):
@@ -89,7 +96,7 @@ def main() -> None:
     console = Console()
     console.print(table)
     for c in cost:
-        console.print(f"L1 update, batch {c['batch']}: median {c['median_ms']:.4f} ms, p95 {c['p95_ms']:.4f} ms")
+        console.print(f"L1 update, batch {c['batch']} ({c['kernel']}): median {c['median_ms']:.4f} ms, p95 {c['p95_ms']:.4f} ms")
     print(f"wrote {write_result('l1', {'step_cost': cost, 'tracking': rows})}")
 
 

@@ -32,7 +32,7 @@ import torch
 from torch import Tensor
 
 from datt.adapt.base import Adaptation
-from datt.sim.frames import BODY_Z_QUADRATIC_FORM, quat_body_z_bilinear
+from datt.sim.frames import BODY_Z_QUADRATIC_FORM, quat_body_z, quat_body_z_bilinear
 
 
 COMPILE_MIN_BATCH = 1024
@@ -101,8 +101,8 @@ class L1Adaptation(Adaptation):
         (self.v_hat, self.sigma_hat, self.d_hat, self.thrust_est, self.thrust_queue, self.prev_vel,
          self.prev_quat) = self._step(
             self.v_hat, self.sigma_hat, self.d_hat, self.prev_vel, self.prev_quat, self.thrust_est,
-            self.thrust_queue, cmd, state.vel_mps, state.quat, self.gravity, self.body_z_form, self.dt_s, self.a_s, self.law_gain,
-            self.alpha, k, self.predictor_uses_filtered,
+            self.thrust_queue, cmd, state.vel_mps, state.quat, self.gravity, self._body_z_form, self.dt_s, self.a_s,
+            self.law_gain, self.alpha, k, self.predictor_uses_filtered,
         )  # fmt: skip
         return self.d_hat
 
@@ -119,6 +119,9 @@ class L1Adaptation(Adaptation):
     def _choose_kernel(self) -> None:
         big = getattr(self, "n", 0) >= COMPILE_MIN_BATCH
         self._step = self._compiled if self._compiled is not None and big else l1_step
+        # the bilinear thrust axis saves ops in eager mode; the compiler fuses the plain form
+        # into its single loop, where a matmul would be a separate call
+        self._body_z_form = None if self._step is not l1_step else self.body_z_form
 
     def error_dynamics(self) -> tuple[Tensor, Tensor]:
         """Per-axis one-step map of the estimator state ``x = (ṽ, σ̂, d̂)`` under a constant
@@ -138,19 +141,22 @@ class L1Adaptation(Adaptation):
 
 def l1_step(
     v_hat: Tensor, sigma_hat: Tensor, d_hat: Tensor, prev_vel: Tensor, prev_quat: Tensor, thrust_est: Tensor,
-    thrust_queue: Tensor, cmd: Tensor, vel: Tensor, quat: Tensor, gravity: Tensor, body_z_form: Tensor, dt: float, a_s: float,
-    law_gain: float, alpha: float, k_thrust: float, predictor_uses_filtered: bool,
+    thrust_queue: Tensor, cmd: Tensor, vel: Tensor, quat: Tensor, gravity: Tensor, body_z_form: Tensor | None,
+    dt: float, a_s: float, law_gain: float, alpha: float, k_thrust: float, predictor_uses_filtered: bool,
 ) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor, Tensor, Tensor]:  # fmt: skip
     """One step of eq. 7 (pure; compilable, one call per control step): command latency, actuator
     model, predictor, adaptation law, low-pass filter. Shapes ``[N, 3]`` (quaternions ``[N, 4]``,
     commands ``cmd [N, 4]``, thrusts ``[N]``, ``thrust_queue [L, N]`` the L commands in flight,
     oldest first); ``k_thrust = 1`` with ``L = 0`` means no actuator model (the thrust sent acts at
-    once). Returns (v̂, σ̂, d̂, thrust_est, thrust_queue, prev_vel, prev_quat)."""
+    once). ``body_z_form``: ``BODY_Z_QUADRATIC_FORM`` for the bilinear thrust axis (fewer ops,
+    eager) or None for the plain one (compiled). Returns (v̂, σ̂, d̂, thrust_est, thrust_queue,
+    prev_vel, prev_quat)."""
     # Written with fused ops (addcmul, add with alpha, lerp, the bilinear thrust axis): at batch 1
     # the cost is per-op dispatch, and this is half the ops of the textbook form.
     in_flight = torch.cat((thrust_queue, cmd[:, :1].T), 0)  # [L + 1, N]: the oldest acts now
     thrust = torch.lerp(thrust_est, in_flight[0], k_thrust)
-    f = torch.addcmul(gravity, quat_body_z_bilinear(prev_quat, body_z_form), thrust.unsqueeze(-1))  # R e3 T + g
+    body_z = quat_body_z(prev_quat) if body_z_form is None else quat_body_z_bilinear(prev_quat, body_z_form)
+    f = torch.addcmul(gravity, body_z, thrust.unsqueeze(-1))  # R e3 T + g
     feedback = d_hat if predictor_uses_filtered else sigma_hat
     # v̂ + dt (f + fb + a_s (v̂ − v)) = (1 + dt a_s) v̂ − dt a_s v + dt (f + fb)
     v_hat = torch.add(torch.add(v_hat * (1.0 + dt * a_s), prev_vel, alpha=-dt * a_s), f + feedback, alpha=dt)
