@@ -13,6 +13,11 @@ from datt.policies.networks import InferenceNet
 from datt.sim.frames import ROTMAT_QUADRATIC_FORM, quat_to_rotmat_bilinear
 
 
+# Up to this many drones the frozen path runs the conv encoder as dense layers (fewer ops, more
+# arithmetic; see InferenceNet), above it as convs.
+DENSE_ENCODER_MAX_BATCH = 16
+
+
 class DattController(Controller):
     """Wraps a trained actor. ``d_hat`` comes from the env's adaptation option (privileged, none,
     l1, rma), so switching adaptation needs no retraining.
@@ -55,7 +60,10 @@ class DattController(Controller):
         key = (tuple(future.shape), s.pos_m.dtype, obs.body_frame, obs.feedback)
         fn = self._traced.get(key)
         if fn is None:
-            module = _ObservePolicy(self.net, future.shape[0], self.center, self.half, obs.body_frame, obs.feedback).eval()
+            module = _ObservePolicy(
+                self.net, future.shape[0], self.center, self.half, obs.body_frame, obs.feedback,
+                dense_encoder=future.shape[1] <= DENSE_ENCODER_MAX_BATCH,
+            ).eval()
             with warnings.catch_warnings():  # TorchScript's deprecation notices
                 warnings.simplefilter("ignore")
                 traced = torch.jit.trace(module, (s.pos_m, s.vel_mps, s.quat, future, d_hat), check_trace=False)
@@ -73,19 +81,22 @@ class _ObservePolicy(nn.Module):
     and the net as its :class:`~datt.policies.networks.InferenceNet` (dense encoder, loc rows only).
     """
 
-    def __init__(self, net: nn.Module, horizon: int, center: torch.Tensor, half: torch.Tensor, body_frame: bool, feedback: bool) -> None:
+    def __init__(
+        self, net: nn.Module, horizon: int, center: torch.Tensor, half: torch.Tensor, body_frame: bool, feedback: bool,
+        dense_encoder: bool = True,
+    ) -> None:  # fmt: skip
         super().__init__()
-        self.net, self.body_frame, self.feedback = InferenceNet(net, horizon, 4), body_frame, feedback
+        self.net = InferenceNet(net, horizon, 4, dense_encoder)
+        self.body_frame, self.feedback = body_frame, feedback
         self.register_buffer("action_center", center)
         self.register_buffer("action_half", half)
         self.register_buffer("rotmat_form", ROTMAT_QUADRATIC_FORM.float())  # cast to the state dtype per trace
 
     def forward(self, pos, vel, quat, future, d_hat):
-        n = pos.shape[0]
         vecs = torch.cat((pos.unsqueeze(0), vel.unsqueeze(0), pos.unsqueeze(0) - future), 0).transpose(0, 1)  # [N, 2+H, 3]
         if self.body_frame:  # row vectors: v^T R = (R^T v)^T
             vecs = torch.bmm(vecs, quat_to_rotmat_bilinear(quat, self.rotmat_form.to(quat.dtype)))
         e_now = vecs[:, 2] if self.feedback else torch.zeros_like(vecs[:, 2])
         state = torch.cat((vecs[:, 0], vecs[:, 1], quat, e_now), dim=-1)
-        loc = self.net(state, vecs[:, 2:].reshape(n, -1), d_hat)
+        loc = self.net(state, vecs[:, 2:], d_hat)
         return self.action_center + self.action_half * torch.tanh(loc)

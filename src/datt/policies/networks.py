@@ -163,44 +163,53 @@ def make_critic(horizon: int, p: PolicyParams) -> ValueOperator:
 
 
 class InferenceNet(nn.Module):
-    """A trained :class:`TrackingNet` rewritten for fast batch-1 inference, same function.
+    """A trained :class:`TrackingNet` rewritten for fast inference, same function.
 
-    ``(state [N, 13], ref_flat [N, 3H] (H-major: point 0 xyz, point 1 xyz, ...), d_hat [N, 3]) ->
-    [N, out]``. Each Conv1d over the fixed H points is a linear map, so the conv encoder becomes
-    dense layers (the first one's columns permuted to read the H-major layout without a
-    transpose), and the head keeps only the first ``out`` rows. At batch 1 per-op dispatch,
-    not arithmetic, is the cost; this halves the op count. Copies the weights: rebuild it after
-    the net changes.
+    ``(state [N, 13], ref [N, H, 3], d_hat [N, 3]) -> [N, out]``: the head keeps only the first
+    ``out`` rows and the error gain is folded into the weights. With ``dense_encoder`` each
+    Conv1d over the fixed H points becomes the equivalent dense layer (the first one reading the
+    H-major layout directly, no transpose): at batch 1 the cost is per-op dispatch, not arithmetic,
+    and this halves the op count; at large batches the dense layers do ~3x the conv's arithmetic,
+    so callers keep the convs there. Copies the weights: rebuild it after the net changes.
     """
 
-    def __init__(self, net: TrackingNet, horizon: int, out: int) -> None:
+    def __init__(self, net: TrackingNet, horizon: int, out: int, dense_encoder: bool = True) -> None:
         super().__init__()
-        enc, self.use_d_hat = net.encoder, net.use_d_hat
+        enc, self.use_d_hat, self.kind = net.encoder, net.use_d_hat, net.encoder.kind
+        scale = net.error_scale
         layers: list[nn.Module] = []
-        if enc.kind == "conv":
+        if self.kind == "conv" and dense_encoder:
+            self.kind = "dense"
             convs = [m for m in enc.conv if isinstance(m, nn.Conv1d)]
             for i, conv in enumerate(convs):
                 weight, bias = _dense_conv1d(conv, horizon)
                 if i == 0:  # H-major input index -> channel-major column of the conv's matrix; error gain
-                    weight = weight[:, torch.arange(3 * horizon).reshape(3, horizon).T.reshape(-1)] * net.error_scale
+                    weight = weight[:, torch.arange(3 * horizon).reshape(3, horizon).T.reshape(-1)] * scale
                 layers += [_linear(weight, bias), nn.ReLU()]
-            layers += [copy.deepcopy(enc.proj), nn.ReLU()]
-        elif enc.kind == "mlp":
+        elif self.kind == "conv":
+            layers += list(copy.deepcopy(enc.conv))
+            with torch.no_grad():
+                layers[0].weight.mul_(scale)
+        elif self.kind == "mlp":
             layers += [copy.deepcopy(enc.net), nn.ReLU()]
             with torch.no_grad():
-                layers[0][0].weight.mul_(net.error_scale)
+                layers[0][0].weight.mul_(scale)
         self.encoder = nn.Sequential(*layers)
+        self.proj = nn.Sequential(copy.deepcopy(enc.proj), nn.ReLU()) if enc.kind == "conv" else nn.Identity()
         self.mlp = copy.deepcopy(net.mlp)
         with torch.no_grad():  # the feedback columns of the first layer take the error gain
-            self.mlp[0].weight[:, STATE_DIM - 3 : STATE_DIM].mul_(net.error_scale)
+            self.mlp[0].weight[:, STATE_DIM - 3 : STATE_DIM].mul_(scale)
         # encoder "none" feeds the raw error points to the MLP (columns after the state)
-        self.ref_scale = net.error_scale if enc.kind == "none" else 1.0
+        self.ref_scale = scale if self.kind == "none" else 1.0
         self.head = _linear(net.head.weight.detach()[:out], net.head.bias.detach()[:out])
 
-    def forward(self, state: torch.Tensor, ref_flat: torch.Tensor, d_hat: torch.Tensor) -> torch.Tensor:
-        if self.ref_scale != 1.0:
-            ref_flat = ref_flat * self.ref_scale
-        parts = [state, self.encoder(ref_flat)] + ([d_hat] if self.use_d_hat else [])
+    def forward(self, state: torch.Tensor, ref: torch.Tensor, d_hat: torch.Tensor) -> torch.Tensor:
+        if self.kind == "conv":
+            emb = self.proj(self.encoder(ref.transpose(1, 2)).flatten(1))
+        else:
+            flat = ref.reshape(ref.shape[0], -1)
+            emb = self.proj(self.encoder(flat * self.ref_scale if self.ref_scale != 1.0 else flat))
+        parts = [state, emb] + ([d_hat] if self.use_d_hat else [])
         return self.head(self.mlp(torch.cat(parts, dim=-1)))
 
 
