@@ -58,8 +58,10 @@ def main() -> None:
     ratio = results["mppi@1"]["median_ms"] / results["datt_l1@1"]["median_ms"]
     per_round = [m["median_ms"] / d["median_ms"] for m, d in zip(rounds["mppi"], rounds["datt_l1"])]
     print(f"MPPI / DATT (L1) at batch 1: {ratio:.0f}x (best rounds); same round: {min(per_round):.0f}x-{max(per_round):.0f}x")
-    path = write_result("controller_latency", {"results": results, "mppi_over_datt_l1": ratio, "mppi_over_datt_l1_same_round": per_round, "threads_batch1": 1,
-                                               "rounds": a.rounds})  # fmt: skip
+    path = write_result("controller_latency", {
+        "results": results, "mppi_over_datt_l1": ratio, "mppi_over_datt_l1_same_round": per_round,
+        "threads_batch1": 1, "rounds": a.rounds,
+    })  # fmt: skip
     print(f"wrote {path}")
 
 

@@ -109,7 +109,7 @@ class L1Adaptation(Adaptation):
     def compile(self, **kwargs) -> "L1Adaptation":
         """Use a ``torch.compile``-d update (one fused kernel) for batches of at least
         ``COMPILE_MIN_BATCH`` drones. Smaller batches keep the eager kernel: its ~20 ops cost less
-        than a compiled call's fixed overhead (batch 1: ~0.07 vs ~0.11 ms; ``benchmarks/l1.py``)."""
+        than a compiled call's fixed overhead (measured at batch 1: ~0.07 vs ~0.11 ms)."""
         from datt.compile import compile_or_eager
 
         self._compiled = compile_or_eager(l1_step, **kwargs)

@@ -10,7 +10,7 @@ from torch import nn
 
 from datt.control.base import Controller
 from datt.policies.networks import InferenceNet
-from datt.sim.frames import ROTMAT_QUADRATIC_FORM, quat_to_rotmat_bilinear
+from datt.sim.frames import quat_to_rotmat_bilinear
 
 
 # Up to this many drones the frozen path runs the conv encoder as dense layers (fewer ops, more
@@ -78,7 +78,8 @@ class _ObservePolicy(nn.Module):
 
     Same function as :func:`~datt.envs.observations.build_observation` followed by the net, with
     fewer tensor ops: ``R(q)`` as one bilinear form and one batched matmul rotating every vector,
-    and the net as its :class:`~datt.policies.networks.InferenceNet` (dense encoder, loc rows only).
+    and the net as its :class:`~datt.policies.networks.InferenceNet` (loc rows only; dense encoder up
+    to ``DENSE_ENCODER_MAX_BATCH`` drones).
     """
 
     def __init__(
@@ -90,12 +91,11 @@ class _ObservePolicy(nn.Module):
         self.body_frame, self.feedback = body_frame, feedback
         self.register_buffer("action_center", center)
         self.register_buffer("action_half", half)
-        self.register_buffer("rotmat_form", ROTMAT_QUADRATIC_FORM.float())  # cast to the state dtype per trace
 
     def forward(self, pos, vel, quat, future, d_hat):
         vecs = torch.cat((pos.unsqueeze(0), vel.unsqueeze(0), pos.unsqueeze(0) - future), 0).transpose(0, 1)  # [N, 2+H, 3]
         if self.body_frame:  # row vectors: v^T R = (R^T v)^T
-            vecs = torch.bmm(vecs, quat_to_rotmat_bilinear(quat, self.rotmat_form.to(quat.dtype)))
+            vecs = torch.bmm(vecs, quat_to_rotmat_bilinear(quat))  # the form is a constant of the frozen graph
         e_now = vecs[:, 2] if self.feedback else torch.zeros_like(vecs[:, 2])
         state = torch.cat((vecs[:, 0], vecs[:, 1], quat, e_now), dim=-1)
         loc = self.net(state, vecs[:, 2:], d_hat)

@@ -197,18 +197,18 @@ class InferenceNet(nn.Module):
         self.encoder = nn.Sequential(*layers)
         self.proj = nn.Sequential(copy.deepcopy(enc.proj), nn.ReLU()) if enc.kind == "conv" else nn.Identity()
         self.mlp = copy.deepcopy(net.mlp)
-        with torch.no_grad():  # the feedback columns of the first layer take the error gain
-            self.mlp[0].weight[:, STATE_DIM - 3 : STATE_DIM].mul_(scale)
-        # encoder "none" feeds the raw error points to the MLP (columns after the state)
-        self.ref_scale = scale if self.kind == "none" else 1.0
+        # the first layer's feedback columns take the error gain, and with encoder "none" also the
+        # columns of the raw error points, which follow the state
+        gained = STATE_DIM + (3 * horizon if self.kind == "none" else 0)
+        with torch.no_grad():
+            self.mlp[0].weight[:, STATE_DIM - 3 : gained].mul_(scale)
         self.head = _linear(net.head.weight.detach()[:out], net.head.bias.detach()[:out])
 
     def forward(self, state: torch.Tensor, ref: torch.Tensor, d_hat: torch.Tensor) -> torch.Tensor:
         if self.kind == "conv":
             emb = self.proj(self.encoder(ref.transpose(1, 2)).flatten(1))
         else:
-            flat = ref.reshape(ref.shape[0], -1)
-            emb = self.proj(self.encoder(flat * self.ref_scale if self.ref_scale != 1.0 else flat))
+            emb = self.proj(self.encoder(ref.reshape(ref.shape[0], -1)))
         parts = [state, emb] + ([d_hat] if self.use_d_hat else [])
         return self.head(self.mlp(torch.cat(parts, dim=-1)))
 
