@@ -3,13 +3,15 @@ training config, and the projected wall time of the paper's 20M steps.
 
     python benchmarks/train_throughput.py [--iterations 12] [overrides...]
 
-The first two iterations (compilation, warm-up) are excluded. Writes
+The first two iterations (compilation, warm-up) are excluded. Also reports the share of the
+loop spent in the PPO update (GAE + gradient steps). Writes
 benchmarks/results/train_throughput.json.
 """
 
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import tempfile
 import time
@@ -43,20 +45,36 @@ def main() -> None:
     cfg = compose("train", overrides)
     timer = Timer()
     t0 = time.perf_counter()
+    update_s: list[float] = []
     with tempfile.TemporaryDirectory() as tmp:
-        Trainer(cfg, tmp, timer).train()
+        trainer = Trainer(cfg, tmp, timer)
+        update = trainer.update
+
+        def timed_update(batch):
+            start = time.perf_counter()
+            out = update(batch)
+            update_s.append(time.perf_counter() - start)
+            return out
+
+        trainer.update = timed_update
+        trainer.train()
     total_s = time.perf_counter() - t0
     (t_a, f_a), (t_b, f_b) = timer.stamps[1], timer.stamps[-1]
     steps_per_s = (f_b - f_a) / (t_b - t_a)
+    # share of the loop spent in GAE + PPO epochs (the rest: collection = simulation + policy)
+    update_share = sum(update_s[2:]) / (t_b - t_a)
     result = {
         "overrides": overrides,
         "frames_per_iteration": per_iter,
         "iterations_timed": len(timer.stamps) - 2,
         "steps_per_s": steps_per_s,
         "projected_20M_wall_min": 20e6 / steps_per_s / 60,
+        "ppo_update_share": update_share,
+        "grad_steps_per_iteration": probe.algo.epochs * math.ceil(per_iter / probe.algo.minibatch_size),
         "run_wall_s": total_s,
     }
     print(f"{steps_per_s:,.0f} env steps/s (collection + PPO update); 20M steps ≈ {result['projected_20M_wall_min']:.1f} min")
+    print(f"PPO update (GAE + {result['grad_steps_per_iteration']} gradient steps) {update_share:.0%} of the loop")
     print(f"wrote {write_result('train_throughput', result)}")
 
 

@@ -46,11 +46,16 @@ class ObsParams:
     ``body_frame``: rotate p, v, feedback and feedforward terms by R^T (False = paper's "no body
     frame" ablation, world-frame inputs). ``feedback``: include R^T (p − p_d(t)) in ``state``
     (False zeroes those three entries, keeping shapes). ``pos_noise_std_m``: Gaussian noise on
-    the measured position used by the observation (authors' main configs: 0.005)."""
+    the measured position used by the observation (authors' main configs: 0.005).
+    ``action_history``: append the last k commands sent (each scaled to [-1, 1] by the action
+    bounds, oldest first) to ``state``; 0 = the paper's inputs. Not in the paper: with a one-step
+    command latency and first-order actuators, the commands in flight are state the policy
+    otherwise cannot see."""
 
     body_frame: bool = True
     feedback: bool = True
     pos_noise_std_m: float = 0.0
+    action_history: int = 0
 
 
 @dataclass
@@ -118,6 +123,8 @@ class EnvParams:
         )
         need(self.dtype in ("float32", "float64"), "dtype", f"unknown value {self.dtype!r}; allowed: float32, float64")
         need(self.obs.pos_noise_std_m >= 0, "obs.pos_noise_std_m", f"must be >= 0, got {self.obs.pos_noise_std_m}")
+        k = self.obs.action_history
+        need(isinstance(k, int) and not isinstance(k, bool) and k >= 0, "obs.action_history", f"must be an integer >= 0, got {k!r}")
         self.quad.validate("env.quad")
         need(self.reward.crash_penalty >= 0, "reward.crash_penalty", f"must be >= 0, got {self.reward.crash_penalty}")
 

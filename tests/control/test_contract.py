@@ -60,12 +60,12 @@ def test_datt_fast_path_equals_torchrl_deterministic_action(tiny_policy_checkpoi
 
 
 @pytest.mark.parametrize(
-    "encoder, body_frame, feedback, use_d_hat, error_scale, n",
-    [("conv", True, True, True, 1.0, 5), ("conv", True, True, True, 8.0, 5), ("conv", False, True, True, 1.0, 5),
-     ("conv", True, False, False, 1.0, 5), ("mlp", True, True, True, 8.0, 5), ("none", True, True, True, 8.0, 5),
-     ("conv", True, True, True, 8.0, 40)],
+    "encoder, body_frame, feedback, use_d_hat, error_scale, n, history",
+    [("conv", True, True, True, 1.0, 5, 0), ("conv", True, True, True, 8.0, 5, 0), ("conv", False, True, True, 1.0, 5, 0),
+     ("conv", True, False, False, 1.0, 5, 0), ("mlp", True, True, True, 8.0, 5, 0), ("none", True, True, True, 8.0, 5, 0),
+     ("conv", True, True, True, 8.0, 40, 0), ("conv", True, True, True, 8.0, 5, 2), ("none", True, True, True, 8.0, 5, 1)],
 )  # fmt: skip
-def test_datt_frozen_path_equals_observation_plus_network(encoder, body_frame, feedback, use_d_hat, error_scale, n):
+def test_datt_frozen_path_equals_observation_plus_network(encoder, body_frame, feedback, use_d_hat, error_scale, n, history):
     """The frozen path (bilinear rotation, encoder as dense layers up to DENSE_ENCODER_MAX_BATCH
     drones and as convs above, traced) computes the same action as the env's observation fed to
     the actor's network, on tilted, moving drones."""
@@ -75,9 +75,11 @@ def test_datt_frozen_path_equals_observation_plus_network(encoder, body_frame, f
     from datt.sim.frames import quat_from_euler
 
     cfg = compose("eval", ["disturbance=brownian", "adaptation=privileged", "horizon=7",
-                           f"env.obs.body_frame={body_frame}", f"env.obs.feedback={feedback}"])  # fmt: skip
+                           f"env.obs.body_frame={body_frame}", f"env.obs.feedback={feedback}",
+                           f"env.obs.action_history={history}"])  # fmt: skip
     env = make_env(cfg, num_envs=n, seed=3)
-    actor = make_actor(7, *action_bounds(env.params), PolicyParams(encoder=encoder, use_d_hat=use_d_hat, error_scale=error_scale))
+    p = PolicyParams(encoder=encoder, use_d_hat=use_d_hat, error_scale=error_scale)
+    actor = make_actor(7, *action_bounds(env.params), p, env.state_dim)
     gen = torch.Generator().manual_seed(1)
     with torch.no_grad():  # weights of a trained net's scale, not the near-constant initial head
         for param in actor.parameters():
@@ -87,6 +89,8 @@ def test_datt_frozen_path_equals_observation_plus_network(encoder, body_frame, f
     s = env.sim.state
     s.quat.copy_(quat_from_euler(*(0.6 * torch.randn(3, n, generator=g))))
     s.vel_mps.copy_(torch.randn(n, 3, generator=g))
+    for _ in range(history):  # distinct commands in the history
+        env.record_command(env.action_low + (env.action_high - env.action_low) * torch.rand(n, 4, generator=g))
     td = env._observe()[0]
     plain, frozen = DattController(actor, frozen=False), DattController(actor, frozen=True)
     plain.reset(env), frozen.reset(env)

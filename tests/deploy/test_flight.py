@@ -169,3 +169,25 @@ def test_hover_calibration_finds_the_true_hover_command(tmp_path):
     assert abs(nominal - true_hover) / true_hover > 0.03
     assert summary["outcome"] == "landed"
     assert abs(summary["hover_command"] - true_hover) / true_hover < 0.01
+
+
+def test_flight_model_records_the_commands_it_sends():
+    """A policy with ``obs.action_history`` sees in flight the commands the runner sent, as in
+    the sim env (the history is part of its observation)."""
+    import numpy as np
+    import torch
+
+    from datt.config import make_env
+    from datt.control.pid import PidController
+    from datt.deploy.runner import FlightModel
+    from datt.refs import Polygon
+
+    cfg = compose("sim", ["env.obs.action_history=2", "adaptation=l1"])
+    model = FlightModel(lambda family: make_env(cfg, num_envs=1, seed=0, traj=family), PidController(), Polygon())
+    env = model.env
+    hover = env.scaled_command(env.hover_action)
+    assert torch.allclose(env.cmd_history[0], hover.expand(2, 4))
+    sent = [model.act([0.1, -0.2, 0.0], [0.5, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0]) for _ in range(2)]
+    expected = env.scaled_command(torch.as_tensor(np.stack(sent), dtype=env.dtype))
+    torch.testing.assert_close(env.cmd_history[0], expected)
+    assert not torch.allclose(expected[0], hover[0])

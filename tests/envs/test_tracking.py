@@ -19,6 +19,7 @@ from datt.sim.frames import quat_from_euler, quat_rotate_inverse
         ["traj=chained_poly", "disturbance=wind_plate", "horizon=1"],
         ["traj=fixed", "env.obs.body_frame=false", "env.obs.feedback=false", "horizon=20"],
         ["traj=polygon", "disturbance=constant", "env.dtype=float64", "env.quad.latency_steps=0"],
+        ["traj=zigzag", "env.obs.action_history=3"],
     ],
 )
 def test_check_env_specs(make_tracking_env, overrides):
@@ -96,6 +97,32 @@ def test_ablations_change_exactly_their_inputs(make_tracking_env):
     assert torch.equal(on["state"][:, 10:], torch.zeros(4, 3))
     assert torch.equal(on["state"][:, :10], ob["state"][:, :10]) and torch.equal(on["ref"], ob["ref"])
     assert torch.equal(on["d_hat"], ob["d_hat"])
+
+
+def test_action_history_holds_the_last_commands_scaled_and_restarts_at_hover(make_tracking_env):
+    """``obs.action_history=2`` appends the last two applied (clamped) commands, scaled to
+    [-1, 1] by the bounds, oldest first; the paper's 13 entries are unchanged; a reset drone's
+    history reads hover."""
+    env, plain = make_tracking_env(["env.obs.action_history=2"], n=3), make_tracking_env([], n=3)
+    assert env.state_dim == 21 and env.observation_spec["state"].shape == (3, 21)
+    td, td_plain = env.reset(), plain.reset()
+    hover = (env.hover_action[0] - (env.action_high + env.action_low) / 2) / ((env.action_high - env.action_low) / 2)
+    assert torch.allclose(td["state"][:, 13:], hover.repeat(2).expand(3, 8))
+    assert hover[0] < 0 and torch.all(hover[1:] == 0)  # hover thrust g sits below the middle of [g - 9.8, g + 30]
+    a1 = torch.tensor([[12.0, 1.0, -2.0, 0.5]]).expand(3, 4)
+    a2 = torch.tensor([[100.0, -50.0, 4.0, 0.0]]).expand(3, 4)  # thrust and wx beyond the bounds
+    for a in (a1, a2):
+        td["action"], td_plain["action"] = a, a
+        td, td_plain = env.step(td)["next"], plain.step(td_plain)["next"]
+    torch.testing.assert_close(td["state"][:, :13], td_plain["state"])
+    half = (env.action_high - env.action_low) / 2
+    expected_a1 = (a1 - (env.action_high + env.action_low) / 2) / half
+    torch.testing.assert_close(td["state"][:, 13:17], expected_a1)
+    torch.testing.assert_close(td["state"][:, 17:], torch.tensor([[1.0, -1.0, 0.2, 0.0]]).expand(3, 4))
+    td["_reset"] = torch.tensor([[True], [False], [False]])
+    out = env.reset(td)
+    assert torch.allclose(out["state"][0, 13:], hover.repeat(2))
+    torch.testing.assert_close(env.cmd_history[1:, 1], torch.tensor([[1.0, -1.0, 0.2, 0.0]]).expand(2, 4))
 
 
 def test_ring_buffer_matches_table_through_steps_and_partial_resets(make_tracking_env):
@@ -228,6 +255,7 @@ def test_disturbance_moves_the_drone(make_tracking_env):
         (["env.dt_s=fast"], "env.dt_s: Value 'fast'"),
         (["env.ref_spacing_s=0.05"], "env.ref_spacing_s: must be a whole multiple of env.dt_s"),
         (["env.dtype=float16"], "env.dtype: unknown value 'float16'; allowed: float32, float64"),
+        (["env.obs.action_history=-1"], "env.obs.action_history: must be an integer >= 0"),
         (["env.quad.k_thrust=2"], "env.quad.k_thrust: must be in (0, 1]"),
         (["env.safety_box_m=[1,1]"], "env.safety_box_m"),
         (["env.colour=red"], "env.colour: no such key"),

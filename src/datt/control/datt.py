@@ -57,7 +57,8 @@ class DattController(Controller):
     def _act_frozen(self, env) -> torch.Tensor:
         s, future, d_hat = env.sim.state, env._ref_future(), env.adaptation.d_hat
         obs = env.params.obs
-        key = (tuple(future.shape), s.pos_m.dtype, obs.body_frame, obs.feedback)
+        cmds = env.cmd_history.flatten(1)  # [N, 4k], k = obs.action_history (may be 0)
+        key = (tuple(future.shape), s.pos_m.dtype, obs.body_frame, obs.feedback, cmds.shape[1])
         fn = self._traced.get(key)
         if fn is None:
             module = _ObservePolicy(
@@ -66,15 +67,16 @@ class DattController(Controller):
             ).eval()
             with warnings.catch_warnings():  # TorchScript's deprecation notices
                 warnings.simplefilter("ignore")
-                traced = torch.jit.trace(module, (s.pos_m, s.vel_mps, s.quat, future, d_hat), check_trace=False)
+                traced = torch.jit.trace(module, (s.pos_m, s.vel_mps, s.quat, future, d_hat, cmds), check_trace=False)
             fn = self._traced[key] = torch.jit.freeze(traced)
-        return fn(s.pos_m, s.vel_mps, s.quat, future, d_hat)
+        return fn(s.pos_m, s.vel_mps, s.quat, future, d_hat, cmds)
 
 
 class _ObservePolicy(nn.Module):
     """Observation building + network + squashing as one graph (traced and frozen by
     :class:`DattController` with ``frozen=True``): the controller's whole per-step computation
-    from the measured state, the future reference ``[H, N, 3]`` and d̂ to the action.
+    from the measured state, the future reference ``[H, N, 3]``, d̂ and the scaled command history
+    ``[N, 4k]`` to the action.
 
     Same function as :func:`~datt.envs.observations.build_observation` followed by the net, with
     fewer tensor ops: ``R(q)`` as one bilinear form and one batched matmul rotating every vector,
@@ -92,11 +94,11 @@ class _ObservePolicy(nn.Module):
         self.register_buffer("action_center", center)
         self.register_buffer("action_half", half)
 
-    def forward(self, pos, vel, quat, future, d_hat):
+    def forward(self, pos, vel, quat, future, d_hat, cmds):
         vecs = torch.cat((pos.unsqueeze(0), vel.unsqueeze(0), pos.unsqueeze(0) - future), 0).transpose(0, 1)  # [N, 2+H, 3]
         if self.body_frame:  # row vectors: v^T R = (R^T v)^T
             vecs = torch.bmm(vecs, quat_to_rotmat_bilinear(quat))  # the form is a constant of the frozen graph
         e_now = vecs[:, 2] if self.feedback else torch.zeros_like(vecs[:, 2])
-        state = torch.cat((vecs[:, 0], vecs[:, 1], quat, e_now), dim=-1)
+        state = torch.cat((vecs[:, 0], vecs[:, 1], quat, e_now, cmds), dim=-1)
         loc = self.net(state, vecs[:, 2:], d_hat)
         return self.action_center + self.action_half * torch.tanh(loc)

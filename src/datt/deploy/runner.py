@@ -66,6 +66,7 @@ class FlightModel:
         action = self.controller.act(self.env, td)
         cmd = torch.clamp(action, self.env.action_low, self.env.action_high)
         self.env.sim.latency.push(cmd)  # model-based controllers see the command in flight
+        self.env.record_command(cmd)  # policies with obs.action_history see the commands sent
         self.last_cmd = cmd
         return cmd[0].detach().numpy().astype(float)  # as the env would apply it (NaN stays NaN)
 

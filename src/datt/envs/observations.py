@@ -2,7 +2,8 @@
 
 Keys and shapes (body frame unless ``ObsParams.body_frame`` is False):
 
-* ``state [N, 13]`` = (R^T p, R^T v, q (w, x, y, z), R^T (p − p_d(t)))
+* ``state [N, 13 + 4k]`` = (R^T p, R^T v, q (w, x, y, z), R^T (p − p_d(t)), then the last k
+  commands scaled to [-1, 1], oldest first (``ObsParams.action_history`` = k, default 0))
 * ``ref [N, H, 3]``: R^T (p − p_d(t + i Δ)) for i = 0..H−1, Δ = ``ref_spacing_s`` (own minus
   reference, as the authors; i = 0 repeats the feedback term, matching the paper's h_t)
 * ``d_hat [N, 3]``: disturbance input, world frame
@@ -19,7 +20,8 @@ from torch import Tensor
 from datt.config import ObsParams, RewardParams
 from datt.sim.frames import quat_rotate_inverse, quat_yaw, wrap_angle
 
-STATE_DIM = 13
+STATE_DIM = 13  # without the optional command history
+FEEDBACK = slice(10, 13)  # the feedback error's entries in ``state``
 
 
 def build_observation(

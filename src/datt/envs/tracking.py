@@ -10,6 +10,9 @@ with a fresh reference (and disturbance) each; an episode is truncated after
 ``episode_steps`` steps and terminated when the drone leaves ``safety_box_m`` (half-extents
 about the origin), exceeds ``max_tracking_error_m`` (if set) or its state is not finite.
 Finished drones are reset individually (TorchRL ``_reset`` mask); the others keep flying.
+
+With ``obs.action_history = k > 0`` the env keeps the last k commands it applied (scaled to
+[-1, 1], ``cmd_history [N, k, 4]``, hover after a reset) and appends them to ``state``.
 """
 
 from __future__ import annotations
@@ -106,6 +109,10 @@ class TrackingEnv(EnvBase):
         self._observe_kernel = observe_and_cost
 
         self.action_low, self.action_high = action_bounds(params, **kw)
+        self.action_center = (self.action_high + self.action_low) / 2
+        self.action_half = (self.action_high - self.action_low) / 2
+        self.state_dim = STATE_DIM + 4 * params.obs.action_history
+        self.cmd_history = torch.zeros(num_envs, params.obs.action_history, 4, **kw)
         self.box_m = torch.tensor(params.safety_box_m, **kw)
         self._make_specs()
         self._all_idx = torch.arange(num_envs, device=device)
@@ -115,7 +122,7 @@ class TrackingEnv(EnvBase):
     def _make_specs(self) -> None:
         n, h, dev, dt = self.n, self.horizon, self.device, self.dtype
         self.observation_spec = Composite(
-            state=Unbounded(shape=(n, STATE_DIM), device=dev, dtype=dt),
+            state=Unbounded(shape=(n, self.state_dim), device=dev, dtype=dt),
             ref=Unbounded(shape=(n, h, 3), device=dev, dtype=dt),
             d_hat=Unbounded(shape=(n, 3), device=dev, dtype=dt),
             tracking_error_m=Unbounded(shape=(n, 1), device=dev, dtype=dt),
@@ -151,6 +158,8 @@ class TrackingEnv(EnvBase):
         self.ref_window[slots.unsqueeze(1), idx.unsqueeze(0)] = table[:, : self.window].transpose(0, 1)
         self.disturbance.reset(idx, self.sim.state)
         self.adaptation.reset(idx, self.disturbance.current_mps2, self.sim.state)
+        if self.cmd_history.shape[1]:
+            self.cmd_history[idx] = self.scaled_command(self.hover_action[idx]).unsqueeze(1)
 
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
         mask = None if tensordict is None else tensordict.get("_reset", None)
@@ -200,6 +209,9 @@ class TrackingEnv(EnvBase):
             noise = torch.randn(pos.shape, generator=self.generator, device=self.device, dtype=self.dtype)
             pos_meas = pos + self.params.obs.pos_noise_std_m * noise
         state, ref, err_m, cost = kernel(pos_meas, pos, vel, quat, future, self.params.obs, self.params.reward)
+        if self.cmd_history.shape[1]:
+            hist = self.cmd_history if idx is None else self.cmd_history[idx]
+            state = torch.cat((state, hist.flatten(1)), dim=-1)
         values = {"state": state, "ref": ref, "d_hat": self.adaptation.d_hat.clone(), "tracking_error_m": err_m}
         if idx is not None:
             values["d_hat"] = values["d_hat"][idx]
@@ -217,9 +229,20 @@ class TrackingEnv(EnvBase):
         update the disturbance. Returns ``(state, cmd, d)`` for the controller's half
         (adaptation update, observation), which :meth:`_step` and the latency timer run next."""
         cmd = torch.clamp(action, self.action_low, self.action_high)
+        self.record_command(cmd)
         s = self.sim.step(cmd, self.disturbance.current_mps2)
         self._advance_refs()
         return s, cmd, self.disturbance.update(s)
+
+    def scaled_command(self, cmd: torch.Tensor) -> torch.Tensor:
+        """Command ``[..., 4]`` scaled by the action bounds to [-1, 1] (the history's units)."""
+        return (cmd - self.action_center) / self.action_half
+
+    def record_command(self, cmd: torch.Tensor) -> None:
+        """Append a (clamped) command ``[N, 4]`` to ``cmd_history`` (no-op without history).
+        Deployment calls it for the commands it sends, as the env step does."""
+        if self.cmd_history.shape[1]:
+            self.cmd_history = torch.cat((self.cmd_history[:, 1:], self.scaled_command(cmd).unsqueeze(1)), dim=1)
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
         s, cmd, d = self.advance_plant(tensordict.get("action"))

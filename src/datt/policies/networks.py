@@ -1,6 +1,7 @@
 """DATT actor and critic (paper appendix B) as TorchRL modules.
 
-Both read the env's observation keys ``state [*, 13]``, ``ref [*, H, 3]`` and ``d_hat [*, 3]``:
+Both read the env's observation keys ``state [*, S]`` (S = 13, plus 4 per command of
+``env.obs.action_history``), ``ref [*, H, 3]`` and ``d_hat [*, 3]``:
 
     h  = encoder(ref)                         feedforward embedding (conv1d over the H points)
     x  = [state, h, d_hat]
@@ -26,7 +27,7 @@ from torch import nn
 from torchrl.modules import ProbabilisticActor, TanhNormal, ValueOperator
 
 from datt.config import ConfigError
-from datt.envs.observations import STATE_DIM
+from datt.envs.observations import FEEDBACK, STATE_DIM
 
 OBS_KEYS = ["state", "ref", "d_hat"]
 ENCODERS = ("conv", "mlp", "none")
@@ -110,15 +111,16 @@ class RefEncoder(nn.Module):
 class TrackingNet(nn.Module):
     """``(state, ref, d_hat) -> [*, out_dim]`` : encoder + MLP."""
 
-    def __init__(self, horizon: int, out_dim: int, p: PolicyParams) -> None:
+    def __init__(self, horizon: int, out_dim: int, p: PolicyParams, state_dim: int = STATE_DIM) -> None:
         super().__init__()
         self.use_d_hat = p.use_d_hat
         self.error_scale = float(p.error_scale)
-        state_scale = torch.ones(STATE_DIM)
-        state_scale[STATE_DIM - 3 :] = self.error_scale  # the feedback error R^T (p − p_d(t))
+        self.state_dim = state_dim
+        state_scale = torch.ones(state_dim)
+        state_scale[FEEDBACK] = self.error_scale  # the feedback error R^T (p − p_d(t))
         self.register_buffer("state_scale", state_scale, persistent=False)
         self.encoder = RefEncoder(horizon, p)
-        dims = [STATE_DIM + self.encoder.out_dim + (3 if p.use_d_hat else 0), *p.hidden]
+        dims = [state_dim + self.encoder.out_dim + (3 if p.use_d_hat else 0), *p.hidden]
         layers: list[nn.Module] = []
         for a, b in zip(dims[:-1], dims[1:]):
             layers += [nn.Linear(a, b), nn.ReLU()]
@@ -132,10 +134,13 @@ class TrackingNet(nn.Module):
         return self.head(self.mlp(torch.cat(parts, dim=-1)))
 
 
-def make_actor(horizon: int, action_low: torch.Tensor, action_high: torch.Tensor, p: PolicyParams) -> ProbabilisticActor:
-    """TanhNormal policy over ``[low, high]``; initial mean = hover (thrust g, zero rates)."""
+def make_actor(
+    horizon: int, action_low: torch.Tensor, action_high: torch.Tensor, p: PolicyParams, state_dim: int = STATE_DIM
+) -> ProbabilisticActor:
+    """TanhNormal policy over ``[low, high]``; initial mean = hover (thrust g, zero rates).
+    ``state_dim``: width of the env's ``state`` (``env.state_dim``)."""
     p.validate()
-    net = TrackingNet(horizon, 8, p)
+    net = TrackingNet(horizon, 8, p, state_dim)
     low, high = action_low.float(), action_high.float()
     center, half = (high + low) / 2, (high - low) / 2
     hover = torch.zeros(4)
@@ -157,9 +162,9 @@ def make_actor(horizon: int, action_low: torch.Tensor, action_high: torch.Tensor
     )
 
 
-def make_critic(horizon: int, p: PolicyParams) -> ValueOperator:
+def make_critic(horizon: int, p: PolicyParams, state_dim: int = STATE_DIM) -> ValueOperator:
     p.validate()
-    return ValueOperator(TrackingNet(horizon, 1, p), in_keys=OBS_KEYS)
+    return ValueOperator(TrackingNet(horizon, 1, p, state_dim), in_keys=OBS_KEYS)
 
 
 class InferenceNet(nn.Module):
@@ -199,9 +204,10 @@ class InferenceNet(nn.Module):
         self.mlp = copy.deepcopy(net.mlp)
         # the first layer's feedback columns take the error gain, and with encoder "none" also the
         # columns of the raw error points, which follow the state
-        gained = STATE_DIM + (3 * horizon if self.kind == "none" else 0)
         with torch.no_grad():
-            self.mlp[0].weight[:, STATE_DIM - 3 : gained].mul_(scale)
+            self.mlp[0].weight[:, FEEDBACK].mul_(scale)
+            if self.kind == "none":
+                self.mlp[0].weight[:, net.state_dim : net.state_dim + 3 * horizon].mul_(scale)
         self.head = _linear(net.head.weight.detach()[:out], net.head.bias.detach()[:out])
 
     def forward(self, state: torch.Tensor, ref: torch.Tensor, d_hat: torch.Tensor) -> torch.Tensor:

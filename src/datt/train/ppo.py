@@ -121,8 +121,8 @@ class Trainer:
         self.phase = "fixed" if self.fixed_traj is not None else "main"
         if bool(tc.get("stagger_episodes", True)):
             self.env.stagger_episodes()
-        self.actor = make_actor(self.env.horizon, self.env.action_low, self.env.action_high, self.policy_params)
-        self.critic = make_critic(self.env.horizon, self.policy_params)
+        self.actor = make_actor(self.env.horizon, self.env.action_low, self.env.action_high, self.policy_params, self.env.state_dim)
+        self.critic = make_critic(self.env.horizon, self.policy_params, self.env.state_dim)
         a = self.algo
         self.loss = ClipPPOLoss(
             self.actor,
