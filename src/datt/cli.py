@@ -286,7 +286,7 @@ def load_actor(path: str | Path):
     """Actor and its training config from a checkpoint (file or run dir)."""
     from datt.config import env_params_from_cfg, structured
     from datt.envs.tracking import action_bounds
-    from datt.envs.observations import STATE_DIM
+    from datt.envs.observations import state_width
     from datt.policies.networks import PolicyParams, make_actor
 
     data = load_checkpoint(resolve_path(path))
@@ -294,7 +294,7 @@ def load_actor(path: str | Path):
     params = structured(PolicyParams, train_cfg.policy, "policy")
     env_params = env_params_from_cfg(train_cfg.env)
     low, high = action_bounds(env_params)
-    actor = make_actor(int(data["horizon"]), low, high, params, STATE_DIM + 4 * env_params.obs.action_history)
+    actor = make_actor(int(data["horizon"]), low, high, params, state_width(env_params.obs))
     actor.load_state_dict(data["actor"])
     actor.eval()
     return actor, train_cfg, data

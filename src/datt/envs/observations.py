@@ -24,6 +24,11 @@ STATE_DIM = 13  # without the optional command history
 FEEDBACK = slice(10, 13)  # the feedback error's entries in ``state``
 
 
+def state_width(obs: ObsParams) -> int:
+    """Width of ``state``: the 13 entries plus 4 per command of ``obs.action_history``."""
+    return STATE_DIM + 4 * obs.action_history
+
+
 def build_observation(
     pos_m: Tensor, vel_mps: Tensor, quat: Tensor, ref_future_m: Tensor, body_frame: bool = True, feedback: bool = True
 ) -> tuple[Tensor, Tensor]:

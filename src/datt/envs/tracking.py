@@ -25,7 +25,7 @@ from torchrl.envs import EnvBase
 from datt.adapt.base import Adaptation, Privileged
 from datt.compile import compile_or_eager
 from datt.config import ConfigError, EnvParams
-from datt.envs.observations import STATE_DIM, observe_and_cost
+from datt.envs.observations import observe_and_cost, state_width
 from datt.refs.base import RefFamily
 from datt.sim.disturbances import Disturbance
 from datt.sim.quadrotor import Quadrotor, resolve_dtype
@@ -111,7 +111,7 @@ class TrackingEnv(EnvBase):
         self.action_low, self.action_high = action_bounds(params, **kw)
         self.action_center = (self.action_high + self.action_low) / 2
         self.action_half = (self.action_high - self.action_low) / 2
-        self.state_dim = STATE_DIM + 4 * params.obs.action_history
+        self.state_dim = state_width(params.obs)
         self.cmd_history = torch.zeros(num_envs, params.obs.action_history, 4, **kw)
         self.box_m = torch.tensor(params.safety_box_m, **kw)
         self._make_specs()
