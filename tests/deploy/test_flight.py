@@ -20,9 +20,8 @@ from datt.deploy import safety as S  # noqa: E402
 
 _ports = itertools.count(19900)
 SHORT = ["deploy.flight.takeoff_s=1.5", "deploy.flight.hover_s=0.5", "deploy.flight.track_s=3.0", "deploy.flight.land_s=1.5",
-         # a loaded CI machine can stall the server's threads (0.47 s seen in a full suite run); the
-         # default 0.1 s would KILL. The fault tests below still trip these limits.
-         "deploy.safety.max_state_age_s=0.8", "deploy.safety.max_mocap_age_s=0.8"]
+         # a loaded CI machine can stall the server's threads for ~0.2 s; the default 0.1 s would KILL
+         "deploy.safety.max_state_age_s=0.4", "deploy.safety.max_mocap_age_s=0.4"]
 
 
 def fly(tmp_path, overrides=(), hook=None, estop=None):
