@@ -501,7 +501,7 @@ def run_deploy(cfg: DictConfig, run_dir: Path | None = None, estop=None, server_
         mocap = M.MotionCaptureMocap(str(d.mocap.system), str(d.mocap.host), str(d.mocap.body))
     else:
         raise ConfigError(f"deploy.mocap.source: unknown source {source!r}; allowed: none, simulated, motioncapture")
-    link = CrazyflieLink(str(d.uri), int(d.log_period_ms), float(d.connect_timeout_s))
+    link = CrazyflieLink(str(d.uri), int(d.log_period_ms), float(d.connect_timeout_s), float(d.io_timeout_s))
     track_family = instantiate_option(cfg, "traj")
     runner = FlightRunner(link, mocap, make_flight_env, controller, PidController, track_family,
                           structured(FlightParams, d.flight, "deploy.flight"), structured(SafetyParams, d.safety, "deploy.safety"),

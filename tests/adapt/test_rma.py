@@ -2,7 +2,7 @@ import pytest
 import torch
 from tensordict import TensorDict
 
-from datt.adapt.rma import FEATURES, RmaAdaptation, RmaNet, load_rma, train_rma
+from datt.adapt.rma import ACCEL_SCALE, FEATURES, RmaAdaptation, RmaNet, load_rma, train_rma
 from datt.config import ConfigError, compose, make_env
 
 
@@ -15,6 +15,22 @@ def test_network_shapes_and_paper_structure():
     assert net(torch.zeros(5, 50, FEATURES)).shape == (5, 3)
     with pytest.raises(ConfigError, match="history_len"):
         RmaNet(10)
+
+
+def test_acceleration_input_is_the_velocity_difference():
+    net = RmaNet(50, accel_dt_s=0.02)
+    assert net.conv[0].in_channels == FEATURES + 3
+    seen = {}
+    net.conv[0].register_forward_pre_hook(lambda mod, args: seen.update(x=args[0]))
+    history = torch.zeros(2, 50, FEATURES)
+    accel = torch.tensor([1.0, -2.0, 3.0])
+    history[:, :, :3] = torch.arange(50.0)[:, None] * 0.02 * accel  # v = a t
+    assert net(history).shape == (2, 3)
+    extra = seen["x"][:, FEATURES:]  # [B, 3, L]
+    assert torch.allclose(extra[:, :, 1:], (accel * ACCEL_SCALE)[None, :, None].expand(2, 3, 49), atol=1e-4)
+    assert extra[:, :, 0].abs().sum() == 0  # no difference before the first step
+    with pytest.raises(ConfigError, match="dt"):
+        RmaNet(50, accel_dt_s=0.0)
 
 
 def test_history_buffer_across_partial_resets():
@@ -49,7 +65,7 @@ def test_rma_training_loss_decreases(tmp_path, tiny_policy_checkpoint):
     losses = [h["loss"] for h in result["history"]]
     assert sum(losses[-3:]) / 3 < 0.6 * sum(losses[:2]) / 2, losses
     net = load_rma(tmp_path / "rma.pt")
-    assert isinstance(net, RmaNet)
+    assert isinstance(net, RmaNet) and net.accel_dt_s == pytest.approx(0.02)  # rma.accel_input default
 
 
 def test_policy_checkpoint_is_not_an_rma_checkpoint(tiny_policy_checkpoint):
@@ -57,3 +73,10 @@ def test_policy_checkpoint_is_not_an_rma_checkpoint(tiny_policy_checkpoint):
         load_rma(tiny_policy_checkpoint)
     with pytest.raises(ConfigError, match="adaptation.checkpoint"):
         RmaAdaptation()
+
+
+def test_bad_rma_lr_final_frac_is_one_line(tmp_path, tiny_policy_checkpoint):
+    cfg = compose("train", ["stage=rma", f"base_checkpoint={tiny_policy_checkpoint}", "rma.iterations=2",
+                            "rma.num_envs=8", "rma.lr_final_frac=0"])  # fmt: skip
+    with pytest.raises(ConfigError, match=r"^rma.lr_final_frac: must be in \(0, 1\], got 0.0$"):
+        train_rma(cfg, tmp_path)

@@ -92,3 +92,8 @@ def test_connect_to_nothing_fails_with_one_line():
     with pytest.raises(LinkError, match=r"^connect: udp://127.0.0.1:\d+: ") as info:
         link.connect()
     assert "\n" not in str(info.value)
+
+
+def test_bad_io_timeout_fails_with_one_line():
+    with pytest.raises(LinkError, match=r"^deploy.io_timeout_s: must be > 0, got 0$"):
+        CrazyflieLink("udp://127.0.0.1:19999", io_timeout_s=0)

@@ -6,11 +6,20 @@ quaternion, battery) in two blocks within the firmware's 26-byte block limit at 
 (10 ms = 100 Hz by default), and send external positions, rate setpoints, arm/disarm and the
 emergency stop. The latest state is kept with its arrival time so the safety layer can tell a
 stale estimate; ``link_lost`` is set by cflib's connection-lost callback.
+
+Every call that sends through cflib (setpoints, external position, arming, emergency stop,
+closing) runs on one daemon thread and is waited for at most ``io_timeout_s``. cflib can wedge
+when the link dies mid-send: its receive thread sets ``Crazyflie.link = None`` between
+``send_packet``'s check and its use, the send raises with ``_send_lock`` held, and every later
+send (including the emergency stop) blocks forever. A call that does not return in time, or
+raises, marks the link lost (the safety layer then KILLs) and later calls return at once; the
+vehicle's own setpoint watchdog stops the motors when setpoints stop arriving.
 """
 
 from __future__ import annotations
 
 import math
+import queue
 import threading
 import time
 from dataclasses import dataclass
@@ -45,11 +54,41 @@ BLOCK_A = ["stateEstimate.x", "stateEstimate.y", "stateEstimate.z", "stateEstima
 BLOCK_B = ["stateEstimate.qx", "stateEstimate.qy", "stateEstimate.qz", "stateEstimate.qw", "pm.vbat"]
 
 
+class _BoundedCaller:
+    """Runs calls on one daemon thread; ``call`` waits at most ``timeout_s`` for each."""
+
+    def __init__(self, timeout_s: float) -> None:
+        self.timeout_s = float(timeout_s)
+        self._jobs: queue.SimpleQueue = queue.SimpleQueue()
+        threading.Thread(target=self._run, name="cflib-io", daemon=True).start()
+
+    def _run(self) -> None:
+        while True:
+            fn, args, done, out = self._jobs.get()
+            try:
+                fn(*args)
+            except Exception as exc:  # handed to the caller
+                out.append(exc)
+            done.set()
+
+    def call(self, fn, *args, timeout_s: float | None = None) -> Exception | None:
+        """None on success; the exception raised, or TimeoutError when the call is still running."""
+        wait_s = self.timeout_s if timeout_s is None else timeout_s
+        done, out = threading.Event(), []
+        self._jobs.put((fn, args, done, out))
+        if not done.wait(wait_s):
+            return TimeoutError(f"did not return within {wait_s:g} s")
+        return out[0] if out else None
+
+
 class CrazyflieLink:
-    def __init__(self, uri: str, log_period_ms: int = 10, connect_timeout_s: float = 10.0) -> None:
+    def __init__(self, uri: str, log_period_ms: int = 10, connect_timeout_s: float = 10.0, io_timeout_s: float = 0.5) -> None:
+        if not io_timeout_s > 0:
+            raise LinkError(f"deploy.io_timeout_s: must be > 0, got {io_timeout_s}")
         self.uri = uri
         self.log_period_ms = int(log_period_ms)
         self.connect_timeout_s = float(connect_timeout_s)
+        self._io = _BoundedCaller(io_timeout_s)
         self.link_lost = threading.Event()
         self.lost_reason = ""
         self._a: dict | None = None
@@ -96,15 +135,25 @@ class CrazyflieLink:
         return cb
 
     def _on_lost(self, uri, msg) -> None:
-        self.lost_reason = str(msg)
+        if not self.link_lost.is_set():
+            self.lost_reason = str(msg)
         self.link_lost.set()
+
+    def _send(self, what: str, fn, *args) -> None:
+        """``fn(*args)`` within ``io_timeout_s``; a failure marks the link lost (never raises)."""
+        if self.link_lost.is_set():
+            return  # a dead or wedged link: do not queue behind a call that never returns
+        error = self._io.call(fn, *args)
+        if error is not None:
+            self._on_lost(self.uri, f"{what}: {type(error).__name__}: {error}")
 
     def close(self) -> None:
         if self.cf is not None:
-            try:
-                self.cf.close_link()
-            except Exception:  # closing a dead link must not mask the flight's outcome
-                pass
+            # bounded like the sends; cflib joins its packet thread here (up to 1 s), hence the
+            # longer bound. Errors must not mask the flight's outcome.
+            error = self._io.call(self.cf.close_link, timeout_s=max(2.0, self._io.timeout_s))
+            if isinstance(error, TimeoutError):
+                self._on_lost(self.uri, f"close: {error}")
 
     # -- state -----------------------------------------------------------------------------
     def state(self) -> StateSample | None:
@@ -124,13 +173,13 @@ class CrazyflieLink:
 
     # -- commands --------------------------------------------------------------------------
     def send_rates(self, roll_degps: float, pitch_degps: float, yaw_arg_degps: float, thrust_cmd: int) -> None:
-        self.cf.commander.send_setpoint(roll_degps, pitch_degps, yaw_arg_degps, int(thrust_cmd))
+        self._send("setpoint", self.cf.commander.send_setpoint, roll_degps, pitch_degps, yaw_arg_degps, int(thrust_cmd))
 
     def send_extpos(self, pos_m) -> None:
-        self.cf.extpos.send_extpos(float(pos_m[0]), float(pos_m[1]), float(pos_m[2]))
+        self._send("extpos", self.cf.extpos.send_extpos, float(pos_m[0]), float(pos_m[1]), float(pos_m[2]))
 
     def arm(self, on: bool = True) -> None:
-        self.cf.supervisor.send_arming_request(bool(on))
+        self._send("arm", self.cf.supervisor.send_arming_request, bool(on))
 
     def emergency_stop(self) -> None:
-        self.cf.supervisor.send_emergency_stop()
+        self._send("emergency stop", self.cf.supervisor.send_emergency_stop)

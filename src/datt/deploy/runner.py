@@ -186,6 +186,8 @@ class FlightRunner:
                 self.link.arm(False)
             except Exception as exc:  # a dead link cannot disarm; the vehicle's watchdog does
                 self._event("disarm failed", str(exc))
+            if self.link.link_lost.is_set():  # the sends above were skipped; say why
+                self._event("link lost", self.link.lost_reason)
             if self.mocap is not None:
                 self.mocap.stop()
             self.link.close()

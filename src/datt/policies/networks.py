@@ -24,6 +24,7 @@ from typing import Any
 import torch
 from tensordict.nn import NormalParamExtractor, TensorDictModule
 from torch import nn
+from torch.nn import functional as F
 from torchrl.modules import ProbabilisticActor, TanhNormal, ValueOperator
 
 from datt.config import ConfigError
@@ -99,8 +100,15 @@ class RefEncoder(nn.Module):
         lead = ref.shape[:-2]
         flat = ref.reshape(-1, *ref.shape[-2:])  # [B, H, 3]
         if self.kind == "conv":
-            h = self.conv(flat.transpose(1, 2))  # [B, C, H]
-            out = torch.relu(self.proj(h.flatten(1)))
+            h = flat.transpose(1, 2).unsqueeze(2)  # [B, 3, 1, H]
+            for layer in self.conv:
+                if isinstance(layer, nn.Conv1d):
+                    # The same Conv1d weights applied as a 1 x k conv2d: on CPU oneDNN's 2-D path
+                    # is 1.4-2.4x faster forward+backward than its 1-D one at these sizes.
+                    h = F.conv2d(h, layer.weight.unsqueeze(2), layer.bias, padding=(0, layer.padding[0]))
+                else:
+                    h = layer(h)
+            out = torch.relu(self.proj(h.flatten(1)))  # h [B, C, 1, H]: same C-major order as [B, C, H]
         elif self.kind == "mlp":
             out = torch.relu(self.net(flat.flatten(1)))
         else:

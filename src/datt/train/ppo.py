@@ -136,6 +136,11 @@ class Trainer:
         )
         self.gae = GAE(gamma=a.gamma, lmbda=a.lmbda, value_network=self.critic, average_gae=False, shifted=True)
         self.optim = torch.optim.Adam(self.loss.parameters(), lr=a.lr)
+        keys = self.loss.tensor_keys
+        self._loss_keys = sorted(
+            {k for k in self.loss.in_keys if isinstance(k, str)}
+            | {keys.advantage, keys.value_target, keys.value, keys.sample_log_prob, keys.action}
+        )
         if tc.get("init_from"):
             self.init_weights(tc.init_from)
         self.frames_per_batch = a.num_envs * a.rollout_steps
@@ -222,7 +227,9 @@ class Trainer:
             if a.reward_scale != 1.0:
                 batch.set(("next", "reward"), batch.get(("next", "reward")) * a.reward_scale)
             self.gae(batch)
-        data = batch.reshape(-1)
+        # Only what the loss reads: indexing all ~25 rollout keys per minibatch cost ~6 % of
+        # each gradient step. The ("next", ...) entries were needed by GAE only.
+        data = batch.reshape(-1).select(*self._loss_keys, strict=False)
         lr = self._lr()
         for group in self.optim.param_groups:
             group["lr"] = lr
