@@ -11,13 +11,11 @@ import time
 from pathlib import Path
 from typing import Callable
 
-import torch
 from omegaconf import DictConfig, OmegaConf
 from rich.console import Console
 from rich.table import Table
 
 from datt.config import CONF_DIR, SWEEPS_DIR, ConfigError, available_options
-from datt.train.checkpoint import load_checkpoint
 
 console = Console()
 
@@ -54,6 +52,8 @@ def _set_threads(n) -> None:
     the parallel jobs (so 2 jobs on 2 cores use 1 thread each instead of oversubscribing)."""
     n = n or joblib_threads()
     if n:
+        import torch
+
         torch.set_num_threads(int(n))
 
 
@@ -93,7 +93,7 @@ def hydra_main(config_name: str, task: Callable[[DictConfig], object]) -> Callab
     """Wrap ``task`` in ``@hydra.main`` with one-line error reporting."""
     import hydra
 
-    from datt.train.ppo import TrainingDiverged
+    from datt.config import TrainingDiverged
 
     @hydra.main(config_path=str(CONF_DIR), config_name=config_name, version_base="1.3")
     def _main(cfg: DictConfig) -> None:
@@ -157,6 +157,8 @@ def evaluate_conditions(cfg: DictConfig, policy, conditions: dict, run_dir: Path
         res = evaluate(eval_cfg, factory, cond["disturbance"], cond["adaptation"], seed=int(cfg.eval.get("seed", 0)))
         labels = {k: v if isinstance(v, str) else OmegaConf.to_container(v) for k, v in cond.items()}
         if trace_path is not None:  # for side-by-side plots across controllers (tables.py main)
+            import torch
+
             tr = res["trace"]
             torch.save({"pos_m": tr.pos_m, "ref_m": tr.ref_m, "err_m": tr.err_m, "crashed_at": tr.crashed_at,
                         "names": res["names"], "counts": res["counts"]}, trace_path)  # fmt: skip
@@ -288,6 +290,7 @@ def load_actor(path: str | Path):
     from datt.envs.tracking import action_bounds
     from datt.envs.observations import state_width
     from datt.policies.networks import PolicyParams, make_actor
+    from datt.train.checkpoint import load_checkpoint
 
     data = load_checkpoint(resolve_path(path))
     train_cfg = OmegaConf.create(data["config_yaml"])

@@ -25,6 +25,11 @@ class ConfigError(ValueError):
     """A user-facing configuration error (one line, names the key)."""
 
 
+class TrainingDiverged(RuntimeError):
+    """A NaN/inf appeared in the loss, observations or actions (raised by ``datt.train.ppo``;
+    defined here so the entry points can catch it without importing TorchRL's collectors)."""
+
+
 @dataclass
 class RewardParams:
     """Per-step reward ``-(pos ‖p − p_ref‖ + yaw |wrap(ψ_ref − ψ)| + vel min(‖v‖, vel_cap_mps))``

@@ -29,14 +29,10 @@ from torchrl.collectors import Collector
 from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
 
-from datt.config import ConfigError, instantiate_option, make_env, structured
+from datt.config import ConfigError, TrainingDiverged, instantiate_option, make_env, structured
 from datt.policies.networks import PolicyParams, make_actor, make_critic
 from datt.train.checkpoint import load_checkpoint, save_checkpoint
 from datt.train.logging import Logger
-
-
-class TrainingDiverged(RuntimeError):
-    """A NaN/inf appeared in the loss, observations or actions."""
 
 
 @dataclass
