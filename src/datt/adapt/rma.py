@@ -11,8 +11,8 @@ scaled by a fixed constant (``FEATURE_SCALE``) so all are O(1).
 finite-difference acceleration of the velocity channel, ``(v_t − v_{t−1}) / dt`` (3 more input
 channels, computed inside ``forward`` from the same history, so buffers and deploy are unchanged).
 The disturbance is the acceleration the commands do not explain; left to the first conv layer,
-that difference of O(1) velocities 20 ms apart is a 1 % signal, and the adapter's d̂ error stayed
-near 0.5 m/s² RMS.
+that difference of O(1) velocities 20 ms apart is a ~2 % signal per m/s² of disturbance, and the
+adapter's d̂ error stayed near 0.5 m/s² RMS (with it: ~0.35).
 
 Training (:func:`train_rma`): the frozen DATT policy flies with the adapter's *own* predictions as
 d̂ (so the adapter sees the state distribution it will face), and every step one Adam step
