@@ -80,3 +80,14 @@ def test_bad_rma_lr_final_frac_is_one_line(tmp_path, tiny_policy_checkpoint):
                             "rma.num_envs=8", "rma.lr_final_frac=0"])  # fmt: skip
     with pytest.raises(ConfigError, match=r"^rma.lr_final_frac: must be in \(0, 1\], got 0.0$"):
         train_rma(cfg, tmp_path)
+
+
+def test_adapter_written_before_the_acceleration_input_still_loads(tmp_path):
+    from datt.train.checkpoint import save_checkpoint
+
+    old = RmaNet(50)  # the paper's 14-channel network, saved without "accel_dt_s"
+    save_checkpoint(tmp_path / "old_rma.pt", {"rma": old.state_dict(), "history_len": 50})
+    net = load_rma(tmp_path / "old_rma.pt")
+    assert net.accel_dt_s is None and net.conv[0].in_channels == FEATURES
+    history = torch.randn(3, 50, FEATURES)
+    assert torch.equal(net(history), old(history))
