@@ -147,7 +147,7 @@ def train_rma(cfg: DictConfig, run_dir: Path, console=None) -> dict:
     env_cfg = with_options(train_cfg, disturbance=OmegaConf.to_container(cfg.disturbance))
     env_cfg.env.compile = False
     env = make_env(env_cfg, num_envs=int(rc.num_envs), seed=int(cfg.seed), traj=instantiate_option(cfg, "traj"))
-    net = RmaNet(int(rc.history_len), accel_dt_s=env.dt_s if bool(rc.get("accel_input", True)) else None)
+    net = RmaNet(int(rc.history_len), accel_dt_s=env.dt_s if bool(rc.accel_input) else None)
     adapter = RmaAdaptation(net=net)
     env.adaptation = adapter
     adapter.bind(env.n, env.dt_s, env.params.quad.gravity_mps2, env.device, env.dtype)
@@ -161,7 +161,7 @@ def train_rma(cfg: DictConfig, run_dir: Path, console=None) -> dict:
     from datt.train.ppo import budget_factor
 
     iterations = max(1, int(int(rc.iterations) * budget_factor(cfg)))
-    final_frac = float(rc.get("lr_final_frac", 1.0))
+    final_frac = float(rc.lr_final_frac)
     if not 0 < final_frac <= 1:
         raise ConfigError(f"rma.lr_final_frac: must be in (0, 1], got {final_frac}")
     # linear decay to lr * final_frac: at a constant lr the per-step loss over 1024 drones stays noisy

@@ -9,6 +9,7 @@ from tensordict import TensorDictBase
 from torch import nn
 
 from datt.control.base import Controller
+from datt.envs.tracking import action_center_half
 from datt.policies.networks import InferenceNet
 from datt.sim.frames import quat_to_rotmat_bilinear
 
@@ -42,7 +43,7 @@ class DattController(Controller):
         self.net = actor.module[0].module.net  # TrackingNet: (state, ref, d_hat) -> [loc | scale logits]
         dist_kwargs = actor.module[1].distribution_kwargs
         low, high = dist_kwargs["low"], dist_kwargs["high"]
-        self.center, self.half = (high + low) / 2, (high - low) / 2
+        self.center, self.half = action_center_half(low, high)
         self.frozen = frozen
         self.builds_observation = frozen
         self._traced: dict = {}

@@ -39,10 +39,15 @@ def action_bounds(params: EnvParams, **kw) -> tuple[torch.Tensor, torch.Tensor]:
     return torch.cat((torch.tensor([g + lo_t], **kw), -rates)), torch.cat((torch.tensor([g + hi_t], **kw), rates))
 
 
+def action_center_half(low: torch.Tensor, high: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Midpoint and half-range of the bounds: ``action = center + half * u`` for ``u`` in [-1, 1]."""
+    return (high + low) / 2, (high - low) / 2
+
+
 class TrackingEnv(EnvBase):
     """Batched trajectory-tracking env (``batch_size = [num_envs]``).
 
-    Observation keys: ``state [N, 13]``, ``ref [N, horizon, 3]``, ``d_hat [N, 3]`` (see
+    Observation keys: ``state [N, 13 + 4k]`` (k = ``obs.action_history``), ``ref [N, horizon, 3]``, ``d_hat [N, 3]`` (see
     :mod:`datt.envs.observations`) and ``tracking_error_m [N, 1]`` (‖p − p_d(t)‖, true
     position; for logging and metrics). Action ``[N, 4]``: thrust (m/s², mass-normalised,
     bounds ``g + thrust_offset_bounds_mps2``) and body rates (rad/s, ± ``rate_bounds_radps``).
@@ -109,8 +114,7 @@ class TrackingEnv(EnvBase):
         self._observe_kernel = observe_and_cost
 
         self.action_low, self.action_high = action_bounds(params, **kw)
-        self.action_center = (self.action_high + self.action_low) / 2
-        self.action_half = (self.action_high - self.action_low) / 2
+        self.action_center, self.action_half = action_center_half(self.action_low, self.action_high)
         self.state_dim = state_width(params.obs)
         self.cmd_history = torch.zeros(num_envs, params.obs.action_history, 4, **kw)
         self.box_m = torch.tensor(params.safety_box_m, **kw)

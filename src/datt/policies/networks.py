@@ -29,6 +29,7 @@ from torchrl.modules import ProbabilisticActor, TanhNormal, ValueOperator
 
 from datt.config import ConfigError
 from datt.envs.observations import FEEDBACK, STATE_DIM
+from datt.envs.tracking import action_center_half
 
 OBS_KEYS = ["state", "ref", "d_hat"]
 ENCODERS = ("conv", "mlp", "none")
@@ -150,7 +151,7 @@ def make_actor(
     p.validate()
     net = TrackingNet(horizon, 8, p, state_dim)
     low, high = action_low.float(), action_high.float()
-    center, half = (high + low) / 2, (high - low) / 2
+    center, half = action_center_half(low, high)
     hover = torch.zeros(4)
     hover[0] = float(low[0] + 9.8)  # bounds are g + [-9.8, 30]: g ≈ low + 9.8
     with torch.no_grad():
