@@ -20,8 +20,9 @@ import argparse
 
 from _common import write_result
 
-from datt.cli import build_controller
-from datt.config import compose, make_env
+from datt.configuration import compose
+from datt.control.factory import build_controller
+from datt.envs.factory import make_env
 from datt.eval.timing import step_times_ms, summarize_ms
 
 CONTROLLERS = ["datt", "datt_l1", "pid", "l1_pid", "mppi", "l1_mppi"]
@@ -50,18 +51,31 @@ def main() -> None:
         medians = [r["median_ms"] for r in rs]
         best = min(rs, key=lambda r: r["median_ms"])
         r = results[f"{option}@1"] = {**best, "round_medians_ms": medians}
-        print(f"{option:8s} batch 1   : best-round median {r['median_ms']:8.3f} ms   p95 {r['p95_ms']:8.3f} ms   "
-              f"(round medians {min(medians):.3f}-{max(medians):.3f})")  # fmt: skip
+        print(
+            f"{option:8s} batch 1   : best-round median {r['median_ms']:8.3f} ms   p95 {r['p95_ms']:8.3f} ms   "
+            f"(round medians {min(medians):.3f}-{max(medians):.3f})"
+        )
     r = results["datt_l1@4096"] = measure("datt_l1", a.steps // 3, batch=4096, threads=None)
-    print(f"datt_l1  batch 4096: median {r['median_ms']:8.3f} ms   p95 {r['p95_ms']:8.3f} ms "
-          f"({r['median_ms'] / 4096 * 1e3:.2f} us per drone)")  # fmt: skip
+    print(
+        f"datt_l1  batch 4096: median {r['median_ms']:8.3f} ms   p95 {r['p95_ms']:8.3f} ms "
+        f"({r['median_ms'] / 4096 * 1e3:.2f} us per drone)"
+    )
     ratio = results["mppi@1"]["median_ms"] / results["datt_l1@1"]["median_ms"]
     per_round = [m["median_ms"] / d["median_ms"] for m, d in zip(rounds["mppi"], rounds["datt_l1"])]
-    print(f"MPPI / DATT (L1) at batch 1: {ratio:.0f}x (best rounds); same round: {min(per_round):.0f}x-{max(per_round):.0f}x")
-    path = write_result("controller_latency", {
-        "results": results, "mppi_over_datt_l1": ratio, "mppi_over_datt_l1_same_round": per_round,
-        "threads_batch1": 1, "rounds": a.rounds,
-    })  # fmt: skip
+    print(
+        f"MPPI / DATT (L1) at batch 1: {ratio:.0f}x (best rounds); "
+        f"same round: {min(per_round):.0f}x-{max(per_round):.0f}x"
+    )
+    path = write_result(
+        "controller_latency",
+        {
+            "results": results,
+            "mppi_over_datt_l1": ratio,
+            "mppi_over_datt_l1_same_round": per_round,
+            "threads_batch1": 1,
+            "rounds": a.rounds,
+        },
+    )
     print(f"wrote {path}")
 
 

@@ -48,7 +48,12 @@ def step_cost_ms(n: int, repeats: int = 2000, compiled: bool = True) -> dict:
         times.append(1e3 * (time.perf_counter() - t0))
     times.sort()
     kernel = "compiled" if est._step is not l1_step else "eager"
-    return {"batch": n, "kernel": kernel, "median_ms": statistics.median(times), "p95_ms": times[int(0.95 * len(times))]}
+    return {
+        "batch": n,
+        "kernel": kernel,
+        "median_ms": statistics.median(times),
+        "p95_ms": times[int(0.95 * len(times))],
+    }
 
 
 def tracking_rmse(tau: float, disturbance: str, vel_noise: float, n: int = 256, steps: int = 1000) -> float:
@@ -68,7 +73,9 @@ def tracking_rmse(tau: float, disturbance: str, vel_noise: float, n: int = 256, 
         cmd[:, 1:3] = 0.5 * torch.randn(n, 2, generator=gen) - 0.5 * quad.state.quat[:, 1:3]  # stay near level
         quad.step(cmd, dist.current_mps2)
         dist.update(quad.state)
-        measured = SimpleNamespace(vel_mps=quad.state.vel_mps + vel_noise * torch.randn(n, 3, generator=gen), quat=quad.state.quat)
+        measured = SimpleNamespace(
+            vel_mps=quad.state.vel_mps + vel_noise * torch.randn(n, 3, generator=gen), quat=quad.state.quat
+        )
         d_hat = est.update(measured, cmd)
         if k >= 100:
             sq += (d_hat - dist.current_mps2).pow(2).sum().item()
@@ -84,19 +91,29 @@ def main() -> None:
     for disturbance in ("brownian", "wind"):
         for noise in (0.0, 0.02):
             rmse = {tau: tracking_rmse(tau, disturbance, noise) for tau in TAUS}
-            rows.append({"disturbance": disturbance, "vel_noise_std_mps": noise, "rmse_mps2_by_tau_s": rmse,
-                         "best_tau_s": min(rmse, key=rmse.get)})  # fmt: skip
+            rows.append(
+                {
+                    "disturbance": disturbance,
+                    "vel_noise_std_mps": noise,
+                    "rmse_mps2_by_tau_s": rmse,
+                    "best_tau_s": min(rmse, key=rmse.get),
+                }
+            )
     table = Table(title="L1: RMSE of d̂ − d (m/s²) vs low-pass time constant τ")
     table.add_column("disturbance")
     table.add_column("vel noise")
     for tau in TAUS:
         table.add_column(f"τ={tau}", justify="right")
     for r in rows:
-        table.add_row(r["disturbance"], f"{r['vel_noise_std_mps']}", *(f"{r['rmse_mps2_by_tau_s'][t]:.3f}" for t in TAUS))
+        table.add_row(
+            r["disturbance"], f"{r['vel_noise_std_mps']}", *(f"{r['rmse_mps2_by_tau_s'][t]:.3f}" for t in TAUS)
+        )
     console = Console()
     console.print(table)
     for c in cost:
-        console.print(f"L1 update, batch {c['batch']} ({c['kernel']}): median {c['median_ms']:.4f} ms, p95 {c['p95_ms']:.4f} ms")
+        console.print(
+            f"L1 update, batch {c['batch']} ({c['kernel']}): median {c['median_ms']:.4f} ms, p95 {c['p95_ms']:.4f} ms"
+        )
     print(f"wrote {write_result('l1', {'step_cost': cost, 'tracking': rows})}")
 
 

@@ -34,14 +34,23 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--steps", type=int, default=400_000)
     a = ap.parse_args()
-    common = [f"train.total_steps={a.steps}", "curriculum.fixed_ref_steps=0", "logger=csv", "train.progress=false",
-              "eval.plots=false", "eval.conditions.brownian=null", "env.compile=false"]  # fmt: skip
+    common = [
+        f"train.total_steps={a.steps}",
+        "curriculum.fixed_ref_steps=0",
+        "logger=csv",
+        "train.progress=false",
+        "eval.plots=false",
+        "eval.conditions.brownian=null",
+        "env.compile=false",
+    ]
     with tempfile.TemporaryDirectory() as tmp:
         one = timed(["-m", "seed=0", *common], tmp)
         two = timed(["-m", "seed=0,1", "hydra/launcher=joblib", "hydra.launcher.n_jobs=2", *common], tmp)
     ratio = two / one
     print(f"1 job: {one:.1f} s   2 jobs with joblib (n_jobs=2): {two:.1f} s   ratio {ratio:.2f} (target < 1.5)")
-    path = write_result("parallel_sweep", {"steps_per_job": a.steps, "one_job_s": one, "two_jobs_joblib_s": two, "ratio": ratio})
+    path = write_result(
+        "parallel_sweep", {"steps_per_job": a.steps, "one_job_s": one, "two_jobs_joblib_s": two, "ratio": ratio}
+    )
     print(f"wrote {path}")
 
 

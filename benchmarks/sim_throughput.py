@@ -26,7 +26,8 @@ from rich.table import Table
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import write_result  # noqa: E402
 
-from datt.config import compose, make_env  # noqa: E402
+from datt.configuration import compose  # noqa: E402
+from datt.envs.factory import make_env  # noqa: E402
 
 
 def make_actions(env, count: int, kind: str) -> list[torch.Tensor]:
@@ -97,10 +98,15 @@ def main() -> None:
         table.add_column(col, justify="right")
     for r in rows:
         table.add_row(
-            str(r["num_envs"]), r["actions"], str(r["compiled"]), str(r["episodes_reset"]), f"{r['env_steps_per_s'] / 1e6:.2f} M",
-            f"{r['ms_per_batched_step']:.2f}", f"{r['kernel_steps_per_s'] / 1e6:.2f} M",
+            str(r["num_envs"]),
+            r["actions"],
+            str(r["compiled"]),
+            str(r["episodes_reset"]),
+            f"{r['env_steps_per_s'] / 1e6:.2f} M",
+            f"{r['ms_per_batched_step']:.2f}",
+            f"{r['kernel_steps_per_s'] / 1e6:.2f} M",
             f"{r['kernel_ms_per_batched_step']:.2f}",
-        )  # fmt: skip
+        )
     Console().print(table)
     path = write_result("sim_throughput", {"overrides": args.overrides, "steps": args.steps, "rows": rows})
     print(f"wrote {path}")

@@ -20,8 +20,8 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import write_result  # noqa: E402
 
-from datt.config import compose  # noqa: E402
-from datt.train.logging import Logger  # noqa: E402
+from datt.configuration import compose  # noqa: E402
+from datt.train.loggers import Logger  # noqa: E402
 from datt.train.ppo import Trainer  # noqa: E402
 
 
@@ -40,8 +40,13 @@ def main() -> None:
     args = parser.parse_args()
     probe = compose("train", args.overrides)
     per_iter = probe.algo.num_envs * probe.algo.rollout_steps
-    overrides = [*args.overrides, f"train.total_steps={per_iter * args.iterations}", "train.progress=false",
-                 "train.checkpoint_every=1000000", "logger=csv"]  # fmt: skip
+    overrides = [
+        *args.overrides,
+        f"train.total_steps={per_iter * args.iterations}",
+        "train.progress=false",
+        "train.checkpoint_every=1000000",
+        "logger=csv",
+    ]
     cfg = compose("train", overrides)
     timer = Timer()
     t0 = time.perf_counter()
@@ -73,7 +78,10 @@ def main() -> None:
         "grad_steps_per_iteration": probe.algo.epochs * math.ceil(per_iter / probe.algo.minibatch_size),
         "run_wall_s": total_s,
     }
-    print(f"{steps_per_s:,.0f} env steps/s (collection + PPO update); 20M steps ≈ {result['projected_20M_wall_min']:.1f} min")
+    print(
+        f"{steps_per_s:,.0f} env steps/s (collection + PPO update); "
+        f"20M steps ≈ {result['projected_20M_wall_min']:.1f} min"
+    )
     print(f"PPO update (GAE + {result['grad_steps_per_iteration']} gradient steps) {update_share:.0%} of the loop")
     print(f"wrote {write_result('train_throughput', result)}")
 

@@ -1,7 +1,8 @@
 import pytest
 import torch
 
-from datt.config import compose, make_env
+from datt.configuration import compose
+from datt.envs.factory import make_env
 
 
 @pytest.fixture(autouse=True)
@@ -23,15 +24,24 @@ def make_tracking_env():
 @pytest.fixture(scope="session")
 def tiny_policy_checkpoint(tmp_path_factory):
     """A policy checkpoint from a two-iteration training run (shape-correct, barely trained)."""
-    from datt.train.logging import CsvLogger
+    from datt.train.loggers import CsvLogger
     from datt.train.ppo import Trainer
 
     run_dir = tmp_path_factory.mktemp("tiny_policy")
     cfg = compose(
         "train",
-        ["logger=csv", "env.compile=false", "train.progress=false", "algo.num_envs=32", "algo.rollout_steps=8",
-         "algo.minibatch_size=256", "algo.epochs=1", "train.total_steps=512", "curriculum.fixed_ref_steps=0"],
-    )  # fmt: skip
+        [
+            "logger=csv",
+            "env.compile=false",
+            "train.progress=false",
+            "algo.num_envs=32",
+            "algo.rollout_steps=8",
+            "algo.minibatch_size=256",
+            "algo.epochs=1",
+            "train.total_steps=512",
+            "curriculum.fixed_ref_steps=0",
+        ],
+    )
     trainer = Trainer(cfg, run_dir, CsvLogger(run_dir))
     trainer.train()
     return run_dir / "last.pt"

@@ -15,8 +15,17 @@ def run(args, cwd, timeout=300):
 
 
 def test_eval_py_on_checkpoint_writes_metrics(tmp_path, tiny_policy_checkpoint):
-    proc = run([str(ROOT / "eval.py"), f"checkpoint={tiny_policy_checkpoint}", "disturbance=brownian", "adaptation=l1",
-                "eval.seeds=[0,1]", f"hydra.run.dir={tmp_path}"], tmp_path)  # fmt: skip
+    proc = run(
+        [
+            str(ROOT / "eval.py"),
+            f"checkpoint={tiny_policy_checkpoint}",
+            "disturbance=brownian",
+            "adaptation=l1",
+            "eval.seeds=[0,1]",
+            f"hydra.run.dir={tmp_path}",
+        ],
+        tmp_path,
+    )
     assert proc.returncode == 0, proc.stderr[-2000:]
     metrics = json.loads((tmp_path / "metrics.json").read_text())
     assert list(metrics["conditions"]) == ["datt brownian/l1 seed 0", "datt brownian/l1 seed 1"]
@@ -36,7 +45,10 @@ def test_eval_py_on_checkpoint_writes_metrics(tmp_path, tiny_policy_checkpoint):
     [
         (["checkpoint=missing.pt"], "error: checkpoint: file"),
         (["adaptation=magic"], "error: adaptation: unknown option 'magic'; allowed: l1, none, privileged, rma"),
-        (["controller=lqr"], "error: controller: unknown option 'lqr'; allowed: datt, datt_l1, datt_rma, l1_mppi, l1_pid, mppi, pid"),
+        (
+            ["controller=lqr"],
+            "error: controller: unknown option 'lqr'; allowed: datt, datt_l1, datt_rma, l1_mppi, l1_pid, mppi, pid",
+        ),
     ],
 )
 def test_eval_py_errors_are_one_line(tmp_path, args, message):
@@ -56,3 +68,47 @@ def test_corrupt_checkpoint_is_one_line(tmp_path):
 def test_datt_console_script_usage(tmp_path):
     proc = run(["-c", "import sys; sys.argv=['datt']; from datt.cli import main; main()"], tmp_path)
     assert proc.returncode == 2 and "usage: datt {train,eval,tables,deploy}" in proc.stderr
+
+
+EXAMPLES = ROOT / "tests" / "examples" / "conf"
+
+
+def test_user_config_dir_adds_a_reference_family(tmp_path):
+    """A new family = one module + one YAML in the user's config dir (tests/examples): eval flies
+    it from a bank of the user's, with no change to the package."""
+    proc = run(
+        [
+            str(ROOT / "eval.py"),
+            "--config-dir",
+            str(EXAMPLES),
+            "controller=pid",
+            "traj=figure8",
+            "bank@eval.bank=figure8",
+            "eval.timing.steps=0",
+            "eval.plots=false",
+            "eval.save_trace=false",
+            f"hydra.run.dir={tmp_path}",
+        ],
+        ROOT,
+    )
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    metrics = json.loads((tmp_path / "metrics.json").read_text())
+    (cond,) = metrics["conditions"].values()
+    assert cond["groups"]["figure8"]["episodes"] == 2 and cond["groups"]["figure8"]["mean_m"] < 0.5
+
+
+def test_unknown_option_lists_the_whole_search_path(tmp_path):
+    proc = run(
+        [str(ROOT / "eval.py"), "--config-dir", str(EXAMPLES), "bank@eval.bank=mine", f"hydra.run.dir={tmp_path}"],
+        tmp_path,
+    )
+    lines = [ln for ln in proc.stderr.splitlines() if ln.strip() and "warn" not in ln.lower()]
+    assert proc.returncode == 2 and lines == ["error: bank: unknown option 'mine'; allowed: default, figure8"], (
+        proc.stderr
+    )
+
+
+def test_sweep_runs_without_dash_m(tmp_path):
+    """``+sweep=<table>`` sets hydra.mode=MULTIRUN itself (--cfg hydra shows it)."""
+    proc = run([str(ROOT / "train.py"), "+sweep=horizon", "--cfg", "hydra"], tmp_path)
+    assert proc.returncode == 0 and "mode: MULTIRUN" in proc.stdout, proc.stderr[-2000:]

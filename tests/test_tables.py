@@ -7,23 +7,36 @@ from pathlib import Path
 
 import pytest
 
-from datt.config import CONF_DIR, available_options
-from datt.eval import tables as T
+from datt.configuration import available_options
+from datt.eval import tables
 
-REPO = CONF_DIR.parent
-TINY = ["train.total_steps=4096", "algo.num_envs=64", "algo.rollout_steps=16", "algo.minibatch_size=512", "algo.epochs=1",
-        "curriculum.fixed_ref_steps=1024", "logger=csv", "env.compile=false", "train.progress=false", "eval.plots=false",
-        "eval.bank={zigzag:[{traj:zigzag,seed:1000,count:2}]}", "eval.conditions.brownian=null"]  # fmt: skip
+REPO = Path(__file__).resolve().parents[1]
+TINY = [
+    "train.total_steps=4096",
+    "algo.num_envs=64",
+    "algo.rollout_steps=16",
+    "algo.minibatch_size=512",
+    "algo.epochs=1",
+    "curriculum.fixed_ref_steps=1024",
+    "logger=csv",
+    "env.compile=false",
+    "train.progress=false",
+    "eval.plots=false",
+    "eval.bank={zigzag:[{traj:zigzag,seed:1000,count:2}]}",
+    "eval.conditions.brownian=null",
+]
 
 
 def run(script, *args, cwd):
-    return subprocess.run([sys.executable, str(REPO / script), *args], cwd=cwd, capture_output=True, text=True, timeout=600)
+    return subprocess.run(
+        [sys.executable, str(REPO / script), *args], cwd=cwd, capture_output=True, text=True, timeout=600
+    )
 
 
 def test_multirun_then_table_end_to_end(tmp_path):
     out = run("train.py", "-m", "horizon=1,5", *TINY, cwd=tmp_path)
     assert out.returncode == 0, out.stderr[-2000:]
-    (sweep,) = list((tmp_path / "outputs" / "multirun").iterdir())
+    (sweep,) = list((tmp_path / "outputs" / "multirun" / "train").iterdir())
     out = run("tables.py", "horizon", f"runs={sweep}", cwd=tmp_path)
     assert out.returncode == 0, out.stderr[-2000:]
     md = (sweep / "horizon.md").read_text()
@@ -38,7 +51,7 @@ def test_multirun_then_table_end_to_end(tmp_path):
 
 @pytest.mark.parametrize("name", available_options("sweep"))
 def test_every_sweep_composes_from_any_directory(tmp_path, name):
-    script = T.TABLES[name].entry
+    script = tables.TABLES[name].entry
     out = run(script, f"+sweep={name}", "--cfg", "all", cwd=tmp_path)  # the hydra node and the job's config
     assert out.returncode == 0, out.stderr[-2000:]
     assert "params:" in out.stdout and f"outputs/sweeps/{name}/" in out.stdout
@@ -89,10 +102,10 @@ def test_failed_and_incomplete_runs_are_reported(tmp_path):
     _job(tmp_path, 3, ["+sweep=ablation", "ablation=no_body_frame", "seed=1"], _train_metrics(0.9, crashed=True))
     inc = _job(tmp_path, 4, ["+sweep=ablation", "ablation=h5", "seed=0"])
     (inc / "metrics.csv").write_text("step,frames,tracking_error_m\n1,32768,0.5\n2,65536,0.4\n")
-    spec = T.get_spec("ablation")
-    jobs = T.find_jobs([tmp_path])
-    rows, _ = T.collect(spec, jobs)
-    rendered = T.render(spec, rows, jobs)
+    spec = tables.get_spec("ablation")
+    jobs = tables.find_jobs([tmp_path])
+    rows, _ = tables.collect(spec, jobs)
+    rendered = tables.render(spec, rows, jobs)
     by_label = {r[0].split(" [")[0]: r for r in rendered["rows"]}
     assert by_label["Feedforward horizon 10 (base, used in main experiments)"][1] == "0.060 ± 0.010"
     assert by_label["No body frame"][1] == "failed"
@@ -102,16 +115,22 @@ def test_failed_and_incomplete_runs_are_reported(tmp_path):
 
 def test_main_table_pools_seeds_and_reports_inference(tmp_path):
     def metrics(controller, smooth, zig, ms, crashed=(False, False)):
-        g = lambda v, c: {"mean_m": 0, "std_m": 0, "crashes": sum(c), "episodes": 2, "per_episode_m": v,  # noqa: E731
-                          "per_episode_crashed": list(c)}  # fmt: skip
+        g = lambda v, c: {
+            "mean_m": 0,
+            "std_m": 0,
+            "crashes": sum(c),
+            "episodes": 2,
+            "per_episode_m": v,  # noqa: E731
+            "per_episode_crashed": list(c),
+        }
         cond = {"groups": {"smooth": g(smooth, (False, False)), "zigzag": g(zig, crashed)}}
         return {"controller": controller, "conditions": {"s0": cond, "s1": cond}, "inference_ms": {"median_ms": ms}}
 
     _job(tmp_path, 0, ["+sweep=main", "controller=pid"], metrics("pid", [0.1, 0.1], [0.3, 2.0], 0.2, (False, True)))
     _job(tmp_path, 1, ["+sweep=main", "controller=datt"], metrics("datt", [0.03, 0.05], [0.06, 0.08], 0.1))
-    spec = T.get_spec("main")
-    jobs = T.find_jobs([tmp_path])
-    rendered = T.render(spec, T.collect(spec, jobs)[0], jobs)
+    spec = tables.get_spec("main")
+    jobs = tables.find_jobs([tmp_path])
+    rendered = tables.render(spec, tables.collect(spec, jobs)[0], jobs)
     rows = {r[0]: r for r in rendered["rows"]}
     assert rows["Nonlinear tracking control (PID)"][2] == "0.300 ± 0.000 (2/4 failed)"
     assert rows["DATT (d̂ = 0)"][1] == "0.040 ± 0.010" and rows["DATT (d̂ = 0)"][3] == "0.10"
@@ -121,10 +140,18 @@ def test_main_table_pools_seeds_and_reports_inference(tmp_path):
 
     for num in (0, 1):
         pos = torch.zeros(3, 11, 3)
-        torch.save({"pos_m": pos, "ref_m": pos + 0.1 * num, "err_m": torch.full((3, 10), 0.1 * num),
-                    "crashed_at": torch.tensor([10, 10, 10]), "names": ["smooth", "zigzag"], "counts": [2, 1]},
-                   tmp_path / str(num) / "trace_seed0.pt")  # fmt: skip
-    png = T.plot_side_by_side_from_jobs(T.find_jobs([tmp_path]), "zigzag", 0, tmp_path / "sbs.png")
+        torch.save(
+            {
+                "pos_m": pos,
+                "ref_m": pos + 0.1 * num,
+                "err_m": torch.full((3, 10), 0.1 * num),
+                "crashed_at": torch.tensor([10, 10, 10]),
+                "names": ["smooth", "zigzag"],
+                "counts": [2, 1],
+            },
+            tmp_path / str(num) / "trace_seed0.pt",
+        )
+    png = tables.plot_side_by_side_from_jobs(tables.find_jobs([tmp_path]), "zigzag", 0, tmp_path / "sbs.png")
     assert png is not None and png.stat().st_size > 1000
 
 
@@ -133,4 +160,4 @@ def test_unknown_table_and_missing_sweep_are_one_line(tmp_path):
     assert out.returncode == 2 and out.stderr.strip().count("\n") == 0
     assert "table: unknown table 'nope'; allowed: ablation, horizon, rma, main, wind" in out.stderr
     out = run("tables.py", "ablation", cwd=tmp_path)
-    assert out.returncode == 2 and "python train.py -m +sweep=ablation" in out.stderr
+    assert out.returncode == 2 and "python train.py +sweep=ablation" in out.stderr

@@ -4,7 +4,7 @@ unsupported platform), warn once and run the eager function instead of failing t
 from __future__ import annotations
 
 import warnings
-from typing import Callable
+from collections.abc import Callable
 
 import torch
 

@@ -6,7 +6,8 @@ import pytest
 import torch
 
 from datt.adapt import L1Adaptation
-from datt.config import compose, make_env
+from datt.configuration import compose
+from datt.envs.factory import make_env
 
 
 def run_env(overrides, steps, n=64, seed=0, action=None):
@@ -33,8 +34,11 @@ def wiggle(env, g):
 @pytest.mark.parametrize("tau", [0.1, 0.5, 2.0])
 def test_constant_disturbance_within_5_percent_after_three_time_constants(tau):
     steps_3tau = round(3 * tau / 0.02)
-    env, d_hat, d = run_env(["disturbance=constant", f"adaptation.cutoff_tau_s={tau}",
-                             "env.safety_box_m=[1000,1000,1000]"], steps_3tau + 20, action=wiggle)  # fmt: skip
+    env, d_hat, d = run_env(
+        ["disturbance=constant", f"adaptation.cutoff_tau_s={tau}", "env.safety_box_m=[1000,1000,1000]"],
+        steps_3tau + 20,
+        action=wiggle,
+    )
     err = (d_hat[:, steps_3tau - 1 :] - d[:, steps_3tau - 1 :]).norm(dim=-1) / d[:, :1].norm(dim=-1)
     assert err.max() <= 0.05, err.max()
     # and not much earlier: it really is a filter with that time constant
@@ -48,8 +52,9 @@ def test_no_disturbance_gives_zero_estimate_despite_aggressive_commands():
 
 
 def test_raw_previous_command_without_actuator_model_is_biased():
-    _, d_hat, _ = run_env(["disturbance=none", "adaptation.actuator_model=false", "env.safety_box_m=[1000,1000,1000]"],
-                          100, action=wiggle)  # fmt: skip
+    _, d_hat, _ = run_env(
+        ["disturbance=none", "adaptation.actuator_model=false", "env.safety_box_m=[1000,1000,1000]"], 100, action=wiggle
+    )
     assert d_hat.abs().max() > 0.1  # the delay shows up as a fake disturbance
 
 
@@ -83,8 +88,17 @@ def test_error_dynamics_matrix_predicts_the_simulated_response():
     for _ in range(30):
         x = m @ x + b
         predicted.append(x[2].item())
-    _, d_hat, d = run_env(["disturbance=constant", "adaptation.a_s=-0.5", "adaptation.cutoff_tau_s=0.2",
-                           "env.dtype=float64", "env.safety_box_m=[1000,1000,1000]"], 30, n=2)  # fmt: skip
+    _, d_hat, d = run_env(
+        [
+            "disturbance=constant",
+            "adaptation.a_s=-0.5",
+            "adaptation.cutoff_tau_s=0.2",
+            "env.dtype=float64",
+            "env.safety_box_m=[1000,1000,1000]",
+        ],
+        30,
+        n=2,
+    )
     ratio = (d_hat[0, :, 0] / d[0, :, 0]).tolist()
     assert ratio == pytest.approx(predicted, abs=1e-9)
 
@@ -92,7 +106,9 @@ def test_error_dynamics_matrix_predicts_the_simulated_response():
 def test_partial_reset_restarts_only_selected_estimates():
     env, _, _ = run_env(["disturbance=constant"], 30, n=4)
     before = env.adaptation.d_hat.clone()
-    td = env._reset(__import__("tensordict").TensorDict({"_reset": torch.tensor([[True], [False], [False], [True]])}, [4]))
+    td = env.reset(
+        __import__("tensordict").TensorDict({"_reset": torch.tensor([[True], [False], [False], [True]])}, [4])
+    )
     after = env.adaptation.d_hat
     assert torch.equal(after[1:3], before[1:3]) and after[[0, 3]].abs().max() == 0
     assert torch.equal(td["d_hat"][[0, 3]], after[[0, 3]])

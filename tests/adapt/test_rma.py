@@ -2,8 +2,11 @@ import pytest
 import torch
 from tensordict import TensorDict
 
-from datt.adapt.rma import ACCEL_SCALE, FEATURES, RmaAdaptation, RmaNet, load_rma, train_rma
-from datt.config import ConfigError, compose, make_env
+from datt.adapt.rma import ACCEL_SCALE, FEATURES, RmaAdaptation, RmaNet, load_rma
+from datt.configuration import compose
+from datt.envs.factory import make_env
+from datt.errors import ConfigError
+from datt.train.rma import train_rma
 
 
 def test_network_shapes_and_paper_structure():
@@ -39,14 +42,14 @@ def test_history_buffer_across_partial_resets():
     env.adaptation = adapter
     adapter.bind(4, env.dt_s, 9.81, "cpu", torch.float32)
     td = env.reset()
-    for k in range(60):
+    for _ in range(60):
         td["action"] = env.hover_action
         td = env.step(td)["next"].exclude("reward", "done", "terminated", "truncated")
         assert adapter.history.shape == (4, 50, FEATURES)
     assert adapter.history[:, 0].abs().sum() > 0  # full after 60 steps
     latest = adapter.history[:, -1].clone()
     assert torch.allclose(latest[:, :3], env.sim.state.vel_mps)
-    env._reset(TensorDict({"_reset": torch.tensor([[False], [True], [False], [False]])}, [4]))
+    env.reset(TensorDict({"_reset": torch.tensor([[False], [True], [False], [False]])}, [4]))
     assert torch.equal(adapter.history[0, -1], latest[0])
     start = adapter.history[1]
     # a fresh episode reads as hovering at the start state: every row the same, at rest, level
@@ -58,9 +61,19 @@ def test_history_buffer_across_partial_resets():
 
 
 def test_rma_training_loss_decreases(tmp_path, tiny_policy_checkpoint):
-    cfg = compose("train", ["stage=rma", f"base_checkpoint={tiny_policy_checkpoint}", "disturbance=constant",
-                            "rma.iterations=150", "rma.num_envs=128", "rma.lr=3e-3", "rma.log_every=10",
-                            "env.safety_box_m=[100,100,100]"])  # fmt: skip
+    cfg = compose(
+        "train",
+        [
+            "stage=rma",
+            f"base_checkpoint={tiny_policy_checkpoint}",
+            "disturbance=constant",
+            "rma.iterations=150",
+            "rma.num_envs=128",
+            "rma.lr=3e-3",
+            "rma.log_every=10",
+            "env.safety_box_m=[100,100,100]",
+        ],
+    )
     result = train_rma(cfg, tmp_path)
     losses = [h["loss"] for h in result["history"]]
     assert sum(losses[-3:]) / 3 < 0.6 * sum(losses[:2]) / 2, losses
@@ -76,14 +89,22 @@ def test_policy_checkpoint_is_not_an_rma_checkpoint(tiny_policy_checkpoint):
 
 
 def test_bad_rma_lr_final_frac_is_one_line(tmp_path, tiny_policy_checkpoint):
-    cfg = compose("train", ["stage=rma", f"base_checkpoint={tiny_policy_checkpoint}", "rma.iterations=2",
-                            "rma.num_envs=8", "rma.lr_final_frac=0"])  # fmt: skip
+    cfg = compose(
+        "train",
+        [
+            "stage=rma",
+            f"base_checkpoint={tiny_policy_checkpoint}",
+            "rma.iterations=2",
+            "rma.num_envs=8",
+            "rma.lr_final_frac=0",
+        ],
+    )
     with pytest.raises(ConfigError, match=r"^rma.lr_final_frac: must be in \(0, 1\], got 0.0$"):
         train_rma(cfg, tmp_path)
 
 
 def test_adapter_written_before_the_acceleration_input_still_loads(tmp_path):
-    from datt.train.checkpoint import save_checkpoint
+    from datt.checkpoint import save_checkpoint
 
     old = RmaNet(50)  # the paper's 14-channel network, saved without "accel_dt_s"
     save_checkpoint(tmp_path / "old_rma.pt", {"rma": old.state_dict(), "history_len": 50})

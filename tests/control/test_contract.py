@@ -4,8 +4,9 @@ import pytest
 import torch
 from omegaconf import OmegaConf
 
-from datt.cli import build_controller
-from datt.config import CONF_DIR, available_options, compose, make_env
+from datt.configuration import available_options, compose, conf_dir
+from datt.control.factory import build_controller
+from datt.envs.factory import make_env
 
 
 def controller_for(option, checkpoint, extra=()):
@@ -19,7 +20,7 @@ def controller_for(option, checkpoint, extra=()):
 @pytest.mark.parametrize("option", [o for o in available_options("controller") if o != "datt_rma"])
 def test_contract(option, tiny_policy_checkpoint):
     ctrl, cfg, labels = controller_for(option, tiny_policy_checkpoint)
-    assert labels["controller"] == OmegaConf.load(CONF_DIR / "controller" / f"{option}.yaml").name
+    assert labels["controller"] == OmegaConf.load(conf_dir() / "controller" / f"{option}.yaml").name
     env = make_env(cfg, num_envs=3, seed=0)
     td = env.reset()
     ctrl.reset(env)
@@ -47,13 +48,19 @@ def test_datt_fast_path_equals_torchrl_deterministic_action(tiny_policy_checkpoi
     from tensordict import TensorDict
     from torchrl.envs.utils import ExplorationType, set_exploration_type
 
-    from datt.cli import load_actor
     from datt.control import DattController
+    from datt.policies.loading import load_actor
 
     actor, _, _ = load_actor(tiny_policy_checkpoint)
     g = torch.Generator().manual_seed(0)
-    td = TensorDict({"state": torch.randn(6, 13, generator=g), "ref": torch.randn(6, 10, 3, generator=g),
-                     "d_hat": 3 * torch.randn(6, 3, generator=g)}, [6])  # fmt: skip
+    td = TensorDict(
+        {
+            "state": torch.randn(6, 13, generator=g),
+            "ref": torch.randn(6, 10, 3, generator=g),
+            "d_hat": 3 * torch.randn(6, 3, generator=g),
+        },
+        [6],
+    )
     with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
         expected = actor(td.clone())["action"]
     torch.testing.assert_close(DattController(actor).act(None, td), expected, rtol=1e-5, atol=1e-5)
@@ -61,11 +68,21 @@ def test_datt_fast_path_equals_torchrl_deterministic_action(tiny_policy_checkpoi
 
 @pytest.mark.parametrize(
     "encoder, body_frame, feedback, use_d_hat, error_scale, n, history",
-    [("conv", True, True, True, 1.0, 5, 0), ("conv", True, True, True, 8.0, 5, 0), ("conv", False, True, True, 1.0, 5, 0),
-     ("conv", True, False, False, 1.0, 5, 0), ("mlp", True, True, True, 8.0, 5, 0), ("none", True, True, True, 8.0, 5, 0),
-     ("conv", True, True, True, 8.0, 40, 0), ("conv", True, True, True, 8.0, 5, 2), ("none", True, True, True, 8.0, 5, 1)],
-)  # fmt: skip
-def test_datt_frozen_path_equals_observation_plus_network(encoder, body_frame, feedback, use_d_hat, error_scale, n, history):
+    [
+        ("conv", True, True, True, 1.0, 5, 0),
+        ("conv", True, True, True, 8.0, 5, 0),
+        ("conv", False, True, True, 1.0, 5, 0),
+        ("conv", True, False, False, 1.0, 5, 0),
+        ("mlp", True, True, True, 8.0, 5, 0),
+        ("none", True, True, True, 8.0, 5, 0),
+        ("conv", True, True, True, 8.0, 40, 0),
+        ("conv", True, True, True, 8.0, 5, 2),
+        ("none", True, True, True, 8.0, 5, 1),
+    ],
+)
+def test_datt_frozen_path_equals_observation_plus_network(
+    encoder, body_frame, feedback, use_d_hat, error_scale, n, history
+):
     """The frozen path (bilinear rotation, encoder as dense layers up to DENSE_ENCODER_MAX_BATCH
     drones and as convs above, traced) computes the same action as the env's observation fed to
     the actor's network, on tilted, moving drones."""
@@ -74,9 +91,17 @@ def test_datt_frozen_path_equals_observation_plus_network(encoder, body_frame, f
     from datt.policies.networks import PolicyParams, make_actor
     from datt.sim.frames import quat_from_euler
 
-    cfg = compose("eval", ["disturbance=brownian", "adaptation=privileged", "horizon=7",
-                           f"env.obs.body_frame={body_frame}", f"env.obs.feedback={feedback}",
-                           f"env.obs.action_history={history}"])  # fmt: skip
+    cfg = compose(
+        "eval",
+        [
+            "disturbance=brownian",
+            "adaptation=privileged",
+            "horizon=7",
+            f"env.obs.body_frame={body_frame}",
+            f"env.obs.feedback={feedback}",
+            f"env.obs.action_history={history}",
+        ],
+    )
     env = make_env(cfg, num_envs=n, seed=3)
     p = PolicyParams(encoder=encoder, use_d_hat=use_d_hat, error_scale=error_scale)
     actor = make_actor(7, *action_bounds(env.params), p, env.state_dim)
@@ -91,7 +116,7 @@ def test_datt_frozen_path_equals_observation_plus_network(encoder, body_frame, f
     s.vel_mps.copy_(torch.randn(n, 3, generator=g))
     for _ in range(history):  # distinct commands in the history
         env.record_command(env.action_low + (env.action_high - env.action_low) * torch.rand(n, 4, generator=g))
-    td = env._observe()[0]
+    td = env.observe()
     plain, frozen = DattController(actor, frozen=False), DattController(actor, frozen=True)
     plain.reset(env), frozen.reset(env)
     expected = plain.act(env, td)

@@ -27,7 +27,9 @@ def test_rollout_model_matches_the_simulator():
     # cost = dt * (5 * Σ‖e‖ + 3 * Σ (1 - qw²)); check the position part dominates as computed
     assert cost.shape == (2, 1)
     assert (cost[:, 0] >= env.dt_s * 5 * err - 1e-5).all()
-    ctrl_pos_only = MppiController(num_samples=1, horizon_steps=6, noise_std=[0, 0, 0, 0], att_weight=0.0, compile=False)
+    ctrl_pos_only = MppiController(
+        num_samples=1, horizon_steps=6, noise_std=[0, 0, 0, 0], att_weight=0.0, compile=False
+    )
     env2 = env_at([0.3, 0.0, 0.0], n=2)
     env2.reset()
     ctrl_pos_only.reset(env2)

@@ -5,8 +5,9 @@ import math
 import pytest
 import torch
 
-from datt.config import compose, make_env
+from datt.configuration import compose
 from datt.control.pid import PidController
+from datt.envs.factory import make_env
 from datt.eval.rollout import run_controller
 from datt.refs.base import RefFamily
 from datt.sim.frames import quat_from_euler

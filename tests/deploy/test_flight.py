@@ -14,16 +14,22 @@ import pytest
 
 pytest.importorskip("cflib")
 
-from datt.cli import run_deploy  # noqa: E402
-from datt.config import compose  # noqa: E402
-from datt.deploy import safety as S  # noqa: E402
+from datt.configuration import compose  # noqa: E402
+from datt.deploy import safety  # noqa: E402
+from datt.tasks.deploy import run_deploy  # noqa: E402
 
 _ports = itertools.count(19900)
-SHORT = ["deploy.flight.takeoff_s=1.5", "deploy.flight.hover_s=0.5", "deploy.flight.track_s=3.0", "deploy.flight.land_s=1.5",
-         # a loaded CI machine stalls the server's threads for up to ~0.5 s (seen: 0.47 s); the
-         # default 0.1 s would KILL. The mocap limit stays at 0.4 s: after a dropout the onboard
-         # estimate drifts, and 0.8 s of chasing it once tilted past the 75 deg KILL limit.
-         "deploy.safety.max_state_age_s=0.8", "deploy.safety.max_mocap_age_s=0.4"]
+SHORT = [
+    "deploy.flight.takeoff_s=1.5",
+    "deploy.flight.hover_s=0.5",
+    "deploy.flight.track_s=3.0",
+    "deploy.flight.land_s=1.5",
+    # a loaded CI machine stalls the server's threads for up to ~0.5 s (seen: 0.47 s); the
+    # default 0.1 s would KILL. The mocap limit stays at 0.4 s: after a dropout the onboard
+    # estimate drifts, and 0.8 s of chasing it once tilted past the 75 deg KILL limit.
+    "deploy.safety.max_state_age_s=0.8",
+    "deploy.safety.max_mocap_age_s=0.4",
+]
 
 
 def fly(tmp_path, overrides=(), hook=None, estop=None):
@@ -78,7 +84,9 @@ def test_estop_kills_first(tmp_path):
 
 def test_geofence_breach(tmp_path):
     # the star reaches 0.7 m from the hover point; a fence at x <= 0.3 m is crossed while tracking
-    summary, server = fly(tmp_path, ["deploy.safety.geofence_max_m=[0.3,2.0,2.5]", "deploy.safety.geofence_margin_m=0.05"])
+    summary, server = fly(
+        tmp_path, ["deploy.safety.geofence_max_m=[0.3,2.0,2.5]", "deploy.safety.geofence_margin_m=0.05"]
+    )
     assert summary["outcome"].startswith(("killed: geofence breached", "landed early: outside geofence"))
     assert motors_stopped(server)
 
@@ -138,24 +146,34 @@ def test_preflight_refuses_a_flat_battery(tmp_path):
 
 
 def test_safety_decisions_unit():
-    p = S.SafetyParams()
+    p = safety.SafetyParams()
     from datt.deploy.link import StateSample
 
     ok = StateSample(t_s=10.0, pos_m=(0, 0, 1), vel_mps=(0, 0, 0), quat=(1, 0, 0, 0), vbat_v=3.9)
-    check = lambda **kw: S.check(p, **{"now_s": 10.01, "state": ok, "command": [9.81, 0, 0, 0], "estop": False,  # noqa: E731
-                                        "link_lost": False, "mocap_age_s": None, **kw})  # fmt: skip
-    assert check().action == S.OK
+    check = lambda **kw: safety.check(
+        p,
+        **{
+            "now_s": 10.01,
+            "state": ok,
+            "command": [9.81, 0, 0, 0],
+            "estop": False,  # noqa: E731
+            "link_lost": False,
+            "mocap_age_s": None,
+            **kw,
+        },
+    )
+    assert check().action == safety.OK
     assert check(estop=True).reason == "operator e-stop"
-    assert check(now_s=10.5).action == S.KILL
-    assert check(command=[math.nan, 0, 0, 0]).action == S.KILL
-    assert check(command=[9.81, 0, 0, 5.0]).action == S.LAND
-    assert check(mocap_age_s=0.3).action == S.LAND
+    assert check(now_s=10.5).action == safety.KILL
+    assert check(command=[math.nan, 0, 0, 0]).action == safety.KILL
+    assert check(command=[9.81, 0, 0, 5.0]).action == safety.LAND
+    assert check(mocap_age_s=0.3).action == safety.LAND
     tilted = StateSample(10.0, (0, 0, 1), (0, 0, 0), (math.cos(0.7), math.sin(0.7), 0, 0), 3.9)  # 80 deg roll
-    assert check(state=tilted).action == S.KILL
+    assert check(state=tilted).action == safety.KILL
     far = StateSample(10.0, (3.0, 0, 1), (0, 0, 0), (1, 0, 0, 0), 3.9)
-    assert check(state=far).action == S.KILL
+    assert check(state=far).action == safety.KILL
     near = StateSample(10.0, (2.2, 0, 1), (0, 0, 0), (1, 0, 0, 0), 3.9)
-    assert check(state=near).action == S.LAND
+    assert check(state=near).action == safety.LAND
 
 
 @pytest.mark.hardware
@@ -176,8 +194,16 @@ def test_hover_calibration_finds_the_true_hover_command(tmp_path):
     from datt.deploy.thrust import ThrustMap, ThrustParams
 
     # the vehicle is 6 % heavier than the configured mass: the nominal hover command is 4 % low
-    cfg = compose("deploy", [f"deploy.uri=udp://127.0.0.1:{next(_ports)}", *SHORT, "deploy.mode=calibrate",
-                             "deploy.server.mass_kg=0.036", "deploy.calibrate_hover_s=3.0"])  # fmt: skip
+    cfg = compose(
+        "deploy",
+        [
+            f"deploy.uri=udp://127.0.0.1:{next(_ports)}",
+            *SHORT,
+            "deploy.mode=calibrate",
+            "deploy.server.mass_kg=0.036",
+            "deploy.calibrate_hover_s=3.0",
+        ],
+    )
     summary = run_deploy(cfg, run_dir=tmp_path)
     true_hover = ThrustMap(ThrustParams(mass_kg=0.036)).hover_command
     nominal = ThrustMap().hover_command
@@ -192,9 +218,9 @@ def test_flight_model_records_the_commands_it_sends():
     import numpy as np
     import torch
 
-    from datt.config import make_env
     from datt.control.pid import PidController
     from datt.deploy.runner import FlightModel
+    from datt.envs.factory import make_env
     from datt.refs import Polygon
 
     cfg = compose("sim", ["env.obs.action_history=2", "adaptation=l1"])

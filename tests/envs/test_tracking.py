@@ -1,11 +1,12 @@
 """TrackingEnv: specs, observations, reward, resets, reproducibility, config errors."""
 
-
 import pytest
 import torch
 from torchrl.envs.utils import check_env_specs
 
-from datt.config import ConfigError, compose, make_env
+from datt.configuration import compose
+from datt.envs.factory import make_env
+from datt.errors import ConfigError
 from datt.sim import Quadrotor
 from datt.sim.frames import quat_from_euler, quat_rotate_inverse
 
@@ -63,7 +64,7 @@ def test_observation_layout_body_frame(make_tracking_env):
     yaw = torch.tensor([0.0, 0.5, -1.0, 2.0, 3.0])
     env.sim.state.quat = quat_from_euler(torch.full((5,), 0.1), torch.full((5,), -0.2), yaw)
     env.sim.state.vel_mps = torch.randn(5, 3)
-    obs = env._observe()[0]
+    obs = env.observe()
     s = env.sim.state
     refs = direct_refs(env)  # [N, H, 3]
     q = s.quat
@@ -79,8 +80,7 @@ def test_observation_layout_body_frame(make_tracking_env):
 
 def test_ablations_change_exactly_their_inputs(make_tracking_env):
     base, world, nofb = (
-        make_tracking_env(o, n=4)
-        for o in ([], ["env.obs.body_frame=false"], ["env.obs.feedback=false"])
+        make_tracking_env(o, n=4) for o in ([], ["env.obs.body_frame=false"], ["env.obs.feedback=false"])
     )
     q = quat_from_euler(torch.full((4,), 0.3), torch.full((4,), 0.2), torch.full((4,), 1.0))
     for env in (base, world, nofb):
@@ -132,7 +132,7 @@ def test_ring_buffer_matches_table_through_steps_and_partial_resets(make_trackin
     for k in range(130):
         td["action"] = env.hover_action
         if k % 17 == 5:  # force a partial reset of random drones
-            td["_reset"] = (torch.rand(6, 1, generator=gen) < 0.4)
+            td["_reset"] = torch.rand(6, 1, generator=gen) < 0.4
             td = env.reset(td)
         _, td = env.step_and_maybe_reset(td)
         w = env.ref_window.index_select(0, (env._head + env.ref_offsets) % env.window).transpose(0, 1)
@@ -246,8 +246,14 @@ def test_disturbance_moves_the_drone(make_tracking_env):
 @pytest.mark.parametrize(
     "overrides, message",
     [
-        (["traj=spiral"], "traj: unknown option 'spiral'; allowed: chained_poly, csv, fixed, mixed, poly, polygon, star, zigzag"),
-        (["disturbance=storm"], "disturbance: unknown option 'storm'; allowed: brownian, constant, none, plate, wind, wind_plate"),
+        (
+            ["traj=spiral"],
+            "traj: unknown option 'spiral'; allowed: chained_poly, csv, fixed, mixed, poly, polygon, star, zigzag",
+        ),
+        (
+            ["disturbance=storm"],
+            "disturbance: unknown option 'storm'; allowed: brownian, constant, none, plate, wind, wind_plate",
+        ),
         (["horizon=-2"], "horizon: must be an integer >= 1"),
         (["horizon=0"], "horizon: must be an integer >= 1"),
         (["horizon=ten"], "horizon: must be an integer >= 1"),

@@ -2,7 +2,9 @@ import pytest
 import torch
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
-from datt.config import ConfigError, compose, make_env
+from datt.configuration import compose
+from datt.envs.factory import make_env
+from datt.errors import ConfigError
 from datt.policies.networks import PolicyParams, RefEncoder, make_actor, make_critic
 
 
@@ -48,9 +50,15 @@ def test_d_hat_input_can_be_disabled():
         assert same is (not use)
 
 
-@pytest.mark.parametrize("kwargs, key", [({"encoder": "lstm"}, "policy.encoder"), ({"kernel_size": 2}, "policy.kernel_size"),
-                                         ({"hidden": []}, "policy.hidden"),
-                                         ({"error_scale": 0.0}, "policy.error_scale")])  # fmt: skip
+@pytest.mark.parametrize(
+    "kwargs, key",
+    [
+        ({"encoder": "lstm"}, "policy.encoder"),
+        ({"kernel_size": 2}, "policy.kernel_size"),
+        ({"hidden": []}, "policy.hidden"),
+        ({"error_scale": 0.0}, "policy.error_scale"),
+    ],
+)
 def test_bad_policy_params(kwargs, key):
     with pytest.raises(ConfigError, match=key):
         PolicyParams(**kwargs).validate()

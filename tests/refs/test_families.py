@@ -5,7 +5,7 @@ import math
 import pytest
 import torch
 
-from datt.config import ConfigError
+from datt.errors import ConfigError
 from datt.refs import ChainedPoly, CsvReference, Fixed, Mixed, Poly, Polygon, Zigzag, load_csv_reference
 from datt.refs.base import piecewise_linear
 from datt.refs.poly import eval_pieces
@@ -103,8 +103,17 @@ def test_chained_poly_nodes_at_origin_and_c3_continuous():
 
 
 def test_star_geometry_speed_and_lead_in():
-    star = Polygon(points_min=5, points_max=5, step=2, radius_m=0.7, speed_min_mps=1.0, speed_max_mps=1.0,
-                   through_origin=False, lead_in_s=1.0, random_rotation=False)  # fmt: skip
+    star = Polygon(
+        points_min=5,
+        points_max=5,
+        step=2,
+        radius_m=0.7,
+        speed_min_mps=1.0,
+        speed_max_mps=1.0,
+        through_origin=False,
+        lead_in_s=1.0,
+        random_rotation=False,
+    )
     table = star.sample(2, T64, gen())
     assert torch.equal(table[0], table[1])  # deterministic
     assert table[0, 0].abs().max() == 0
@@ -163,7 +172,7 @@ def test_csv_round_trip(tmp_path):
     assert t.tolist() == [0.0, 0.5, 1.0, 2.0]
     fam = CsvReference(str(path))
     table = fam.sample(3, T64, gen())
-    for (ti, x, y, z) in rows:
+    for ti, x, y, z in rows:
         k = round(ti / DT)
         assert table[0, k].tolist() == pytest.approx([x, y, z], abs=1e-12)
     assert table[2, 25].tolist() == pytest.approx([1.0, 0.0, 0.2])  # t = 0.5

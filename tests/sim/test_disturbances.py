@@ -100,13 +100,22 @@ def test_plate_extra_mass_and_anisotropic_drag():
     assert torch.allclose(d[0], torch.tensor([-0.6 * 4 / 1.25, 0, 0], dtype=torch.float64))
     assert torch.allclose(d[1], torch.tensor([0, -0.1 * 4 / 1.25, 0], dtype=torch.float64))
     # the drag axes turn with the body: yaw by 90° swaps which world axis sees the large drag
-    quad.state.quat = quat_from_euler(*(torch.zeros(2, dtype=torch.float64),) * 2, torch.full((2,), math.pi / 2, dtype=torch.float64))
+    quad.state.quat = quat_from_euler(
+        *(torch.zeros(2, dtype=torch.float64),) * 2, torch.full((2,), math.pi / 2, dtype=torch.float64)
+    )
     d = model.update(quad.state)
     assert torch.allclose(d[1], torch.tensor([0, -0.6 * 4 / 1.25, 0], dtype=torch.float64), atol=1e-9)
 
 
-@pytest.mark.parametrize("bad", [lambda: ConstantForce(-1), lambda: Brownian(sigma2=-0.1), lambda: Wind(gust_tau_s=0),
-                                 lambda: DragPlate(mass_ratio=-0.1)])  # fmt: skip
+@pytest.mark.parametrize(
+    "bad",
+    [
+        lambda: ConstantForce(-1),
+        lambda: Brownian(sigma2=-0.1),
+        lambda: Wind(gust_tau_s=0),
+        lambda: DragPlate(mass_ratio=-0.1),
+    ],
+)
 def test_bad_parameters_rejected(bad):
     with pytest.raises(ValueError, match="disturbance"):
         bad()

@@ -52,8 +52,11 @@ def test_euler_yaw_round_trip_and_composition():
 def test_exp_of_rotation_vector():
     axis = torch.tensor([[0.0, 0.0, 1.0]], dtype=torch.float64)
     q = quat_exp_rotvec(axis * (math.pi / 2))
-    assert torch.allclose(quat_rotate(q, torch.tensor([[1.0, 0.0, 0.0]], dtype=torch.float64)),
-                          torch.tensor([[0.0, 1.0, 0.0]], dtype=torch.float64), atol=1e-12)  # fmt: skip
+    assert torch.allclose(
+        quat_rotate(q, torch.tensor([[1.0, 0.0, 0.0]], dtype=torch.float64)),
+        torch.tensor([[0.0, 1.0, 0.0]], dtype=torch.float64),
+        atol=1e-12,
+    )
     tiny = quat_exp_rotvec(torch.tensor([[1e-7, 0.0, 0.0]], dtype=torch.float64))
     assert torch.allclose(tiny, torch.tensor([[1.0, 5e-8, 0.0, 0.0]], dtype=torch.float64), atol=1e-15)
 
@@ -62,5 +65,7 @@ def test_wrap_angle_range():
     a = torch.tensor([0.0, math.pi, -math.pi, 3 * math.pi, -3.5 * math.pi, 7.0])
     w = wrap_angle(a)
     assert (w > -math.pi - 1e-6).all() and (w <= math.pi + 1e-6).all()
-    assert torch.allclose(torch.sin(w), torch.sin(a), atol=1e-5) and torch.allclose(torch.cos(w), torch.cos(a), atol=1e-5)
+    assert torch.allclose(torch.sin(w), torch.sin(a), atol=1e-5) and torch.allclose(
+        torch.cos(w), torch.cos(a), atol=1e-5
+    )
     assert w[2].item() == torch.tensor(math.pi).item()

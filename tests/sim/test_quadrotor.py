@@ -5,7 +5,7 @@ import math
 import pytest
 import torch
 
-from datt.config import ConfigError
+from datt.errors import ConfigError
 from datt.sim import Quadrotor, QuadrotorParams
 from datt.sim.frames import quat_body_z, quat_yaw
 
@@ -76,7 +76,9 @@ def test_roll_rotation_tilts_thrust_axis_analytically():
     for _ in range(50):
         quad.step(cmd(1, G, (rate, 0.0, 0.0), dtype=torch.float64))
     # R_x(90°) e3 = (0, -1, 0)
-    assert torch.allclose(quat_body_z(quad.state.quat)[0], torch.tensor([0.0, -1.0, 0.0], dtype=torch.float64), atol=1e-9)
+    assert torch.allclose(
+        quat_body_z(quad.state.quat)[0], torch.tensor([0.0, -1.0, 0.0], dtype=torch.float64), atol=1e-9
+    )
 
 
 @pytest.mark.parametrize("latency", [0, 1, 2])

@@ -1,8 +1,8 @@
 import pytest
 import torch
 
-from datt.config import ConfigError
-from datt.train.checkpoint import FORMAT, load_checkpoint, save_checkpoint
+from datt.checkpoint import FORMAT, load_checkpoint, save_checkpoint
+from datt.errors import ConfigError
 
 
 def test_round_trip_and_weights_only(tmp_path):

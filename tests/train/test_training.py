@@ -8,13 +8,14 @@ from pathlib import Path
 import pytest
 import torch
 from omegaconf import OmegaConf
-
-from datt.cli import run_train
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
-from datt.config import ConfigError, compose, make_env
-from datt.train.checkpoint import load_checkpoint
-from datt.train.logging import CsvLogger
+from datt.checkpoint import load_checkpoint
+from datt.configuration import compose
+from datt.envs.factory import make_env
+from datt.errors import ConfigError
+from datt.tasks.train import run_train
+from datt.train.loggers import CsvLogger
 from datt.train.ppo import Trainer, TrainingDiverged
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -60,9 +61,18 @@ def _get(d, path):
 def test_tiny_training_improves_return(tmp_path):
     """~100k steps: the stochastic policy's return on a fixed reference, starting up to 1 m off,
     improves clearly (measured: -2.14 -> -1.14 and -2.18 -> -1.25 for seeds 0 and 1)."""
-    cfg = tiny_cfg("traj=fixed", "disturbance=none", "env.episode_steps=100", "env.init_pos_range_m=1.0",
-                   "algo.num_envs=256", "algo.rollout_steps=25", "algo.minibatch_size=640", "algo.epochs=4",
-                   "train.total_steps=96000", "curriculum.fixed_ref_steps=0")  # fmt: skip
+    cfg = tiny_cfg(
+        "traj=fixed",
+        "disturbance=none",
+        "env.episode_steps=100",
+        "env.init_pos_range_m=1.0",
+        "algo.num_envs=256",
+        "algo.rollout_steps=25",
+        "algo.minibatch_size=640",
+        "algo.epochs=4",
+        "train.total_steps=96000",
+        "curriculum.fixed_ref_steps=0",
+    )
     trainer = Trainer(cfg, tmp_path, CsvLogger(tmp_path))
 
     def stochastic_return():
@@ -80,8 +90,12 @@ def test_tiny_training_improves_return(tmp_path):
 
 def test_interrupted_run_resumes_to_the_same_total(tmp_path):
     total = 4 * 64 * 16
-    cfg = tiny_cfg(f"train.total_steps={total}", "curriculum.fixed_ref_steps=2048", "train.checkpoint_every=1",
-                   "train.eval_at_end=false")  # fmt: skip
+    cfg = tiny_cfg(
+        f"train.total_steps={total}",
+        "curriculum.fixed_ref_steps=2048",
+        "train.checkpoint_every=1",
+        "train.eval_at_end=false",
+    )
 
     class Kill(Exception):
         pass
@@ -97,8 +111,13 @@ def test_interrupted_run_resumes_to_the_same_total(tmp_path):
         trainer.train()
     ckpt = load_checkpoint(tmp_path / "last.pt")
     assert ckpt["frames"] == 1024 and ckpt["phase"] == "fixed"  # killed before iteration 2's save
-    cfg_resume = tiny_cfg(f"train.total_steps={total}", "curriculum.fixed_ref_steps=2048", "train.checkpoint_every=1",
-                          "train.eval_at_end=false", f"resume={tmp_path}")  # fmt: skip
+    cfg_resume = tiny_cfg(
+        f"train.total_steps={total}",
+        "curriculum.fixed_ref_steps=2048",
+        "train.checkpoint_every=1",
+        "train.eval_at_end=false",
+        f"resume={tmp_path}",
+    )
     metrics = run_train(cfg_resume, run_dir=tmp_path)
     assert metrics["frames"] == total
     final = load_checkpoint(tmp_path / "last.pt")
@@ -132,7 +151,10 @@ def test_bad_train_values_are_config_errors():
 @pytest.mark.parametrize(
     "args, message",
     [
-        (["traj=nope"], "error: traj: unknown option 'nope'; allowed: chained_poly, csv, fixed, mixed, poly, polygon, star, zigzag"),
+        (
+            ["traj=nope"],
+            "error: traj: unknown option 'nope'; allowed: chained_poly, csv, fixed, mixed, poly, polygon, star, zigzag",
+        ),
         (["horizon=-1"], "error: horizon: must be an integer >= 1"),
         (["algo.epochs=0"], "error: algo.epochs: must be >= 1"),
         (["resume=/nonexistent/run"], "error: resume: '/nonexistent/run' has no last.pt"),
@@ -141,8 +163,11 @@ def test_bad_train_values_are_config_errors():
 def test_train_py_bad_override_one_line(tmp_path, args, message):
     proc = subprocess.run(
         [sys.executable, str(ROOT / "train.py"), *TINY, *args, f"hydra.run.dir={tmp_path}"],
-        capture_output=True, text=True, cwd=tmp_path, timeout=120,
-    )  # fmt: skip
+        capture_output=True,
+        text=True,
+        cwd=tmp_path,
+        timeout=120,
+    )
     assert proc.returncode == 2, proc.stderr
     lines = [ln for ln in proc.stderr.splitlines() if ln.strip() and "Warning" not in ln and "warn" not in ln]
     assert lines == [message] or (len(lines) == 1 and lines[0].startswith(message)), proc.stderr
@@ -150,12 +175,29 @@ def test_train_py_bad_override_one_line(tmp_path, args, message):
 
 def test_train_py_end_to_end_writes_run_dir(tmp_path):
     proc = subprocess.run(
-        [sys.executable, str(ROOT / "train.py"), *TINY, "train.total_steps=2048", "curriculum.fixed_ref_steps=1024",
-         f"hydra.run.dir={tmp_path}"],
-        capture_output=True, text=True, cwd=tmp_path, timeout=300,
-    )  # fmt: skip
+        [
+            sys.executable,
+            str(ROOT / "train.py"),
+            *TINY,
+            "train.total_steps=2048",
+            "curriculum.fixed_ref_steps=1024",
+            f"hydra.run.dir={tmp_path}",
+        ],
+        capture_output=True,
+        text=True,
+        cwd=tmp_path,
+        timeout=300,
+    )
     assert proc.returncode == 0, proc.stderr[-2000:]
-    for name in ("config.yaml", "metrics.csv", "metrics.json", "last.pt", "best.pt", "learning_curve.png", "tracks_clean.png"):
+    for name in (
+        "config.yaml",
+        "metrics.csv",
+        "metrics.json",
+        "last.pt",
+        "best.pt",
+        "learning_curve.png",
+        "tracks_clean.png",
+    ):
         assert (tmp_path / name).exists(), name
     metrics = json.loads((tmp_path / "metrics.json").read_text())
     assert metrics["frames"] == 2048

@@ -20,7 +20,7 @@ Choices (config values, ``conf/adaptation/l1.yaml``):
 * ``A_s = a_s I`` with ``a_s < 0`` (authors: −0.01 /s). The law makes the predictor error vanish
   in one step, so the estimate follows d with a one-step delay and then the filter's first-order
   lag: within 5 % of a constant disturbance after three filter time constants.
-* Cutoff: ``cutoff_tau_s`` is the filter time constant; see ``benchmarks/l1_cutoff.py`` for the
+* Cutoff: ``cutoff_tau_s`` is the filter time constant; see ``benchmarks/l1.py`` for the
   tracking error of d̂ against τ (the default is the best one found there).
 """
 
@@ -33,7 +33,6 @@ from torch import Tensor
 
 from datt.adapt.base import Adaptation
 from datt.sim.frames import BODY_Z_QUADRATIC_FORM, quat_body_z, quat_body_z_bilinear
-
 
 COMPILE_MIN_BATCH = 1024
 
@@ -98,15 +97,31 @@ class L1Adaptation(Adaptation):
         """``state``: measured state after the step (``vel_mps [N, 3]``, ``quat [N, 4]``);
         ``cmd [N, 4]`` the command sent at the start of the step."""
         k = self.k_thrust if self.actuator_model else 1.0
-        (self.v_hat, self.sigma_hat, self.d_hat, self.thrust_est, self.thrust_queue, self.prev_vel,
-         self.prev_quat) = self._step(
-            self.v_hat, self.sigma_hat, self.d_hat, self.prev_vel, self.prev_quat, self.thrust_est,
-            self.thrust_queue, cmd, state.vel_mps, state.quat, self.gravity, self._body_z_form, self.dt_s, self.a_s,
-            self.law_gain, self.alpha, k, self.predictor_uses_filtered,
-        )  # fmt: skip
+        (self.v_hat, self.sigma_hat, self.d_hat, self.thrust_est, self.thrust_queue, self.prev_vel, self.prev_quat) = (
+            self._step(
+                self.v_hat,
+                self.sigma_hat,
+                self.d_hat,
+                self.prev_vel,
+                self.prev_quat,
+                self.thrust_est,
+                self.thrust_queue,
+                cmd,
+                state.vel_mps,
+                state.quat,
+                self.gravity,
+                self._body_z_form,
+                self.dt_s,
+                self.a_s,
+                self.law_gain,
+                self.alpha,
+                k,
+                self.predictor_uses_filtered,
+            )
+        )
         return self.d_hat
 
-    def compile(self, **kwargs) -> "L1Adaptation":
+    def compile(self, **kwargs) -> L1Adaptation:
         """Use a ``torch.compile``-d update (one fused kernel) for batches of at least
         ``COMPILE_MIN_BATCH`` drones. Smaller batches keep the eager kernel: its ~20 ops cost less
         than a compiled call's fixed overhead (measured at batch 1: ~0.07 vs ~0.11 ms)."""
@@ -140,10 +155,25 @@ class L1Adaptation(Adaptation):
 
 
 def l1_step(
-    v_hat: Tensor, sigma_hat: Tensor, d_hat: Tensor, prev_vel: Tensor, prev_quat: Tensor, thrust_est: Tensor,
-    thrust_queue: Tensor, cmd: Tensor, vel: Tensor, quat: Tensor, gravity: Tensor, body_z_form: Tensor | None,
-    dt: float, a_s: float, law_gain: float, alpha: float, k_thrust: float, predictor_uses_filtered: bool,
-) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor, Tensor, Tensor]:  # fmt: skip
+    v_hat: Tensor,
+    sigma_hat: Tensor,
+    d_hat: Tensor,
+    prev_vel: Tensor,
+    prev_quat: Tensor,
+    thrust_est: Tensor,
+    thrust_queue: Tensor,
+    cmd: Tensor,
+    vel: Tensor,
+    quat: Tensor,
+    gravity: Tensor,
+    body_z_form: Tensor | None,
+    dt: float,
+    a_s: float,
+    law_gain: float,
+    alpha: float,
+    k_thrust: float,
+    predictor_uses_filtered: bool,
+) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor, Tensor, Tensor]:
     """One step of eq. 7 (pure; compilable, one call per control step): command latency, actuator
     model, predictor, adaptation law, low-pass filter. Shapes ``[N, 3]`` (quaternions ``[N, 4]``,
     commands ``cmd [N, 4]``, thrusts ``[N]``, ``thrust_queue [L, N]`` the L commands in flight,

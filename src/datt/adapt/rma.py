@@ -14,7 +14,7 @@ The disturbance is the acceleration the commands do not explain; left to the fir
 that difference of O(1) velocities 20 ms apart is a ~2 % signal per m/s² of disturbance, and the
 adapter's d̂ error stayed near 0.5 m/s² RMS (with it: ~0.35).
 
-Training (:func:`train_rma`): the frozen DATT policy flies with the adapter's *own* predictions as
+Training (:func:`datt.train.rma.train_rma`): the frozen DATT policy flies with the adapter's *own* predictions as
 d̂ (so the adapter sees the state distribution it will face), and every step one Adam step
 regresses the adapter's output to the true d over all N drones (batched over thousands of drones,
 ``rma.iterations`` steps, lr decayed linearly to ``rma.lr * rma.lr_final_frac``; paper: 10000
@@ -23,15 +23,15 @@ iterations of one 500-step rollout).
 
 from __future__ import annotations
 
-import time
 from pathlib import Path
 
 import torch
-from omegaconf import DictConfig, OmegaConf
 from torch import Tensor, nn
 
 from datt.adapt.base import Adaptation
-from datt.config import ConfigError
+from datt.checkpoint import load_checkpoint
+from datt.errors import ConfigError
+from datt.paths import resolve_path
 
 FEATURES = 14
 # velocity, quaternion, body rates, command (thrust offset from g, rates)
@@ -42,23 +42,36 @@ ACCEL_SCALE = 0.1  # accelerations (m/s²) are O(10) in zigzag corners
 class RmaNet(nn.Module):
     """``history [B, L, 14] -> d̂ [B, 3]`` (L = history length, default 50)."""
 
-    def __init__(self, history_len: int = 50, channels: int = 64, kernel: int = 8, hidden: int = 32,
-                 accel_dt_s: float | None = None) -> None:  # fmt: skip
+    def __init__(
+        self,
+        history_len: int = 50,
+        channels: int = 64,
+        kernel: int = 8,
+        hidden: int = 32,
+        accel_dt_s: float | None = None,
+    ) -> None:
         super().__init__()
         if history_len < 2 * kernel + 2 * (kernel - 1):
-            raise ConfigError(f"adaptation.history_len: must be >= {4 * kernel - 2} for kernel {kernel}, got {history_len}")
+            raise ConfigError(
+                f"adaptation.history_len: must be >= {4 * kernel - 2} for kernel {kernel}, got {history_len}"
+            )
         if accel_dt_s is not None and not accel_dt_s > 0:
             raise ConfigError(f"env.dt_s: the RMA acceleration input needs dt > 0, got {accel_dt_s}")
         self.accel_dt_s = accel_dt_s
         inputs = FEATURES + (3 if accel_dt_s is not None else 0)
         self.conv = nn.Sequential(
-            nn.Conv1d(inputs, channels, kernel, stride=2), nn.ReLU(),
-            nn.Conv1d(channels, channels, kernel), nn.ReLU(),
-            nn.Conv1d(channels, channels, kernel), nn.ReLU(),
-        )  # fmt: skip
+            nn.Conv1d(inputs, channels, kernel, stride=2),
+            nn.ReLU(),
+            nn.Conv1d(channels, channels, kernel),
+            nn.ReLU(),
+            nn.Conv1d(channels, channels, kernel),
+            nn.ReLU(),
+        )
         with torch.no_grad():
             flat = self.conv(torch.zeros(1, inputs, history_len)).numel()
-        self.head = nn.Sequential(nn.Linear(flat, hidden), nn.ReLU(), nn.Linear(hidden, hidden), nn.ReLU(), nn.Linear(hidden, 3))
+        self.head = nn.Sequential(
+            nn.Linear(flat, hidden), nn.ReLU(), nn.Linear(hidden, hidden), nn.ReLU(), nn.Linear(hidden, 3)
+        )
         self.history_len = history_len
         self.register_buffer("scale", FEATURE_SCALE.clone())
 
@@ -116,9 +129,7 @@ class RmaAdaptation(Adaptation):
 
 # -- checkpoints ---------------------------------------------------------------------------
 def load_rma(path: str | Path) -> RmaNet:
-    from datt.cli import resolve_path
-    from datt.train.checkpoint import load_checkpoint
-
+    """The adapter network of an RMA checkpoint (written by ``train.py stage=rma``)."""
     p = resolve_path(path)
     data = load_checkpoint(p, key="adaptation.checkpoint")
     if "rma" not in data:
@@ -127,69 +138,3 @@ def load_rma(path: str | Path) -> RmaNet:
     net = RmaNet(int(data["history_len"]), accel_dt_s=None if accel_dt_s is None else float(accel_dt_s))
     net.load_state_dict(data["rma"])
     return net
-
-
-def train_rma(cfg: DictConfig, run_dir: Path, console=None) -> dict:
-    """``train.py stage=rma base_checkpoint=<policy>``: fit an adapter for a frozen policy."""
-    from datt.cli import load_actor
-    from datt.config import instantiate_option, make_env, with_options
-    from datt.control.datt import DattController
-    from datt.train.checkpoint import save_checkpoint
-    from datt.train.logging import CsvLogger
-
-    rc = cfg.rma
-    if cfg.get("base_checkpoint") in (None, ""):
-        raise ConfigError("base_checkpoint: stage=rma needs the policy checkpoint to adapt (base_checkpoint=...)")
-    actor, train_cfg, base = load_actor(cfg.base_checkpoint)
-    for p in actor.parameters():
-        p.requires_grad_(False)
-    torch.manual_seed(int(cfg.seed))
-    env_cfg = with_options(train_cfg, disturbance=OmegaConf.to_container(cfg.disturbance))
-    env_cfg.env.compile = False
-    env = make_env(env_cfg, num_envs=int(rc.num_envs), seed=int(cfg.seed), traj=instantiate_option(cfg, "traj"))
-    net = RmaNet(int(rc.history_len), accel_dt_s=env.dt_s if bool(rc.accel_input) else None)
-    adapter = RmaAdaptation(net=net)
-    env.adaptation = adapter
-    adapter.bind(env.n, env.dt_s, env.params.quad.gravity_mps2, env.device, env.dtype)
-    env.stagger_episodes()  # spread resets: otherwise every 500th step is all fresh histories
-    controller = DattController(actor)
-    optim = torch.optim.Adam(net.parameters(), lr=float(rc.lr))
-    logger = CsvLogger(run_dir, "rma_metrics.csv")
-    td = env.reset()
-    history = []
-    t0 = time.perf_counter()
-    from datt.train.ppo import budget_factor
-
-    iterations = max(1, int(int(rc.iterations) * budget_factor(cfg)))
-    final_frac = float(rc.lr_final_frac)
-    if not 0 < final_frac <= 1:
-        raise ConfigError(f"rma.lr_final_frac: must be in (0, 1], got {final_frac}")
-    # linear decay to lr * final_frac: at a constant lr the per-step loss over 1024 drones stays noisy
-    sched = torch.optim.lr_scheduler.LambdaLR(optim, lambda i: 1.0 - (1.0 - final_frac) * min(i / iterations, 1.0))
-    for it in range(1, iterations + 1):
-        td["action"] = controller.act(env, td)
-        step, td = env.step_and_maybe_reset(td)
-        net.train()
-        pred = net(adapter.history.float())
-        loss = (pred - env.disturbance.current_mps2.float()).pow(2).sum(-1).mean()
-        optim.zero_grad(set_to_none=True)
-        loss.backward()
-        optim.step()
-        sched.step()
-        net.eval()
-        if it % int(rc.log_every) == 0 or it == iterations:
-            row = {"iteration": it, "loss": loss.item(), "tracking_error_m": step["next", "tracking_error_m"].mean().item()}
-            history.append(row)
-            logger.log(row, step=it)
-            if console is not None:
-                console.print(f"rma {it}/{iterations}: loss {row['loss']:.4f} (m/s²)², error {row['tracking_error_m']:.3f} m")
-    payload = {
-        "rma": net.state_dict(),
-        "history_len": int(rc.history_len),
-        "accel_dt_s": net.accel_dt_s,
-        "base_checkpoint": str(cfg.base_checkpoint),
-        "frames": int(base["frames"]),
-        "config_yaml": OmegaConf.to_yaml(cfg, resolve=True),
-    }
-    save_checkpoint(run_dir / "rma.pt", payload)
-    return {"history": history, "wall_s": time.perf_counter() - t0}

@@ -2,9 +2,11 @@
 
 A controller is batched: ``reset(env)`` after the env (re)starts its N drones, then
 ``act(env, td) -> [N, 4]`` every step, returning ``[thrust_mps2, wx, wy, wz]`` (the env's action
-convention). Inputs are the (measured) state ``env.sim.state``, the future reference
-(``env._ref_future()`` / ``env.ref_table``) and the estimate ``env.adaptation.d_hat``; ``td`` is
-the env's observation, used by controllers with ``builds_observation = False``.
+convention). Inputs come from the env's public control input, ``env.control_input(ahead_steps)``
+(measured state, reference window and the reference further ahead, commands in flight, command
+history, d̂, step index; see :meth:`datt.envs.TrackingEnv.control_input`) and its constants
+(``dt_s``, ``action_low/high``, ``hover_action``, ``sim.params``); ``td`` is the env's policy
+observation, used by controllers with ``builds_observation = False``.
 """
 
 from __future__ import annotations

@@ -13,7 +13,6 @@ from datt.envs.tracking import action_center_half
 from datt.policies.networks import InferenceNet
 from datt.sim.frames import quat_to_rotmat_bilinear
 
-
 # Up to this many drones the frozen path runs the conv encoder as dense layers (fewer ops, more
 # arithmetic; see InferenceNet), above it as convs.
 DENSE_ENCODER_MAX_BATCH = 16
@@ -28,8 +27,9 @@ class DattController(Controller):
     checks the two agree): at batch 1 the tensordict and distribution plumbing costs more than the
     network itself, and per-step latency is what a flight computer pays.
 
-    ``frozen=True`` (evaluation, deployment) builds the observation itself from the simulator's
-    (measured) state, the reference window and the adaptation's d̂, and runs observation + network
+    ``frozen=True`` (evaluation, deployment) builds the observation itself from the env's public
+    control input (:meth:`~datt.envs.TrackingEnv.control_input`: measured state, reference window,
+    d̂, command history), and runs observation + network
     as one TorchScript graph traced and frozen once per input shape, with the network rewritten
     for batch 1 (:class:`~datt.policies.networks.InferenceNet`; a test checks it computes the same
     actions); the weights must not change afterwards. ``frozen=False`` (training-time uses such as RMA
@@ -56,21 +56,28 @@ class DattController(Controller):
         return self.center + self.half * torch.tanh(loc)
 
     def _act_frozen(self, env) -> torch.Tensor:
-        s, future, d_hat = env.sim.state, env._ref_future(), env.adaptation.d_hat
+        inputs = env.control_input()
+        pos, vel, quat, d_hat = inputs["pos_m"], inputs["vel_mps"], inputs["quat"], inputs["d_hat"]
+        future = inputs["ref_window_m"].transpose(0, 1)  # [H, N, 3], the graph's slot-major layout
         obs = env.params.obs
-        cmds = env.cmd_history.flatten(1)  # [N, 4k], k = obs.action_history (may be 0)
-        key = (tuple(future.shape), s.pos_m.dtype, obs.body_frame, obs.feedback, cmds.shape[1])
+        cmds = inputs["cmd_history"].flatten(1)  # [N, 4k], k = obs.action_history (may be 0)
+        key = (tuple(future.shape), pos.dtype, obs.body_frame, obs.feedback, cmds.shape[1])
         fn = self._traced.get(key)
         if fn is None:
             module = _ObservePolicy(
-                self.net, future.shape[0], self.center, self.half, obs.body_frame, obs.feedback,
+                self.net,
+                future.shape[0],
+                self.center,
+                self.half,
+                obs.body_frame,
+                obs.feedback,
                 dense_encoder=future.shape[1] <= DENSE_ENCODER_MAX_BATCH,
             ).eval()
             with warnings.catch_warnings():  # TorchScript's deprecation notices
                 warnings.simplefilter("ignore")
-                traced = torch.jit.trace(module, (s.pos_m, s.vel_mps, s.quat, future, d_hat, cmds), check_trace=False)
+                traced = torch.jit.trace(module, (pos, vel, quat, future, d_hat, cmds), check_trace=False)
             fn = self._traced[key] = torch.jit.freeze(traced)
-        return fn(s.pos_m, s.vel_mps, s.quat, future, d_hat, cmds)
+        return fn(pos, vel, quat, future, d_hat, cmds)
 
 
 class _ObservePolicy(nn.Module):
@@ -86,9 +93,15 @@ class _ObservePolicy(nn.Module):
     """
 
     def __init__(
-        self, net: nn.Module, horizon: int, center: torch.Tensor, half: torch.Tensor, body_frame: bool, feedback: bool,
+        self,
+        net: nn.Module,
+        horizon: int,
+        center: torch.Tensor,
+        half: torch.Tensor,
+        body_frame: bool,
+        feedback: bool,
         dense_encoder: bool = True,
-    ) -> None:  # fmt: skip
+    ) -> None:
         super().__init__()
         self.net = InferenceNet(net, horizon, 4, dense_encoder)
         self.body_frame, self.feedback = body_frame, feedback
@@ -96,7 +109,9 @@ class _ObservePolicy(nn.Module):
         self.register_buffer("action_half", half)
 
     def forward(self, pos, vel, quat, future, d_hat, cmds):
-        vecs = torch.cat((pos.unsqueeze(0), vel.unsqueeze(0), pos.unsqueeze(0) - future), 0).transpose(0, 1)  # [N, 2+H, 3]
+        vecs = torch.cat((pos.unsqueeze(0), vel.unsqueeze(0), pos.unsqueeze(0) - future), 0).transpose(
+            0, 1
+        )  # [N, 2+H, 3]
         if self.body_frame:  # row vectors: v^T R = (R^T v)^T
             vecs = torch.bmm(vecs, quat_to_rotmat_bilinear(quat))  # the form is a constant of the frozen graph
         e_now = vecs[:, 2] if self.feedback else torch.zeros_like(vecs[:, 2])

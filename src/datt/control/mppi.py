@@ -71,52 +71,53 @@ class MppiController(Controller):
         self.mean = self.hover.expand(env.n, self.horizon, 4).clone()  # [N, H, 4]
         self._last_step = env.step_idx.clone()
 
-    def _in_flight(self, env) -> torch.Tensor:
-        """Commands sent but not yet applied, oldest first: ``[L, N, 4]``."""
-        lat = env.sim.latency
-        if not lat.steps:
-            return env.hover_action.new_zeros(0, env.n, 4)
-        order = (lat._head + torch.arange(lat.steps, device=env.device)) % lat.steps
-        return lat._queue.index_select(0, order)
-
-    def _reference(self, env) -> torch.Tensor:
-        """Reference positions at t + 1 .. t + H: ``[N, H, 3]`` (world)."""
-        steps = env.step_idx.unsqueeze(1) + 1 + torch.arange(self.horizon, device=env.device)
-        steps = steps.clamp_max(env.table_len - 1)
-        return torch.gather(env.ref_table, 1, steps.unsqueeze(-1).expand(-1, -1, 3))
-
-    def rollout_cost(self, env, u: torch.Tensor, d_mps2: torch.Tensor) -> torch.Tensor:
-        """Cost ``[N, K]`` of the action sequences ``u [N, K, H, 4]`` from the current state."""
+    def rollout_cost(self, env, u: torch.Tensor, d_mps2: torch.Tensor, inputs=None) -> torch.Tensor:
+        """Cost ``[N, K]`` of the action sequences ``u [N, K, H, 4]`` from the current state
+        (``inputs``: the env's control input with ``ahead_steps >= H``)."""
         n, k, h = u.shape[0], u.shape[1], u.shape[2]
-        s, qp = env.sim.state, env.sim.params
+        if inputs is None:
+            inputs = env.control_input(ahead_steps=h)
+        qp = env.sim.params
+        state = (inputs["pos_m"], inputs["vel_mps"], inputs["quat"], inputs["rate_radps"], inputs["thrust_mps2"])
 
         def expand(x: torch.Tensor) -> torch.Tensor:
             return x.unsqueeze(1).expand(n, k, *x.shape[1:]).reshape(n * k, *x.shape[1:])
 
-        pos, vel, quat, rate, thrust = (expand(x) for x in (s.pos_m, s.vel_mps, s.quat, s.rate_radps, s.thrust_mps2))
+        pos, vel, quat, rate, thrust = (expand(x) for x in state)
         d = expand(d_mps2)
-        ref = self._reference(env)  # [N, H, 3]
-        in_flight = self._in_flight(env)  # [L, N, 4]
+        ref = inputs["ref_ahead_m"]  # [N, H, 3]: p_d(t + 1 .. t + H)
+        in_flight = inputs["cmd_in_flight"].transpose(0, 1)  # [L, N, 4], oldest first
         lat = in_flight.shape[0]
         u_flat = u.reshape(n * k, h, 4)
         cost = torch.zeros(n * k, device=u.device, dtype=u.dtype)
-        consts = (env.sim.gravity, env.dt_s, qp.k_thrust, qp.k_rate, qp.max_thrust_mps2, qp.max_rate_radps,
-                  self.pos_weight, self.att_weight)  # fmt: skip
+        consts = (
+            env.sim.gravity,
+            env.dt_s,
+            qp.k_thrust,
+            qp.k_rate,
+            qp.max_thrust_mps2,
+            qp.max_rate_radps,
+            self.pos_weight,
+            self.att_weight,
+        )
         for j in range(h):
             applied = expand(in_flight[j]) if j < lat else u_flat[:, j - lat]
-            pos, vel, quat, rate, thrust, cost = self._step(pos, vel, quat, rate, thrust, cost, applied, d, ref[:, j], *consts)
+            pos, vel, quat, rate, thrust, cost = self._step(
+                pos, vel, quat, rate, thrust, cost, applied, d, ref[:, j], *consts
+            )
         return (cost * env.dt_s).view(n, k)
 
     @torch.no_grad()
     def act(self, env, td: TensorDictBase) -> torch.Tensor:
-        restarted = env.step_idx < self._last_step
+        inputs = env.control_input(ahead_steps=self.horizon)
+        restarted = inputs["step"] < self._last_step
         self.mean[restarted] = self.hover
-        self._last_step = env.step_idx.clone()
+        self._last_step = inputs["step"].clone()
         n, k, h = env.n, self.num_samples, self.horizon
         noise = torch.randn(n, k, h, 4, generator=self.generator, device=env.device, dtype=env.dtype) * self.std
         u = torch.maximum(torch.minimum(self.mean.unsqueeze(1) + noise, env.action_high), env.action_low)
-        d = env.adaptation.d_hat if self.use_d_hat else torch.zeros(n, 3, device=env.device, dtype=env.dtype)
-        cost = self.rollout_cost(env, u, d)
+        d = inputs["d_hat"] if self.use_d_hat else torch.zeros(n, 3, device=env.device, dtype=env.dtype)
+        cost = self.rollout_cost(env, u, d, inputs)
         weights = torch.softmax(-(cost - cost.min(dim=1, keepdim=True).values) / self.temperature, dim=1)
         self.mean = torch.einsum("nk,nkhc->nhc", weights, u)
         action = self.mean[:, 0].clone()
@@ -125,13 +126,29 @@ class MppiController(Controller):
 
 
 def _rollout_step(
-    pos: torch.Tensor, vel: torch.Tensor, quat: torch.Tensor, rate: torch.Tensor, thrust: torch.Tensor,
-    cost: torch.Tensor, applied: torch.Tensor, d: torch.Tensor, ref: torch.Tensor, gravity: torch.Tensor,
-    dt: float, k_thrust: float, k_rate: float, max_thrust: float, max_rate: float, pos_weight: float, att_weight: float,
-):  # fmt: skip
+    pos: torch.Tensor,
+    vel: torch.Tensor,
+    quat: torch.Tensor,
+    rate: torch.Tensor,
+    thrust: torch.Tensor,
+    cost: torch.Tensor,
+    applied: torch.Tensor,
+    d: torch.Tensor,
+    ref: torch.Tensor,
+    gravity: torch.Tensor,
+    dt: float,
+    k_thrust: float,
+    k_rate: float,
+    max_thrust: float,
+    max_rate: float,
+    pos_weight: float,
+    att_weight: float,
+):
     """One model step of all N·K rollouts and its running cost (compilable). ``ref [N, 3]``; the
     rollouts are drone-major, so rows ``i·K .. (i+1)·K − 1`` belong to drone i."""
-    pos, vel, quat, rate, thrust = integrate(pos, vel, quat, rate, thrust, applied, d, gravity, dt, k_thrust, k_rate, max_thrust, max_rate)
+    pos, vel, quat, rate, thrust = integrate(
+        pos, vel, quat, rate, thrust, applied, d, gravity, dt, k_thrust, k_rate, max_thrust, max_rate
+    )
     n = ref.shape[0]
     err = torch.linalg.vector_norm(pos.view(n, -1, 3) - ref.unsqueeze(1), dim=-1).reshape(-1)
     cost = cost + pos_weight * err + att_weight * (1.0 - quat[:, 0] ** 2)

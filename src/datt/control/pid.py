@@ -52,29 +52,30 @@ class PidController(Controller):
         self._last_step = env.step_idx.clone()
 
     def act(self, env, td: TensorDictBase) -> torch.Tensor:
-        s = env.sim.state
+        inputs = env.control_input(ahead_steps=2)
+        pos, vel, quat, step = inputs["pos_m"], inputs["vel_mps"], inputs["quat"], inputs["step"]
         dt = env.dt_s
         # A drone whose episode restarted (partial reset) starts a fresh integral.
-        restarted = env.step_idx < self._last_step
+        restarted = step < self._last_step
         self.integral[restarted] = 0.0
-        self._last_step = env.step_idx.clone()
+        self._last_step = step.clone()
 
-        p0, p1, p2 = (env.ref_window[(env._head + k) % env.window] for k in range(3))
+        p0, p1, p2 = inputs["ref_window_m"][:, 0], inputs["ref_ahead_m"][:, 0], inputs["ref_ahead_m"][:, 1]
         v_ref = (p1 - p0) / dt
         a_ref = (p2 - 2 * p1 + p0) / (dt * dt)
-        err = s.pos_m - p0
+        err = pos - p0
         self.integral = (self.integral + err * dt).clamp(-self.integral_limit, self.integral_limit)
-        a_fb = -self.kp * err - self.kd * (s.vel_mps - v_ref) - self.ki * self.integral + a_ref
+        a_fb = -self.kp * err - self.kd * (vel - v_ref) - self.ki * self.integral + a_ref
         a_fb = a_fb - env.sim.gravity
         if self.use_d_hat:
-            a_fb = a_fb - env.adaptation.d_hat
-        a_body = quat_rotate_inverse(s.quat, a_fb)
+            a_fb = a_fb - inputs["d_hat"]
+        a_body = quat_rotate_inverse(quat, a_fb)
         norm = torch.linalg.vector_norm(a_body, dim=-1, keepdim=True).clamp_min(1e-6)
         z_fb = a_body / norm
         thrust = a_body[:, 2]  # a_fb · z, with z = R e3 -> third body component
         # −K_R (z_fb × e3) in the body frame = K_R (−z_fb_y, z_fb_x, 0): a positive rotation about
         # body y tips the thrust axis toward +x, one about body x toward −y.
         rates = torch.stack(
-            (-self.k_tilt * z_fb[:, 1], self.k_tilt * z_fb[:, 0], -self.k_yaw * wrap_angle(quat_yaw(s.quat))), dim=-1
+            (-self.k_tilt * z_fb[:, 1], self.k_tilt * z_fb[:, 0], -self.k_yaw * wrap_angle(quat_yaw(quat))), dim=-1
         )
         return torch.cat((thrust.unsqueeze(-1), rates), dim=-1)

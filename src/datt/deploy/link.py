@@ -50,7 +50,14 @@ class StateSample:
     vbat_v: float
 
 
-BLOCK_A = ["stateEstimate.x", "stateEstimate.y", "stateEstimate.z", "stateEstimate.vx", "stateEstimate.vy", "stateEstimate.vz"]
+BLOCK_A = [
+    "stateEstimate.x",
+    "stateEstimate.y",
+    "stateEstimate.z",
+    "stateEstimate.vx",
+    "stateEstimate.vy",
+    "stateEstimate.vz",
+]
 BLOCK_B = ["stateEstimate.qx", "stateEstimate.qy", "stateEstimate.qz", "stateEstimate.qw", "pm.vbat"]
 
 
@@ -82,7 +89,9 @@ class _BoundedCaller:
 
 
 class CrazyflieLink:
-    def __init__(self, uri: str, log_period_ms: int = 10, connect_timeout_s: float = 10.0, io_timeout_s: float = 0.5) -> None:
+    def __init__(
+        self, uri: str, log_period_ms: int = 10, connect_timeout_s: float = 10.0, io_timeout_s: float = 0.5
+    ) -> None:
         if not io_timeout_s > 0:
             raise LinkError(f"deploy.io_timeout_s: must be > 0, got {io_timeout_s}")
         self.uri = uri
@@ -98,7 +107,7 @@ class CrazyflieLink:
         self.cf = None
 
     # -- connection ------------------------------------------------------------------------
-    def connect(self) -> "CrazyflieLink":
+    def connect(self) -> CrazyflieLink:
         crtp, Crazyflie, LogConfig = _cflib()
         import logging
 

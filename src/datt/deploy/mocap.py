@@ -37,8 +37,15 @@ class NoMocap(MocapSource):
 class SimulatedMocap(MocapSource):
     name = "simulated"
 
-    def __init__(self, server, latency_s: float = 0.01, dropout_prob: float = 0.0, dropout_after_s: float | None = None,
-                 rate_hz: float = 100.0, seed: int = 0) -> None:  # fmt: skip
+    def __init__(
+        self,
+        server,
+        latency_s: float = 0.01,
+        dropout_prob: float = 0.0,
+        dropout_after_s: float | None = None,
+        rate_hz: float = 100.0,
+        seed: int = 0,
+    ) -> None:
         self.server, self.latency_s, self.dropout_prob = server, float(latency_s), float(dropout_prob)
         self.dropout_after_s = dropout_after_s
         self.period_s = 1.0 / float(rate_hz)
@@ -76,7 +83,7 @@ class MotionCaptureMocap(MocapSource):
         try:
             import motioncapture
         except ImportError:
-            from datt.config import ConfigError
+            from datt.errors import ConfigError
 
             raise ConfigError("deploy.mocap: the motioncapture source needs `pip install motioncapture`") from None
         self.mc = motioncapture.connect(system, {"hostname": host})

@@ -24,12 +24,11 @@ import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Optional
 
 import numpy as np
 import torch
 
-from datt.deploy import safety as S
+from datt.deploy.safety import KILL, LAND, OK, SafetyParams, check, tilt_deg
 from datt.deploy.thrust import ThrustMap
 from datt.refs.base import RefFamily
 
@@ -57,12 +56,9 @@ class FlightModel:
         self.last_cmd = self.env.hover_action.clone()
 
     def act(self, pos_m, vel_mps, quat) -> np.ndarray:
-        s = self.env.sim.state
-        s.pos_m[0] = torch.as_tensor(pos_m, dtype=s.pos_m.dtype)
-        s.vel_mps[0] = torch.as_tensor(vel_mps, dtype=s.pos_m.dtype)
-        s.quat[0] = torch.as_tensor(quat, dtype=s.pos_m.dtype)
-        self.env.adaptation.update(s, self.last_cmd, None)
-        td = None if self.controller.builds_observation else self.env._observe()[0]
+        self.env.set_state(pos_m, vel_mps, quat)
+        self.env.adaptation.update(self.env.sim.state, self.last_cmd, None)
+        td = None if self.controller.builds_observation else self.env.observe()
         action = self.controller.act(self.env, td)
         cmd = torch.clamp(action, self.env.action_low, self.env.action_high)
         self.env.sim.latency.push(cmd)  # model-based controllers see the command in flight
@@ -71,10 +67,10 @@ class FlightModel:
         return cmd[0].detach().numpy().astype(float)  # as the env would apply it (NaN stays NaN)
 
     def reference(self) -> np.ndarray:
-        return self.env._ref_future()[0, 0].numpy().astype(float)
+        return self.env.reference_now_m()[0].numpy().astype(float)
 
     def advance(self) -> None:
-        self.env._advance_refs()
+        self.env.advance_reference()
 
     @property
     def d_hat(self) -> np.ndarray:
@@ -87,7 +83,7 @@ class FlightParams:
     takeoff_height_m: float = 1.0
     takeoff_s: float = 2.5
     hover_s: float = 1.0
-    track_s: Optional[float] = None  # None = the env's episode length
+    track_s: float | None = None  # None = the env's episode length
     land_s: float = 2.5
     preflight_timeout_s: float = 3.0
     min_battery_v: float = 3.7
@@ -95,7 +91,7 @@ class FlightParams:
     origin_m: list = field(default_factory=lambda: [0.0, 0.0])  # hover point x, y (z = takeoff_height_m)
 
     def validate(self) -> None:
-        from datt.config import ConfigError
+        from datt.errors import ConfigError
 
         if not self.rate_hz > 0:
             raise ConfigError(f"deploy.flight.rate_hz: must be > 0, got {self.rate_hz}")
@@ -104,9 +100,21 @@ class FlightParams:
 
 
 class FlightRunner:
-    def __init__(self, link, mocap, make_env, track_controller, pid_factory, track_family: RefFamily,
-                 params: FlightParams, safety: S.SafetyParams, thrust: ThrustMap, run_dir: Path,
-                 estop: threading.Event | None = None, console=None) -> None:  # fmt: skip
+    def __init__(
+        self,
+        link,
+        mocap,
+        make_env,
+        track_controller,
+        pid_factory,
+        track_family: RefFamily,
+        params: FlightParams,
+        safety: SafetyParams,
+        thrust: ThrustMap,
+        run_dir: Path,
+        estop: threading.Event | None = None,
+        console=None,
+    ) -> None:
         self.link, self.mocap = link, mocap
         self.make_env, self.track_controller, self.pid_factory = make_env, track_controller, pid_factory
         self.track_family = track_family
@@ -202,12 +210,15 @@ class FlightRunner:
         """Takeoff, track the reference with the configured controller, land."""
 
         def build(start_rel):
-            return [self._takeoff(start_rel), ("TRACK", self._model(self.track_controller, self.track_family), self.p.track_s)]
+            return [
+                self._takeoff(start_rel),
+                ("TRACK", self._model(self.track_controller, self.track_family), self.p.track_s),
+            ]
 
         def airborne(origin, phases):
             for name, model, duration in phases:
                 self._set_phase(name)
-                if self._fly_phase(model, duration, origin) != S.OK:
+                if self._fly_phase(model, duration, origin) != OK:
                     return  # killed, or already landed
             self._land(origin)
 
@@ -229,7 +240,7 @@ class FlightRunner:
         def airborne(origin, built):
             (name, takeoff, duration), hold = built
             self._set_phase(name)
-            if self._fly_phase(takeoff, duration, origin) != S.OK:
+            if self._fly_phase(takeoff, duration, origin) != OK:
                 return
             self._set_phase("CALIBRATE")
             half_period = int(self.p.rate_hz / 2)
@@ -237,13 +248,13 @@ class FlightRunner:
             first = len(self.rows)
             result = self._tick_loop(hold, int(hover_s * self.p.rate_hz), origin)
             self._excitation = None
-            if result == S.OK:
+            if result == OK:
                 rows = self.rows[first:]
                 acc = np.diff([r["vel"][2] for r in rows]) * self.p.rate_hz
                 cmds = [float(r["thrust_cmd"]) for r in rows[: len(acc) - lag_ticks]]
                 fitted["hover_command"] = fit_hover_command(cmds, list(acc[lag_ticks:]))
                 self._event("calibrated", f"hover command {fitted['hover_command']:.0f}")
-            if result != S.KILL:
+            if result != KILL:
                 self._land(origin)
 
         summary = self._flight(build, airborne)
@@ -265,7 +276,7 @@ class FlightRunner:
         else:
             if state.vbat_v < self.p.min_battery_v:
                 checks.append(f"battery {state.vbat_v:.2f} V < {self.p.min_battery_v} V")
-            if S.tilt_deg(state.quat) > 10:
+            if tilt_deg(state.quat) > 10:
                 checks.append("vehicle not level")
             lo, hi = self.safety.geofence_min_m, self.safety.geofence_max_m
             if not all(lo[i] <= state.pos_m[i] <= hi[i] for i in range(3)):
@@ -295,28 +306,46 @@ class FlightRunner:
                 action = model.act(pos, state.vel_mps, state.quat)
                 if self._excitation is not None:
                     action[0] += self._excitation(k)
-            decision = S.check(self.safety, now_s=time.monotonic(), state=state, command=action, estop=self.estop.is_set(),
-                               link_lost=self.link.link_lost.is_set(), mocap_age_s=mocap_age)  # fmt: skip
-            if decision.action == S.KILL:
+            decision = check(
+                self.safety,
+                now_s=time.monotonic(),
+                state=state,
+                command=action,
+                estop=self.estop.is_set(),
+                link_lost=self.link.link_lost.is_set(),
+                mocap_age_s=mocap_age,
+            )
+            if decision.action == KILL:
                 self._kill(decision.reason)
-                return S.KILL
-            if decision.action == S.LAND and allow_land:
+                return KILL
+            if decision.action == LAND and allow_land:
                 self._event("LAND", decision.reason)
-                return S.LAND
-            if decision.action == S.LAND:  # already landing: keep landing, note why
+                return LAND
+            if decision.action == LAND:  # already landing: keep landing, note why
                 self._event("warning", decision.reason)
             command = self._send(action)
             compute_ms = (time.monotonic() - now) * 1e3
-            self.rows.append({
-                "t_s": now - self.t0, "phase": self.phase, "pos": list(state.pos_m), "vel": list(state.vel_mps),
-                "quat": list(state.quat), "ref": list(model.reference() + origin), "action": [float(a) for a in action],
-                "thrust_cmd": command, "d_hat": list(model.d_hat), "vbat": state.vbat_v, "decision": decision.action,
-                "jitter_ms": jitter_ms, "compute_ms": compute_ms,
-            })  # fmt: skip
+            self.rows.append(
+                {
+                    "t_s": now - self.t0,
+                    "phase": self.phase,
+                    "pos": list(state.pos_m),
+                    "vel": list(state.vel_mps),
+                    "quat": list(state.quat),
+                    "ref": list(model.reference() + origin),
+                    "action": [float(a) for a in action],
+                    "thrust_cmd": command,
+                    "d_hat": list(model.d_hat),
+                    "vbat": state.vbat_v,
+                    "decision": decision.action,
+                    "jitter_ms": jitter_ms,
+                    "compute_ms": compute_ms,
+                }
+            )
             model.advance()
             next_t += dt
             time.sleep(max(0.0, next_t - time.monotonic()))
-        return S.OK
+        return OK
 
     def _model(self, controller, family: RefFamily) -> FlightModel:
         model = FlightModel(self.make_env, controller, family)
@@ -329,7 +358,7 @@ class FlightRunner:
     def _fly_phase(self, model: FlightModel, duration_s: float | None, origin: np.ndarray) -> str:
         steps = int(round((duration_s or model.env.params.episode_steps * model.env.dt_s) * self.p.rate_hz))
         result = self._tick_loop(model, steps, origin)
-        if result == S.LAND:
+        if result == LAND:
             self._land(origin)
         return result
 
@@ -340,7 +369,7 @@ class FlightRunner:
         ground = np.array([here[0], here[1], -origin[2] + 0.05])
         model = self._model(self.pid_factory(), Ramp(here, ground, self.p.land_s))
         result = self._tick_loop(model, int((self.p.land_s + 0.5) * self.p.rate_hz), origin, allow_land=False)
-        if result == S.OK:
+        if result == OK:
             self.link.send_rates(0.0, 0.0, 0.0, 0)
             reasons = [e["text"] for e in self.events if e["kind"] == "LAND"]
             self.outcome = "landed" + (f" early: {reasons[0]}" if reasons else "")
@@ -350,13 +379,55 @@ class FlightRunner:
         self.run_dir.mkdir(parents=True, exist_ok=True)
         with open(self.run_dir / "flight.csv", "w", newline="") as f:
             w = csv.writer(f)
-            w.writerow(["t_s", "phase", "x", "y", "z", "vx", "vy", "vz", "qw", "qx", "qy", "qz", "ref_x", "ref_y", "ref_z",
-                        "thrust_mps2", "wx", "wy", "wz", "thrust_cmd", "dhat_x", "dhat_y", "dhat_z", "vbat_v", "decision",
-                        "jitter_ms", "compute_ms"])  # fmt: skip
+            w.writerow(
+                [
+                    "t_s",
+                    "phase",
+                    "x",
+                    "y",
+                    "z",
+                    "vx",
+                    "vy",
+                    "vz",
+                    "qw",
+                    "qx",
+                    "qy",
+                    "qz",
+                    "ref_x",
+                    "ref_y",
+                    "ref_z",
+                    "thrust_mps2",
+                    "wx",
+                    "wy",
+                    "wz",
+                    "thrust_cmd",
+                    "dhat_x",
+                    "dhat_y",
+                    "dhat_z",
+                    "vbat_v",
+                    "decision",
+                    "jitter_ms",
+                    "compute_ms",
+                ]
+            )
             for r in self.rows:
-                w.writerow([f"{r['t_s']:.4f}", r["phase"], *r["pos"], *r["vel"], *r["quat"], *r["ref"], *r["action"],
-                            r["thrust_cmd"], *r["d_hat"], r["vbat"], r["decision"], f"{r['jitter_ms']:.3f}",
-                            f"{r['compute_ms']:.3f}"])  # fmt: skip
+                w.writerow(
+                    [
+                        f"{r['t_s']:.4f}",
+                        r["phase"],
+                        *r["pos"],
+                        *r["vel"],
+                        *r["quat"],
+                        *r["ref"],
+                        *r["action"],
+                        r["thrust_cmd"],
+                        *r["d_hat"],
+                        r["vbat"],
+                        r["decision"],
+                        f"{r['jitter_ms']:.3f}",
+                        f"{r['compute_ms']:.3f}",
+                    ]
+                )
         track = [r for r in self.rows if r["phase"] == "TRACK"]
         err = [float(np.linalg.norm(np.array(r["pos"]) - np.array(r["ref"]))) for r in track]
         jitter = np.array([r["jitter_ms"] for r in self.rows]) if self.rows else np.zeros(1)
@@ -366,8 +437,11 @@ class FlightRunner:
             "track_steps": len(track),
             "track_error_m": float(np.mean(err)) if err else None,
             "ticks": len(self.rows),
-            "jitter_ms": {"median": float(np.median(np.abs(jitter))), "p99": float(np.percentile(np.abs(jitter), 99)),
-                          "max": float(np.max(np.abs(jitter)))},  # fmt: skip
+            "jitter_ms": {
+                "median": float(np.median(np.abs(jitter))),
+                "p99": float(np.percentile(np.abs(jitter), 99)),
+                "max": float(np.max(np.abs(jitter))),
+            },
             "late_ticks": int(np.sum(jitter > self.p.late_tick_ms)),
             "compute_ms": {"median": float(np.median(compute)), "p99": float(np.percentile(compute, 99))},
             "events": self.events,
@@ -385,7 +459,9 @@ class FlightRunner:
         pos = torch.tensor([r["pos"] for r in track]).unsqueeze(0)
         ref = torch.tensor([r["ref"] for r in track]).unsqueeze(0)
         trace = SimpleNamespace(pos_m=pos, ref_m=ref, crashed_at=torch.tensor([len(track) - 1]))
-        plot_tracks(trace, ["track"], [1], self.run_dir / "tracks_flight.png", title="flight: reference vs flown", per_group=1)
+        plot_tracks(
+            trace, ["track"], [1], self.run_dir / "tracks_flight.png", title="flight: reference vs flown", per_group=1
+        )
         plot_group_axes(trace, ["track"], [1], 1.0 / self.p.rate_hz, self.run_dir / "axes_flight.png", title="flight")
 
 

@@ -36,7 +36,7 @@ class SafetyParams:
     max_rate_radps: list = field(default_factory=lambda: [20.0, 20.0, 2.0])
 
     def validate(self) -> None:
-        from datt.config import ConfigError
+        from datt.errors import ConfigError
 
         if any(lo >= hi for lo, hi in zip(self.geofence_min_m, self.geofence_max_m)) or len(self.geofence_min_m) != 3:
             raise ConfigError("deploy.safety.geofence_min_m/max_m: need 3 values each with min < max")
@@ -57,8 +57,9 @@ def tilt_deg(quat) -> float:
     return math.degrees(math.acos(max(-1.0, min(1.0, cos_tilt))))
 
 
-def check(p: SafetyParams, *, now_s: float, state, command, estop: bool, link_lost: bool,
-          mocap_age_s: float | None) -> Decision:  # fmt: skip
+def check(
+    p: SafetyParams, *, now_s: float, state, command, estop: bool, link_lost: bool, mocap_age_s: float | None
+) -> Decision:
     """``state``: a :class:`~datt.deploy.link.StateSample` or None; ``command``: the action about
     to be sent ``[thrust_mps2, wx, wy, wz]`` (or None before one exists); ``mocap_age_s``: None
     when no mocap source is configured."""

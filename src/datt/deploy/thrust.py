@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Optional
 
 
 @dataclass
@@ -31,12 +30,12 @@ class ThrustParams:
     k2: float = 2.130295e-11
     k1: float = 1.032633e-6
     k0: float = 5.484560e-4
-    hover_command: Optional[float] = None  # calibrated; None = the model's own hover point
+    hover_command: float | None = None  # calibrated; None = the model's own hover point
     max_command: int = 60000
     max_rate_degps: list = field(default_factory=lambda: [720.0, 720.0, 400.0])
 
     def validate(self) -> None:
-        from datt.config import ConfigError
+        from datt.errors import ConfigError
 
         if not self.mass_kg > 0:
             raise ConfigError(f"deploy.thrust.mass_kg: must be > 0, got {self.mass_kg}")

@@ -17,7 +17,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from datt.config import ObsParams, RewardParams
+from datt.envs.params import ObsParams, RewardParams
 from datt.sim.frames import quat_rotate_inverse, quat_yaw, wrap_angle
 
 STATE_DIM = 13  # without the optional command history

@@ -24,8 +24,9 @@ from torchrl.envs import EnvBase
 
 from datt.adapt.base import Adaptation, Privileged
 from datt.compile import compile_or_eager
-from datt.config import ConfigError, EnvParams
 from datt.envs.observations import observe_and_cost, state_width
+from datt.envs.params import EnvParams
+from datt.errors import ConfigError
 from datt.refs.base import RefFamily
 from datt.sim.disturbances import Disturbance
 from datt.sim.quadrotor import Quadrotor, resolve_dtype
@@ -47,11 +48,16 @@ def action_center_half(low: torch.Tensor, high: torch.Tensor) -> tuple[torch.Ten
 class TrackingEnv(EnvBase):
     """Batched trajectory-tracking env (``batch_size = [num_envs]``).
 
-    Observation keys: ``state [N, 13 + 4k]`` (k = ``obs.action_history``), ``ref [N, horizon, 3]``, ``d_hat [N, 3]`` (see
+    Observation keys: ``state [N, 13 + 4k]`` (k = ``obs.action_history``), ``ref [N, horizon, 3]``,
+    ``d_hat [N, 3]`` (see
     :mod:`datt.envs.observations`) and ``tracking_error_m [N, 1]`` (‖p − p_d(t)‖, true
     position; for logging and metrics). Action ``[N, 4]``: thrust (m/s², mass-normalised,
     bounds ``g + thrust_offset_bounds_mps2``) and body rates (rad/s, ± ``rate_bounds_radps``).
-    Reward ``[N, 1]`` per :class:`datt.config.RewardParams`.
+    Reward ``[N, 1]`` per :class:`datt.envs.params.RewardParams`.
+
+    Controllers read the env through :meth:`control_input` (measured state, reference window and
+    the reference further ahead, commands in flight, command history, d̂, step index) and
+    :meth:`observe` (the policy observation); nothing outside ``envs/`` reads its private state.
 
     ``adaptation`` defaults to :class:`~datt.adapt.Privileged` (true d as ``d_hat``).
     """
@@ -195,6 +201,71 @@ class TrackingEnv(EnvBase):
         self.ref_window[self._head] = new_row  # the slot of the old "now" becomes the far end
         self._head = (self._head + 1) % self.window
 
+    # -- public inputs of controllers ------------------------------------------------------------
+    def control_input(self, ahead_steps: int = 0) -> TensorDict:
+        """Everything a controller may read this step, as one TensorDict (``batch_size [N]``):
+
+        * ``pos_m``, ``vel_mps [N, 3]`` (world), ``quat [N, 4]`` (w, x, y, z, body-to-world),
+          ``rate_radps [N, 3]`` (body) and ``thrust_mps2 [N]`` (actuator outputs after the delay):
+          the simulator's state (the measured state on hardware, see ``set_state``);
+        * ``ref_window_m [N, H, 3]``: the H feedforward points p_d(t + iΔ), i = 0..H−1,
+          Δ = ``ref_spacing_s`` (world; ``[:, 0]`` is the reference now);
+        * ``ref_ahead_m [N, ahead_steps, 3]``: p_d(t + k dt), k = 1..``ahead_steps`` (world; held
+          at the last point past the end of the reference table);
+        * ``cmd_in_flight [N, L, 4]``: commands sent but not yet applied (L = ``latency_steps``),
+          oldest first; ``cmd_history [N, k, 4]``: the last k commands scaled to [-1, 1]
+          (``obs.action_history``);
+        * ``d_hat [N, 3]``: the adaptation's disturbance estimate (world, m/s²);
+        * ``step [N]``: steps since each drone's episode started.
+
+        Tensors are views of the env's buffers where possible: read them, do not write them.
+        """
+        s = self.sim.state
+        values = {
+            "pos_m": s.pos_m,
+            "vel_mps": s.vel_mps,
+            "quat": s.quat,
+            "rate_radps": s.rate_radps,
+            "thrust_mps2": s.thrust_mps2,
+            "ref_window_m": self._ref_future().transpose(0, 1),
+            "ref_ahead_m": self._ref_ahead(ahead_steps),
+            "cmd_in_flight": self.sim.latency.in_flight().transpose(0, 1),
+            "cmd_history": self.cmd_history,
+            "d_hat": self.adaptation.d_hat,
+            "step": self.step_idx,
+        }
+        return TensorDict._new_unsafe(values, batch_size=self.batch_size, device=self.device)
+
+    def observe(self) -> TensorDict:
+        """The policy observation of every drone now (``state``, ``ref``, ``d_hat``,
+        ``tracking_error_m``), as :meth:`step` returns it."""
+        return self._observe()[0]
+
+    def reference_now_m(self) -> torch.Tensor:
+        """p_d(t) of every drone, ``[N, 3]`` (world)."""
+        return self.ref_window[self._head]
+
+    def advance_reference(self) -> None:
+        """Move every drone one step along its reference without stepping the simulator (a real
+        vehicle is the plant: deployment advances the reference each control tick)."""
+        self._advance_refs()
+
+    def set_state(self, pos_m, vel_mps, quat) -> None:
+        """Overwrite the state the controllers read with a measurement ``[N, 3]``, ``[N, 3]``,
+        ``[N, 4]`` (deployment: the vehicle's estimate each tick)."""
+        s = self.sim.state
+        s.pos_m.copy_(torch.as_tensor(pos_m, dtype=s.pos_m.dtype).reshape(s.pos_m.shape))
+        s.vel_mps.copy_(torch.as_tensor(vel_mps, dtype=s.vel_mps.dtype).reshape(s.vel_mps.shape))
+        s.quat.copy_(torch.as_tensor(quat, dtype=s.quat.dtype).reshape(s.quat.shape))
+
+    def _ref_ahead(self, steps: int) -> torch.Tensor:
+        """p_d(t + k dt), k = 1..steps: ``[N, steps, 3]`` (world), from the reference table."""
+        if steps <= 0:
+            return self.ref_table.new_zeros(self.n, 0, 3)
+        idx = self.step_idx.unsqueeze(1) + torch.arange(1, steps + 1, device=self.device)
+        idx = idx.clamp_max(self.table_len - 1)
+        return torch.gather(self.ref_table, 1, idx.unsqueeze(-1).expand(-1, -1, 3))
+
     def _observe(self, idx: torch.Tensor | None = None) -> tuple[TensorDict, torch.Tensor, torch.Tensor]:
         """Observation, tracking error and cost for all drones, or only for rows ``idx``.
 
@@ -263,7 +334,7 @@ class TrackingEnv(EnvBase):
         out.update({"reward": reward, "done": terminated | truncated, "terminated": terminated, "truncated": truncated})
         return out
 
-    def compile_kernels(self, sim: bool = True, **kwargs) -> "TrackingEnv":
+    def compile_kernels(self, sim: bool = True, **kwargs) -> TrackingEnv:
         """Fuse the integrator (``sim=True``), the observation/reward kernel and the adaptation
         update (if it supports it) with ``torch.compile`` (first call compiles, ~30 s on 2 cores;
         then several times faster at large N, and less dispatch overhead at N = 1)."""

@@ -10,7 +10,9 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
 
-def plot_tracks(trace, names: list[str], counts: list[int], path: str | Path, title: str = "", per_group: int = 2) -> Path:
+def plot_tracks(
+    trace, names: list[str], counts: list[int], path: str | Path, title: str = "", per_group: int = 2
+) -> Path:
     """x-y reference (dashed) vs flown track for the first ``per_group`` references of each group."""
     cols = len(names)
     fig, axes = plt.subplots(1, cols, figsize=(4.2 * cols, 4.2), squeeze=False)

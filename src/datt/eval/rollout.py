@@ -1,7 +1,7 @@
 """Run a controller over a seeded bank of references and measure tracking.
 
 A bank is a set of named reference groups, each a family drawn with its own seed (so every
-controller, run and machine sees the same references). Default bank (``conf/eval/bank``):
+controller, run and machine sees the same references). Default bank (``conf/bank/default.yaml``):
 10 zigzags (seed 1000), 10 smooth references (5 poly + 5 chained_poly, seeds 2000/2001) and the
 star. All drones start at rest at the origin (where every reference starts).
 """
@@ -14,8 +14,9 @@ from dataclasses import dataclass
 import torch
 from omegaconf import DictConfig, OmegaConf
 
-from datt.config import compose, instantiate_option, make_env, with_options
+from datt.configuration import instantiate_option, load_option, with_options
 from datt.control.base import Controller
+from datt.envs.factory import make_env
 from datt.eval.metrics import episode_errors, summarize
 from datt.refs.base import RefFamily
 from datt.refs.composite import Seeded
@@ -57,7 +58,7 @@ def run_controller(env, controller: Controller, steps: int | None = None) -> Tra
     controller.reset(env)
     n = env.n
     pos = [env.sim.state.pos_m.clone()]
-    refs = [env._ref_future()[0].clone()]
+    refs = [env.reference_now_m().clone()]
     errs, acts, ds, dhats, step_ms = [], [], [], [], []
     crashed_at = torch.full((n,), steps, dtype=torch.long)
     for k in range(steps):
@@ -69,17 +70,22 @@ def run_controller(env, controller: Controller, steps: int | None = None) -> Tra
         td["action"] = action
         out = env.step(td)["next"]
         pos.append(env.sim.state.pos_m.clone())
-        refs.append(env._ref_future()[0].clone())
+        refs.append(env.reference_now_m().clone())
         errs.append(out["tracking_error_m"][:, 0].clone())
         acts.append(action.clone())
         newly = out["terminated"][:, 0] & (crashed_at == steps)
         crashed_at[newly] = k
         td = out.exclude("reward", "done", "terminated", "truncated")
     return Trace(
-        pos_m=torch.stack(pos, 1), ref_m=torch.stack(refs, 1), err_m=torch.stack(errs, 1),
-        action=torch.stack(acts, 1), d_mps2=torch.stack(ds, 1), d_hat=torch.stack(dhats, 1),
-        crashed_at=crashed_at, step_ms=step_ms,
-    )  # fmt: skip
+        pos_m=torch.stack(pos, 1),
+        ref_m=torch.stack(refs, 1),
+        err_m=torch.stack(errs, 1),
+        action=torch.stack(acts, 1),
+        d_mps2=torch.stack(ds, 1),
+        d_hat=torch.stack(dhats, 1),
+        crashed_at=crashed_at,
+        step_ms=step_ms,
+    )
 
 
 def build_bank(bank_cfg: DictConfig) -> tuple[list[str], list[int], RefFamily]:
@@ -89,8 +95,8 @@ def build_bank(bank_cfg: DictConfig) -> tuple[list[str], list[int], RefFamily]:
         total = 0
         for item in items:
             traj_cfg = item["traj"]
-            if isinstance(traj_cfg, str):
-                traj_cfg = compose("sim", [f"traj={traj_cfg}"]).traj
+            if isinstance(traj_cfg, str):  # an option of the traj group, on the run's search path
+                traj_cfg = load_option("traj", traj_cfg)
             family = instantiate_option(OmegaConf.create({"traj": traj_cfg}), "traj")
             parts.append((Seeded(family, int(item["seed"])), int(item["count"])))
             total += int(item["count"])

@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from datt.config import ConfigError
+from datt.errors import ConfigError
 
 
 @dataclass
@@ -103,48 +103,89 @@ _CONTROLLERS = {
 
 TABLES: dict[str, TableSpec] = {
     "ablation": TableSpec(
-        "ablation", "train", "Ablations: zigzag tracking error (m), no disturbance, no adaptation", "train.py",
-        ["zigzag error (m)"], list(_ABLATION_LABELS), _ABLATION_LABELS,
-        {"ablation=no_body_frame": ["failed"], "ablation=no_fixed_ref": ["0.437 ± 0.08"],
-         "ablation=no_feedback": ["0.077 ± 0.011"], "ablation=h1": ["failed"], "ablation=h5": ["0.240 ± 0.008"],
-         "ablation=none": ["0.055 ± 0.007"], "ablation=h15": ["0.073 ± 0.010"], "ablation=h20": ["0.101 ± 0.018"]},
+        "ablation",
+        "train",
+        "Ablations: zigzag tracking error (m), no disturbance, no adaptation",
+        "train.py",
+        ["zigzag error (m)"],
+        list(_ABLATION_LABELS),
+        _ABLATION_LABELS,
+        {
+            "ablation=no_body_frame": ["failed"],
+            "ablation=no_fixed_ref": ["0.437 ± 0.08"],
+            "ablation=no_feedback": ["0.077 ± 0.011"],
+            "ablation=h1": ["failed"],
+            "ablation=h5": ["0.240 ± 0.008"],
+            "ablation=none": ["0.055 ± 0.007"],
+            "ablation=h15": ["0.073 ± 0.010"],
+            "ablation=h20": ["0.101 ± 0.018"],
+        },
         "paper Table 3 (15M steps, SB3, 5 runs each)",
     ),
     "horizon": TableSpec(
-        "horizon", "train", "Feedforward horizon: zigzag tracking error (m)", "train.py", ["zigzag error (m)"],
-        [f"horizon={h}" for h in (1, 5, 10, 15, 20)], {f"horizon={h}": f"H = {h} ({h * 0.06:.2f} s)" for h in (1, 5, 10, 15, 20)},
-        {"horizon=1": ["failed"], "horizon=5": ["0.240 ± 0.008"], "horizon=10": ["0.055 ± 0.007"],
-         "horizon=15": ["0.073 ± 0.010"], "horizon=20": ["0.101 ± 0.018"]},
+        "horizon",
+        "train",
+        "Feedforward horizon: zigzag tracking error (m)",
+        "train.py",
+        ["zigzag error (m)"],
+        [f"horizon={h}" for h in (1, 5, 10, 15, 20)],
+        {f"horizon={h}": f"H = {h} ({h * 0.06:.2f} s)" for h in (1, 5, 10, 15, 20)},
+        {
+            "horizon=1": ["failed"],
+            "horizon=5": ["0.240 ± 0.008"],
+            "horizon=10": ["0.055 ± 0.007"],
+            "horizon=15": ["0.073 ± 0.010"],
+            "horizon=20": ["0.101 ± 0.018"],
+        },
         "paper Table 3",
     ),
     "rma": TableSpec(
-        "rma", "rma", "Adaptation under the Brownian disturbance: zigzag tracking error (m)", "train.py",
-        ["zigzag error (m)"], ["d_hat=0", "l1", "rma", "privileged"],
+        "rma",
+        "rma",
+        "Adaptation under the Brownian disturbance: zigzag tracking error (m)",
+        "train.py",
+        ["zigzag error (m)"],
+        ["d_hat=0", "l1", "rma", "privileged"],
         {"d_hat=0": "DATT (d̂ = 0)", "l1": "DATT (L1)", "rma": "DATT-RMA", "privileged": "DATT (privileged d)"},
         {"l1": ["0.062 ± 0.011"], "rma": ["0.055 ± 0.009"]},
         "paper Table 4",
     ),
     "main": TableSpec(
-        "main", "eval", "Tracking without disturbance (simulation): error (m) and inference time", "eval.py",
-        ["smooth", "infeasible (zigzag)", "inference ms (batch 1)"], ["pid", "l1_pid", "mppi", "l1_mppi", "datt", "datt_l1"],
+        "main",
+        "eval",
+        "Tracking without disturbance (simulation): error (m) and inference time",
+        "eval.py",
+        ["smooth", "infeasible (zigzag)", "inference ms (batch 1)"],
+        ["pid", "l1_pid", "mppi", "l1_mppi", "datt", "datt_l1"],
         _CONTROLLERS,
-        {"pid": ["0.098 ± 0.012", "crash", "0.21"], "l1_pid": ["0.091 ± 0.009", "crash", "0.93"],
-         "mppi": ["0.104 ± 0.009", "0.183 ± 0.027", "12.62"], "l1_mppi": ["0.088 ± 0.010", "0.181 ± 0.031", "13.10"],
-         "datt": ["0.054 ± 0.013", "0.089 ± 0.026", "2.41"], "datt_l1": ["0.049 ± 0.017", "0.083 ± 0.023", "3.17"]},
+        {
+            "pid": ["0.098 ± 0.012", "crash", "0.21"],
+            "l1_pid": ["0.091 ± 0.009", "crash", "0.93"],
+            "mppi": ["0.104 ± 0.009", "0.183 ± 0.027", "12.62"],
+            "l1_mppi": ["0.088 ± 0.010", "0.181 ± 0.031", "13.10"],
+            "datt": ["0.054 ± 0.013", "0.089 ± 0.026", "2.41"],
+            "datt_l1": ["0.049 ± 0.017", "0.083 ± 0.023", "3.17"],
+        },
         "paper Table 1 (real Crazyflie)",
     ),
     "wind": TableSpec(
-        "wind", "eval", "Zero-shot disturbances (simulation): tracking error (m)", "eval.py",
+        "wind",
+        "eval",
+        "Zero-shot disturbances (simulation): tracking error (m)",
+        "eval.py",
         ["smooth, plate", "smooth, plate + wind", "infeasible, plate", "infeasible, plate + wind"],
-        ["l1_pid", "l1_mppi", "datt", "datt_rma", "datt_l1"], _CONTROLLERS,
-        {"l1_pid": ["0.163 ± 0.013", "0.184 ± 0.020", "crash", "crash"],
-         "l1_mppi": ["0.121 ± 0.010", "0.181 ± 0.04", "0.216 ± 0.028", "0.243 ± 0.026"],
-         "datt": ["0.091 ± 0.040", "0.118 ± 0.054", "0.143 ± 0.031", "crash"],
-         "datt_rma": ["0.091 ± 0.049", "0.115 ± 0.071", "0.164 ± 0.051", "0.193 ± 0.075"],
-         "datt_l1": ["0.063 ± 0.052", "0.095 ± 0.053", "0.122 ± 0.041", "0.161 ± 0.056"]},
+        ["l1_pid", "l1_mppi", "datt", "datt_rma", "datt_l1"],
+        _CONTROLLERS,
+        {
+            "l1_pid": ["0.163 ± 0.013", "0.184 ± 0.020", "crash", "crash"],
+            "l1_mppi": ["0.121 ± 0.010", "0.181 ± 0.04", "0.216 ± 0.028", "0.243 ± 0.026"],
+            "datt": ["0.091 ± 0.040", "0.118 ± 0.054", "0.143 ± 0.031", "crash"],
+            "datt_rma": ["0.091 ± 0.049", "0.115 ± 0.071", "0.164 ± 0.051", "0.193 ± 0.075"],
+            "datt_l1": ["0.063 ± 0.052", "0.095 ± 0.053", "0.122 ± 0.041", "0.161 ± 0.056"],
+        },
         "paper Table 2 (real Crazyflie, fans and cardboard plate)",
     ),
-}  # fmt: skip
+}
 
 
 # -- collecting runs -----------------------------------------------------------------------
@@ -154,7 +195,11 @@ def find_jobs(roots: list[Path]) -> list[Job]:
     for root in roots:
         if not root.exists():
             continue
-        dirs = [root] if (root / ".hydra").is_dir() else sorted({p.parent.parent for p in root.glob("**/.hydra/config.yaml")})
+        dirs = (
+            [root]
+            if (root / ".hydra").is_dir()
+            else sorted({p.parent.parent for p in root.glob("**/.hydra/config.yaml")})
+        )
         for d in dirs:
             jobs.append(read_job(d))
     return jobs
@@ -243,7 +288,9 @@ def collect(spec: TableSpec, jobs: list[Job]) -> tuple[dict[str, list[Cell]], di
             continue
         m = job.metrics or {}
         if spec.kind == "train":
-            cells(_row_key(job, spec, varying))[0].add(_group_error(m, "clean", "zigzag") if job.status == "finished" else None)
+            cells(_row_key(job, spec, varying))[0].add(
+                _group_error(m, "clean", "zigzag") if job.status == "finished" else None
+            )
         elif spec.kind == "rma":
             for cond in spec.row_order:
                 cells(cond)[0].add(_group_error(m, cond, "zigzag") if job.status == "finished" else None)
@@ -260,7 +307,12 @@ def collect(spec: TableSpec, jobs: list[Job]) -> tuple[dict[str, list[Cell]], di
         else:  # wind: columns by (group, disturbance)
             key = _row_key(job, spec)
             dist = m.get("disturbance", job.overrides.get("disturbance"))
-            col_of = {("smooth", "plate"): 0, ("smooth", "wind_plate"): 1, ("zigzag", "plate"): 2, ("zigzag", "wind_plate"): 3}
+            col_of = {
+                ("smooth", "plate"): 0,
+                ("smooth", "wind_plate"): 1,
+                ("zigzag", "plate"): 2,
+                ("zigzag", "wind_plate"): 3,
+            }
             for group in ("smooth", "zigzag"):
                 col = col_of.get((group, dist))
                 if col is None:
@@ -293,10 +345,15 @@ def render(spec: TableSpec, rows: dict[str, list[Cell]], jobs: list[Job]) -> dic
     md = [f"**{spec.title}** (ours: simulation; paper: {spec.paper_note})", "", "| " + " | ".join(header) + " |"]
     md.append("|" + "---|" * len(header))
     md += ["| " + " | ".join(r) + " |" for r in body]
-    notes = _job_notes(jobs)
+    notes = job_notes(jobs)
     if notes:
         md += ["", *notes]
-    tex = ["\\begin{tabular}{l" + "c" * (len(header) - 1) + "}", "\\toprule", " & ".join(_tex(h) for h in header) + " \\\\", "\\midrule"]
+    tex = [
+        "\\begin{tabular}{l" + "c" * (len(header) - 1) + "}",
+        "\\toprule",
+        " & ".join(_tex(h) for h in header) + " \\\\",
+        "\\midrule",
+    ]
     tex += [" & ".join(_tex(c) for c in r) + " \\\\" for r in body]
     tex += ["\\bottomrule", "\\end{tabular}"]
     return {"md": "\n".join(md) + "\n", "tex": "\n".join(tex) + "\n", "rows": body, "header": header}
@@ -307,7 +364,7 @@ def _tex(text: str) -> str:
     return "\\textit{failed}" if text == "failed" else text
 
 
-def _job_notes(jobs: list[Job]) -> list[str]:
+def job_notes(jobs: list[Job]) -> list[str]:
     notes = []
     for job in jobs:
         if job.status == "incomplete":
@@ -334,7 +391,9 @@ def default_roots(spec: TableSpec, outputs: Path) -> list[Path]:
     base = outputs / "sweeps" / spec.name
     dirs = sorted(p for p in base.glob("*") if p.is_dir()) if base.is_dir() else []
     if not dirs:
-        raise ConfigError(f"runs: no sweep under {base}; run `python {spec.entry} -m +sweep={spec.name}` or pass runs=<sweep dir>")
+        raise ConfigError(
+            f"runs: no sweep under {base}; run `python {spec.entry} +sweep={spec.name}` or pass runs=<sweep dir>"
+        )
     return [dirs[-1]]
 
 
@@ -368,8 +427,14 @@ def plot_train_sweep(spec: TableSpec, rows: dict[str, list[Cell]], jobs: list[Jo
         fig, ax = plt.subplots(figsize=(5, 3.6))
         ok = [(h, c) for h, c in points if c.values]
         if ok:
-            ax.errorbar([h for h, _ in ok], [np.mean(c.values) for _, c in ok], yerr=[np.std(c.values) for _, c in ok],
-                        marker="o", capsize=3, label="ours (sim)")  # fmt: skip
+            ax.errorbar(
+                [h for h, _ in ok],
+                [np.mean(c.values) for _, c in ok],
+                yerr=[np.std(c.values) for _, c in ok],
+                marker="o",
+                capsize=3,
+                label="ours (sim)",
+            )
         for h, c in points:
             if not c.values:
                 ax.annotate("failed", (h, 0), textcoords="offset points", xytext=(0, 8), ha="center", color="C3")
@@ -417,8 +482,9 @@ def plot_train_sweep(spec: TableSpec, rows: dict[str, list[Cell]], jobs: list[Jo
 def plot_side_by_side_from_jobs(jobs: list[Job], group: str, index: int, path: Path) -> Path | None:
     """Every eval job's saved trace (``trace_seed<k>.pt``, first seed) on one reference: the
     ``index``-th of ``group``. None when no job saved a trace."""
-    import torch
     from types import SimpleNamespace
+
+    import torch
 
     from datt.eval.plots import plot_side_by_side
 

@@ -19,7 +19,7 @@ would: at batch 1 a thread pool only adds wake-up latency, badly so on a busy ma
 from __future__ import annotations
 
 import time
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 import torch
@@ -59,7 +59,7 @@ def _timed_loop(env, controller: Controller, steps: int, warmup_steps: int, cloc
         t0 = clock()
         env.adaptation.update(s, cmd, d)
         if not controller.builds_observation:
-            td = env._observe()[0]
+            td = env.observe()
         action = controller.act(env, td)
         t1 = clock()
         if k >= warmup_steps:

@@ -27,9 +27,9 @@ from torch import nn
 from torch.nn import functional as F
 from torchrl.modules import ProbabilisticActor, TanhNormal, ValueOperator
 
-from datt.config import ConfigError
 from datt.envs.observations import FEEDBACK, STATE_DIM
 from datt.envs.tracking import action_center_half
+from datt.errors import ConfigError
 
 OBS_KEYS = ["state", "ref", "d_hat"]
 ENCODERS = ("conv", "mlp", "none")
@@ -73,7 +73,9 @@ class PolicyParams:
             self.init_std = [float(self.init_std)] * 4
         self.init_std = [float(s) for s in self.init_std]
         if len(self.init_std) != 4 or not all(s > 0 for s in self.init_std):
-            raise ConfigError(f"policy.init_std: must be four values > 0 (thrust, wx, wy, wz), got {list(self.init_std)}")
+            raise ConfigError(
+                f"policy.init_std: must be four values > 0 (thrust, wx, wy, wz), got {list(self.init_std)}"
+            )
 
 
 class RefEncoder(nn.Module):

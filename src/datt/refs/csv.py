@@ -8,7 +8,7 @@ from pathlib import Path
 import torch
 from torch import Tensor
 
-from datt.config import ConfigError
+from datt.errors import ConfigError
 from datt.refs.base import RefFamily, piecewise_linear
 
 REQUIRED_COLUMNS = ("t", "x", "y", "z")

@@ -16,7 +16,7 @@ Each model is a Hydra option under ``conf/disturbance/`` (``_target_`` = the cla
 from __future__ import annotations
 
 import math
-from typing import Sequence
+from collections.abc import Sequence
 
 import torch
 from torch import Tensor
@@ -125,9 +125,7 @@ class Wind(Disturbance):
         if not 0 <= speed_min_mps <= speed_max_mps:
             raise ValueError("disturbance.speed_min_mps/speed_max_mps: need 0 <= min <= max")
         if drag_coef_per_m < 0 or gust_std_mps < 0 or gust_tau_s <= 0 or num_modes < 0:
-            raise ValueError(
-                "disturbance: drag_coef_per_m, gust_std_mps, num_modes must be >= 0 and gust_tau_s > 0"
-            )
+            raise ValueError("disturbance: drag_coef_per_m, gust_std_mps, num_modes must be >= 0 and gust_tau_s > 0")
         self.speed_min_mps = speed_min_mps
         self.speed_max_mps = speed_max_mps
         self.drag_coef = drag_coef_per_m

@@ -74,9 +74,7 @@ def quat_normalize(q: Tensor) -> Tensor:
 def quat_body_z(q: Tensor) -> Tensor:
     """Thrust axis ``R(q) e3`` in the world frame, ``[..., 4] -> [..., 3]``."""
     w, x, y, z = q.unbind(-1)
-    return torch.stack(
-        (2.0 * (x * z + w * y), 2.0 * (y * z - w * x), 1.0 - 2.0 * (x * x + y * y)), dim=-1
-    )
+    return torch.stack((2.0 * (x * z + w * y), 2.0 * (y * z - w * x), 1.0 - 2.0 * (x * x + y * y)), dim=-1)
 
 
 def quat_to_rotmat(q: Tensor) -> Tensor:
@@ -93,10 +91,16 @@ def _rotmat_quadratic_form() -> Tensor:
     C = torch.zeros(4, 4, 9, dtype=torch.float64)
     w, x, y, z = range(4)
     terms = {
-        0: [(1, w, w), (1, x, x), (-1, y, y), (-1, z, z)], 1: [(2, x, y), (-2, w, z)], 2: [(2, x, z), (2, w, y)],
-        3: [(2, x, y), (2, w, z)], 4: [(1, w, w), (-1, x, x), (1, y, y), (-1, z, z)], 5: [(2, y, z), (-2, w, x)],
-        6: [(2, x, z), (-2, w, y)], 7: [(2, y, z), (2, w, x)], 8: [(1, w, w), (-1, x, x), (-1, y, y), (1, z, z)],
-    }  # fmt: skip
+        0: [(1, w, w), (1, x, x), (-1, y, y), (-1, z, z)],
+        1: [(2, x, y), (-2, w, z)],
+        2: [(2, x, z), (2, w, y)],
+        3: [(2, x, y), (2, w, z)],
+        4: [(1, w, w), (-1, x, x), (1, y, y), (-1, z, z)],
+        5: [(2, y, z), (-2, w, x)],
+        6: [(2, x, z), (-2, w, y)],
+        7: [(2, y, z), (2, w, x)],
+        8: [(1, w, w), (-1, x, x), (-1, y, y), (1, z, z)],
+    }
     for entry, products in terms.items():
         for coeff, a, b in products:
             C[a, b, entry] += coeff

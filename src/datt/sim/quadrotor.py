@@ -22,7 +22,6 @@ tracking above, as in the paper's simulator: the onboard rate controller is assu
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Optional
 
 import torch
 from torch import Tensor
@@ -53,12 +52,12 @@ class QuadrotorParams:
     k_thrust: float = 0.4
     k_rate: float = 0.4
     latency_steps: int = 1
-    initial_thrust_mps2: Optional[float] = None
+    initial_thrust_mps2: float | None = None
     max_thrust_mps2: float = 40.0
     max_rate_radps: float = 40.0
 
     def validate(self, prefix: str = "env.quad") -> None:
-        from datt.config import ConfigError
+        from datt.errors import ConfigError
 
         for key in ("k_thrust", "k_rate"):
             val = getattr(self, key)
@@ -104,6 +103,13 @@ class CommandLatency:
         self._head = (self._head + 1) % self.steps
         return applied
 
+    def in_flight(self) -> Tensor:
+        """Commands sent but not yet applied, oldest first: ``[steps, N, *shape]``."""
+        if not self.steps:
+            return self._queue[:0]
+        order = (self._head + torch.arange(self.steps, device=self._queue.device)) % self.steps
+        return self._queue.index_select(0, order)
+
     def reset(self, idx: Tensor) -> None:
         self._queue[:, idx] = self.fill
 
@@ -125,7 +131,7 @@ class Quadrotor:
         self.params = params or QuadrotorParams()
         self.params.validate()
         if not dt_s > 0:
-            from datt.config import ConfigError
+            from datt.errors import ConfigError
 
             raise ConfigError(f"env.dt_s: must be > 0, got {dt_s}")
         self.dt_s = float(dt_s)
@@ -177,12 +183,23 @@ class Quadrotor:
             disturbance_mps2 = torch.zeros_like(self.state.pos_m)
         s = self.state
         s.pos_m, s.vel_mps, s.quat, s.rate_radps, s.thrust_mps2 = self._integrate(
-            s.pos_m, s.vel_mps, s.quat, s.rate_radps, s.thrust_mps2, applied, disturbance_mps2,
-            self.gravity, self.dt_s, p.k_thrust, p.k_rate, p.max_thrust_mps2, p.max_rate_radps,
-        )  # fmt: skip
+            s.pos_m,
+            s.vel_mps,
+            s.quat,
+            s.rate_radps,
+            s.thrust_mps2,
+            applied,
+            disturbance_mps2,
+            self.gravity,
+            self.dt_s,
+            p.k_thrust,
+            p.k_rate,
+            p.max_thrust_mps2,
+            p.max_rate_radps,
+        )
         return s
 
-    def compile(self, **kwargs) -> "Quadrotor":
+    def compile(self, **kwargs) -> Quadrotor:
         """Use a ``torch.compile``-d integrator (fused loops; worth it for N in the thousands)."""
         from datt.compile import compile_or_eager
 
@@ -191,9 +208,20 @@ class Quadrotor:
 
 
 def integrate(
-    pos: Tensor, vel: Tensor, quat: Tensor, rate: Tensor, thrust: Tensor, applied: Tensor, d: Tensor,
-    gravity: Tensor, dt: float, k_thrust: float, k_rate: float, max_thrust: float, max_rate: float,
-) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor]:  # fmt: skip
+    pos: Tensor,
+    vel: Tensor,
+    quat: Tensor,
+    rate: Tensor,
+    thrust: Tensor,
+    applied: Tensor,
+    d: Tensor,
+    gravity: Tensor,
+    dt: float,
+    k_thrust: float,
+    k_rate: float,
+    max_thrust: float,
+    max_rate: float,
+) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor]:
     """One step of the model in the module docstring; pure function of its inputs (compilable).
 
     Shapes: pos, vel, rate, d ``[N, 3]``; quat ``[N, 4]``; thrust ``[N]``; applied ``[N, 4]``.

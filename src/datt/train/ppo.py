@@ -29,10 +29,13 @@ from torchrl.collectors import Collector
 from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
 
-from datt.config import ConfigError, TrainingDiverged, instantiate_option, make_env, structured
+from datt.checkpoint import load_checkpoint, save_checkpoint
+from datt.configuration import instantiate_option, structured
+from datt.envs.factory import make_env
+from datt.errors import ConfigError, TrainingDiverged
 from datt.policies.networks import PolicyParams, make_actor, make_critic
-from datt.train.checkpoint import load_checkpoint, save_checkpoint
-from datt.train.logging import Logger
+from datt.train.loggers import Logger
+from datt.train.schema import CurriculumParams, TrainParams, budget_factor
 
 
 @dataclass
@@ -71,24 +74,18 @@ class AlgoParams:
         need(self.minibatch_size >= 1, "minibatch_size", f"must be >= 1, got {self.minibatch_size}")
         need(self.lr > 0, "lr", f"must be > 0, got {self.lr}")
         need(self.reward_scale > 0, "reward_scale", f"must be > 0, got {self.reward_scale}")
-        need(self.lr_schedule in ("constant", "linear"), "lr_schedule",
-             f"unknown value {self.lr_schedule!r}; allowed: constant, linear")  # fmt: skip
+        need(
+            self.lr_schedule in ("constant", "linear"),
+            "lr_schedule",
+            f"unknown value {self.lr_schedule!r}; allowed: constant, linear",
+        )
         need(0 < self.gamma <= 1, "gamma", f"must be in (0, 1], got {self.gamma}")
         need(0 <= self.lmbda <= 1, "lmbda", f"must be in [0, 1], got {self.lmbda}")
-        need(self.loss_critic_type in ("l1", "l2", "smooth_l1"), "loss_critic_type",
-             f"unknown value {self.loss_critic_type!r}; allowed: l1, l2, smooth_l1")  # fmt: skip
-
-
-def budget_factor(cfg) -> float:
-    """``budget`` scales every step count of a run (sweeps on small machines); 1 = as configured."""
-    budget = cfg.get("budget", 1.0)
-    try:
-        budget = float(budget)
-    except (TypeError, ValueError):
-        budget = float("nan")
-    if not budget > 0:
-        raise ConfigError(f"budget: must be a number > 0 (fraction of the configured steps), got {cfg.get('budget')}")
-    return budget
+        need(
+            self.loss_critic_type in ("l1", "l2", "smooth_l1"),
+            "loss_critic_type",
+            f"unknown value {self.loss_critic_type!r}; allowed: l1, l2, smooth_l1",
+        )
 
 
 class Trainer:
@@ -101,45 +98,46 @@ class Trainer:
         self.console = console or Console()
         self.algo: AlgoParams = structured(AlgoParams, cfg.algo, "algo")
         self.policy_params: PolicyParams = structured(PolicyParams, cfg.policy, "policy")
-        tc = cfg.train
+        train_params = self.train_params = structured(TrainParams, cfg.train, "train")
+        curriculum = structured(CurriculumParams, cfg.curriculum, "curriculum")
         budget = budget_factor(cfg)
-        self.total_frames = int(int(tc.total_steps) * budget)
+        self.total_frames = int(int(train_params.total_steps) * budget)
         if self.total_frames < 1:
             raise ConfigError(f"train.total_steps: must be >= 1, got {self.total_frames}")
-        self.fixed_ref_steps = int(int(cfg.curriculum.fixed_ref_steps) * budget)
-        if self.fixed_ref_steps < 0:
-            raise ConfigError(f"curriculum.fixed_ref_steps: must be >= 0, got {self.fixed_ref_steps}")
+        self.fixed_ref_steps = int(curriculum.fixed_ref_steps * budget)
         self.main_traj = instantiate_option(cfg, "traj")
         self.fixed_traj = instantiate_option(cfg.curriculum, "fixed") if self.fixed_ref_steps > 0 else None
         seed = int(cfg.seed)
         torch.manual_seed(seed)
         self.env = make_env(cfg, num_envs=self.algo.num_envs, seed=seed, traj=self.fixed_traj or self.main_traj)
         self.phase = "fixed" if self.fixed_traj is not None else "main"
-        if bool(tc.get("stagger_episodes", True)):
+        if train_params.stagger_episodes:
             self.env.stagger_episodes()
-        self.actor = make_actor(self.env.horizon, self.env.action_low, self.env.action_high, self.policy_params, self.env.state_dim)
+        self.actor = make_actor(
+            self.env.horizon, self.env.action_low, self.env.action_high, self.policy_params, self.env.state_dim
+        )
         self.critic = make_critic(self.env.horizon, self.policy_params, self.env.state_dim)
-        a = self.algo
+        algo = self.algo
         self.loss = ClipPPOLoss(
             self.actor,
             self.critic,
-            clip_epsilon=a.clip_epsilon,
-            entropy_bonus=a.entropy_coeff > 0,
-            entropy_coeff=a.entropy_coeff if a.entropy_coeff > 0 else None,
-            critic_coeff=a.critic_coeff,
-            loss_critic_type=a.loss_critic_type,
-            normalize_advantage=a.normalize_advantage,
+            clip_epsilon=algo.clip_epsilon,
+            entropy_bonus=algo.entropy_coeff > 0,
+            entropy_coeff=algo.entropy_coeff if algo.entropy_coeff > 0 else None,
+            critic_coeff=algo.critic_coeff,
+            loss_critic_type=algo.loss_critic_type,
+            normalize_advantage=algo.normalize_advantage,
         )
-        self.gae = GAE(gamma=a.gamma, lmbda=a.lmbda, value_network=self.critic, average_gae=False, shifted=True)
-        self.optim = torch.optim.Adam(self.loss.parameters(), lr=a.lr)
+        self.gae = GAE(gamma=algo.gamma, lmbda=algo.lmbda, value_network=self.critic, average_gae=False, shifted=True)
+        self.optim = torch.optim.Adam(self.loss.parameters(), lr=algo.lr)
         keys = self.loss.tensor_keys
         self._loss_keys = sorted(
             {k for k in self.loss.in_keys if isinstance(k, str)}
             | {keys.advantage, keys.value_target, keys.value, keys.sample_log_prob, keys.action}
         )
-        if tc.get("init_from"):
-            self.init_weights(tc.init_from)
-        self.frames_per_batch = a.num_envs * a.rollout_steps
+        if train_params.init_from:
+            self.init_weights(train_params.init_from)
+        self.frames_per_batch = algo.num_envs * algo.rollout_steps
         self.frames = 0
         self.iteration = 0
         self.best_error = math.inf
@@ -169,12 +167,16 @@ class Trainer:
         and curriculum start fresh. The horizon and policy shape must match."""
         data = load_checkpoint(path, key="train.init_from")
         if int(data["horizon"]) != self.env.horizon:
-            raise ConfigError(f"train.init_from: checkpoint has horizon={data['horizon']}, config has {self.env.horizon}")
+            raise ConfigError(
+                f"train.init_from: checkpoint has horizon={data['horizon']}, config has {self.env.horizon}"
+            )
         try:
             self.actor.load_state_dict(data["actor"])
             self.critic.load_state_dict(data["critic"])
         except RuntimeError as exc:
-            raise ConfigError(f"train.init_from: policy shape differs from policy config ({str(exc).splitlines()[0]})") from None
+            raise ConfigError(
+                f"train.init_from: policy shape differs from policy config ({str(exc).splitlines()[0]})"
+            ) from None
 
     def load(self, path: str | Path) -> None:
         data = load_checkpoint(path, key="resume")
@@ -201,11 +203,11 @@ class Trainer:
             self.env.traj = self.fixed_traj
 
     def _lr(self) -> float:
-        a = self.algo
-        if a.lr_schedule == "constant":
-            return a.lr
+        algo = self.algo
+        if algo.lr_schedule == "constant":
+            return algo.lr
         frac = min(1.0, self.frames / self.total_frames)
-        return a.lr * (1.0 - (1.0 - a.lr_final_frac) * frac)
+        return algo.lr * (1.0 - (1.0 - algo.lr_final_frac) * frac)
 
     def _check_finite(self, name: str, value: torch.Tensor) -> None:
         if not torch.isfinite(value).all():
@@ -216,12 +218,12 @@ class Trainer:
 
     def update(self, batch) -> dict:
         """GAE + PPO epochs on one collected batch ``[num_envs, rollout_steps]``."""
-        a = self.algo
+        algo = self.algo
         for key in (("next", "state"), ("next", "ref"), "action"):
             self._check_finite("/".join(key) if isinstance(key, tuple) else key, batch.get(key))
         with torch.no_grad():
-            if a.reward_scale != 1.0:
-                batch.set(("next", "reward"), batch.get(("next", "reward")) * a.reward_scale)
+            if algo.reward_scale != 1.0:
+                batch.set(("next", "reward"), batch.get(("next", "reward")) * algo.reward_scale)
             self.gae(batch)
         # Only what the loss reads: indexing all ~25 rollout keys per minibatch cost ~6 % of
         # each gradient step. The ("next", ...) entries were needed by GAE only.
@@ -231,8 +233,8 @@ class Trainer:
             group["lr"] = lr
         stats = {"loss_objective": 0.0, "loss_critic": 0.0, "grad_norm": 0.0}
         count = 0
-        for _ in range(a.epochs):
-            for idx in torch.randperm(data.shape[0]).split(a.minibatch_size):
+        for _ in range(algo.epochs):
+            for idx in torch.randperm(data.shape[0]).split(algo.minibatch_size):
                 losses = self.loss(data[idx])
                 total = losses["loss_objective"] + losses["loss_critic"]
                 if "loss_entropy" in losses.keys():
@@ -242,8 +244,8 @@ class Trainer:
                 total.backward()
                 # Clip actor and critic separately: the critic's gradient (returns of order
                 # 100 with the crash penalty) would otherwise eat the actor's share of the norm.
-                grad = torch.nn.utils.clip_grad_norm_(self.actor.parameters(), a.max_grad_norm)
-                torch.nn.utils.clip_grad_norm_(self.critic.parameters(), a.max_grad_norm)
+                grad = torch.nn.utils.clip_grad_norm_(self.actor.parameters(), algo.max_grad_norm)
+                torch.nn.utils.clip_grad_norm_(self.critic.parameters(), algo.max_grad_norm)
                 self._check_finite("gradient", grad)
                 self.optim.step()
                 stats["loss_objective"] += losses["loss_objective"].item()
@@ -266,17 +268,25 @@ class Trainer:
             total_frames=math.ceil(remaining / self.frames_per_batch) * self.frames_per_batch,
             auto_register_policy_transforms=False,  # the policy is stateless: no InitTracker needed
         )
-        every = max(1, int(self.cfg.train.checkpoint_every))
+        every = max(1, self.train_params.checkpoint_every)
         progress = Progress(
-            TextColumn("[bold]train"), BarColumn(), TextColumn("{task.completed:,.0f}/{task.total:,.0f} steps"),
-            TextColumn("{task.fields[rate]:,.0f} steps/s"), TextColumn("err {task.fields[err]:.3f} m"),
-            TextColumn("ret {task.fields[ret]:.2f}"), TimeElapsedColumn(), TimeRemainingColumn(),
-            console=self.console, disable=not self.cfg.train.progress,
-        )  # fmt: skip
+            TextColumn("[bold]train"),
+            BarColumn(),
+            TextColumn("{task.completed:,.0f}/{task.total:,.0f} steps"),
+            TextColumn("{task.fields[rate]:,.0f} steps/s"),
+            TextColumn("err {task.fields[err]:.3f} m"),
+            TextColumn("ret {task.fields[ret]:.2f}"),
+            TimeElapsedColumn(),
+            TimeRemainingColumn(),
+            console=self.console,
+            disable=not self.train_params.progress,
+        )
         start = time.perf_counter()
         frames_at_start = self.frames
         with progress:
-            task = progress.add_task("train", total=self.total_frames, completed=self.frames, rate=0.0, err=0.0, ret=0.0)
+            task = progress.add_task(
+                "train", total=self.total_frames, completed=self.frames, rate=0.0, err=0.0, ret=0.0
+            )
             t_iter = time.perf_counter()
             for batch in collector:
                 ret_per_step = batch["next", "reward"].mean().item()  # before update() scales it
@@ -300,8 +310,13 @@ class Trainer:
                 t_iter = now
                 self.history.append(row)
                 self.logger.log({k: v for k, v in row.items() if k != "phase"}, step=self.frames)
-                progress.update(task, completed=self.frames, rate=(self.frames - frames_at_start) / (now - start),
-                                err=err, ret=row["episode_return_est"])  # fmt: skip
+                progress.update(
+                    task,
+                    completed=self.frames,
+                    rate=(self.frames - frames_at_start) / (now - start),
+                    err=err,
+                    ret=row["episode_return_est"],
+                )
                 if self.phase == "main" and err < self.best_error:
                     self.best_error = err
                     self.save("best.pt")

@@ -37,16 +37,27 @@ from datt.deploy.thrust import ThrustMap, ThrustParams
 from datt.sim.quadrotor import Quadrotor, QuadrotorParams
 
 LOG_VARS = [  # (group, name, type)
-    ("stateEstimate", "x", "float"), ("stateEstimate", "y", "float"), ("stateEstimate", "z", "float"),
-    ("stateEstimate", "vx", "float"), ("stateEstimate", "vy", "float"), ("stateEstimate", "vz", "float"),
-    ("stateEstimate", "qx", "float"), ("stateEstimate", "qy", "float"), ("stateEstimate", "qz", "float"),
-    ("stateEstimate", "qw", "float"), ("pm", "vbat", "float"), ("sys", "armed", "uint8_t"),
-]  # fmt: skip
+    ("stateEstimate", "x", "float"),
+    ("stateEstimate", "y", "float"),
+    ("stateEstimate", "z", "float"),
+    ("stateEstimate", "vx", "float"),
+    ("stateEstimate", "vy", "float"),
+    ("stateEstimate", "vz", "float"),
+    ("stateEstimate", "qx", "float"),
+    ("stateEstimate", "qy", "float"),
+    ("stateEstimate", "qz", "float"),
+    ("stateEstimate", "qw", "float"),
+    ("pm", "vbat", "float"),
+    ("sys", "armed", "uint8_t"),
+]
 PARAMS = [  # (group, name, type, default)
-    ("flightmode", "stabModeRoll", "uint8_t", 1), ("flightmode", "stabModePitch", "uint8_t", 1),
-    ("stabilizer", "estimator", "uint8_t", 2), ("stabilizer", "controller", "uint8_t", 1),
-    ("commander", "enHighLevel", "uint8_t", 0), ("locSrv", "extPosStdDev", "float", 0.01),
-]  # fmt: skip
+    ("flightmode", "stabModeRoll", "uint8_t", 1),
+    ("flightmode", "stabModePitch", "uint8_t", 1),
+    ("stabilizer", "estimator", "uint8_t", 2),
+    ("stabilizer", "controller", "uint8_t", 1),
+    ("commander", "enHighLevel", "uint8_t", 0),
+    ("locSrv", "extPosStdDev", "float", 0.01),
+]
 WATCHDOG_LEVEL_S, WATCHDOG_OFF_S = 0.5, 2.0
 
 
@@ -98,7 +109,7 @@ class SimCrazyflie:
         self._threads: list[threading.Thread] = []
 
     # -- lifecycle -------------------------------------------------------------------------
-    def start(self) -> "SimCrazyflie":
+    def start(self) -> SimCrazyflie:
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         self.sock.bind((self.p.host, self.p.port))
@@ -119,7 +130,7 @@ class SimCrazyflie:
 
     kill = stop  # the link just goes silent, as when the vehicle loses power
 
-    def __enter__(self) -> "SimCrazyflie":
+    def __enter__(self) -> SimCrazyflie:
         return self.start()
 
     def __exit__(self, *exc) -> None:
@@ -212,7 +223,7 @@ class SimCrazyflie:
         while self._running.is_set():
             try:
                 data, addr = self.sock.recvfrom(64)
-            except (TimeoutError, socket.timeout):
+            except TimeoutError:
                 continue
             except OSError:
                 return
@@ -228,11 +239,16 @@ class SimCrazyflie:
             return
         port, ch, data = crtp.split(datagram)
         handler = {
-            crtp.PORT_LINK: self._on_link, crtp.PORT_PLATFORM: self._on_platform, crtp.PORT_LOG: self._on_log,
-            crtp.PORT_PARAM: self._on_param, crtp.PORT_MEM: self._on_mem, crtp.PORT_COMMANDER: self._on_commander,
-            crtp.PORT_LOCALIZATION: self._on_localization, crtp.PORT_SUPERVISOR: self._on_supervisor,
+            crtp.PORT_LINK: self._on_link,
+            crtp.PORT_PLATFORM: self._on_platform,
+            crtp.PORT_LOG: self._on_log,
+            crtp.PORT_PARAM: self._on_param,
+            crtp.PORT_MEM: self._on_mem,
+            crtp.PORT_COMMANDER: self._on_commander,
+            crtp.PORT_LOCALIZATION: self._on_localization,
+            crtp.PORT_SUPERVISOR: self._on_supervisor,
             crtp.PORT_COMMANDER_GENERIC: self._on_generic_commander,
-        }.get(port)  # fmt: skip
+        }.get(port)
         if handler is not None:
             handler(ch, data)
 

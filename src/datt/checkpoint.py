@@ -14,7 +14,7 @@ from typing import Any
 
 import torch
 
-from datt.config import ConfigError
+from datt.errors import ConfigError
 
 FORMAT = "datt-checkpoint-v1"
 

@@ -1,0 +1,180 @@
+"""Config composition helpers shared by every layer: where the config tree lives, the options of
+a group, one-line errors for Hydra/OmegaConf failures, typed schemas and ``_target_`` building.
+
+The config tree is package data (``datt/conf``, found through the package, so a wheel works).
+Inside a Hydra job the search path is Hydra's own (``--config-dir``, ``hydra.searchpath``), so a
+user's options are found everywhere a group is listed or loaded.
+"""
+
+from __future__ import annotations
+
+import re
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+from omegaconf import DictConfig, OmegaConf
+from omegaconf.errors import OmegaConfBaseException
+
+from datt.errors import ConfigError, one_line
+
+CONF_PACKAGE = "datt.conf"
+# groups Hydra owns (hydra/launcher, hydra/sweeper ...): never checked against our options
+HYDRA_GROUPS = frozenset({"hydra"})
+
+
+def conf_dir() -> Path:
+    """The package's config tree on disk (``site-packages/datt/conf`` or ``src/datt/conf``)."""
+    return Path(str(resources.files(CONF_PACKAGE)))
+
+
+def root_from_uri(uri: str, base: Path | None = None) -> Path | None:
+    """A search-path entry (``file://dir``, ``pkg://module``, or a plain dir) as a directory."""
+    if uri.startswith("pkg://"):
+        module = uri[len("pkg://") :].strip("/").replace("/", ".")
+        try:
+            return Path(str(resources.files(module)))
+        except (ModuleNotFoundError, TypeError):
+            return None
+    path = Path(uri[len("file://") :] if uri.startswith("file://") else uri).expanduser()
+    if not path.is_absolute():
+        path = (base or Path.cwd()) / path
+    return path
+
+
+def search_roots() -> list[Path]:
+    """Directories of the current config search path: Hydra's (inside a job) or the package's."""
+    try:
+        from hydra.core.hydra_config import HydraConfig
+
+        sources = HydraConfig.get().runtime.config_sources
+    except (ImportError, ValueError):
+        return [conf_dir()]
+    roots = []
+    for src in sources:
+        if src.schema in ("file", "pkg") and src.provider not in ("hydra", "schema"):
+            root = root_from_uri(f"{src.schema}://{src.path}")
+            if root is not None and root.is_dir():
+                roots.append(root)
+    return roots or [conf_dir()]
+
+
+def available_options(group: str, roots: list[Path] | None = None) -> list[str]:
+    """Names of the YAML options of a config group over the search path."""
+    names: set[str] = set()
+    for root in roots or search_roots():
+        names.update(p.stem for p in (root / group).glob("*.yaml"))
+    return sorted(names)
+
+
+def config_groups(roots: list[Path] | None = None) -> set[str]:
+    """Top-level config groups over the search path (directories holding YAML)."""
+    return {
+        p.name
+        for root in roots or search_roots()
+        if root.is_dir()
+        for p in root.iterdir()
+        if p.is_dir() and any(p.glob("*.yaml")) and p.name not in HYDRA_GROUPS
+    }
+
+
+def load_option(group: str, name: str) -> DictConfig:
+    """The YAML of one option of a config group (``<root>/<group>/<name>.yaml``, first root wins,
+    as in Hydra: the user's config dir before the package's)."""
+    roots = search_roots()
+    for root in roots:
+        path = root / group / f"{name}.yaml"
+        if path.is_file():
+            node = OmegaConf.load(path)
+            assert isinstance(node, DictConfig)
+            return node
+    raise ConfigError(f"{group}: unknown option {name!r}; allowed: {', '.join(available_options(group, roots))}")
+
+
+def with_options(cfg: DictConfig, **choices) -> DictConfig:
+    """Copy of ``cfg`` with whole option nodes swapped: a name loads ``<group>/<name>.yaml``
+    (``with_options(cfg, disturbance="none")``), a mapping is used as the node itself."""
+    out = OmegaConf.create(OmegaConf.to_container(cfg, resolve=True))
+    OmegaConf.set_struct(out, False)
+    for group, choice in choices.items():
+        out[group] = load_option(group, choice) if isinstance(choice, str) else choice
+    return out
+
+
+def structured(cls, node, key: str):
+    """Merge ``node`` onto the dataclass schema ``cls`` (type-checked; a field the YAML does not
+    give is an error), build it and call its ``validate()``; errors become one-line
+    ConfigErrors under ``key``."""
+    try:
+        merged = OmegaConf.merge(OmegaConf.structured(cls), node or {})
+        obj = OmegaConf.to_object(merged)
+    except OmegaConfBaseException as exc:
+        sub = getattr(exc, "full_key", "") or ""
+        raise ConfigError(f"{key}.{sub}: {one_line(exc)}" if sub else f"{key}: {one_line(exc)}") from None
+    obj.validate()
+    return obj
+
+
+def check_horizon(horizon: Any) -> int:
+    """The policy horizon H (number of future reference points)."""
+    if isinstance(horizon, bool) or not isinstance(horizon, int) or horizon < 1:
+        raise ConfigError(f"horizon: must be an integer >= 1 (number of future reference points), got {horizon!r}")
+    return horizon
+
+
+def instantiate_option(cfg: DictConfig, group: str) -> Any:
+    """``hydra.utils.instantiate(cfg[group])`` with errors reduced to one line naming the group."""
+    from hydra.utils import instantiate
+
+    node = cfg.get(group)
+    if node is None:
+        raise ConfigError(f"{group}: missing; choose one of {', '.join(available_options(group))}")
+    try:
+        return instantiate(node, _convert_="all")
+    except Exception as exc:  # Hydra wraps constructor errors in InstantiationException
+        msg = one_line(exc)
+        raise ConfigError(msg if msg.startswith(f"{group}.") else f"{group}: {msg}") from None
+
+
+_MISSING_OPTION = re.compile(r"Could not find '([^'/]+)/([^']+)'")
+_BAD_OVERRIDE = re.compile(r"Could not override '([^']+)'")
+
+
+def hydra_error_to_config_error(exc: BaseException) -> ConfigError:
+    """Turn Hydra's multi-line composition errors into one line naming key and allowed values."""
+    text = str(exc)
+    m = _MISSING_OPTION.search(text)
+    if m:
+        group, name = m.groups()
+        return ConfigError(f"{group}: unknown option {name!r}; allowed: {', '.join(available_options(group))}")
+    m = _BAD_OVERRIDE.search(text)
+    if m:
+        key = m.group(1)
+        return ConfigError(f"{key}: no such key ({one_line(exc)}); to add a new key use +{key}=...")
+    return ConfigError(one_line(exc))
+
+
+def compose(config_name: str = "sim", overrides: list[str] | None = None) -> DictConfig:
+    """Compose ``datt/conf/<config_name>.yaml`` with Hydra overrides, outside ``@hydra.main``
+    (tests, benchmarks, notebooks)."""
+    from hydra import compose as hydra_compose
+    from hydra import initialize_config_module
+    from hydra.core.global_hydra import GlobalHydra
+    from hydra.errors import HydraException
+
+    GlobalHydra.instance().clear()
+    try:
+        with initialize_config_module(config_module=CONF_PACKAGE, version_base="1.3"):
+            return hydra_compose(config_name=config_name, overrides=list(overrides or []))
+    except (HydraException, OmegaConfBaseException) as exc:
+        raise hydra_error_to_config_error(exc) from None
+
+
+def hydra_choice(group: str, default: str = "custom") -> str:
+    """The option name Hydra chose for ``group`` in the running job (for labels)."""
+    try:
+        from hydra.core.hydra_config import HydraConfig
+
+        return str(HydraConfig.get().runtime.choices.get(group, default))
+    except ValueError:  # not inside a Hydra job
+        return default

@@ -1,0 +1,34 @@
+"""The controller a config names (``controller=<option>``), ready to fly."""
+
+from __future__ import annotations
+
+from omegaconf import DictConfig, OmegaConf
+
+from datt.configuration import hydra_choice, instantiate_option, with_options
+from datt.control.datt import DattController
+from datt.policies.loading import load_actor
+
+
+def build_controller(cfg: DictConfig):
+    """``(controller, config to fly it under, labels)`` for ``cfg.controller``.
+
+    Options without ``_target_`` (datt, datt_l1, datt_rma) load the policy from ``checkpoint``; its
+    observation layout (horizon, ablations) comes from its training config. An ``adaptation`` key
+    in the controller option fixes the estimator it flies with (l1_pid, l1_mppi, datt_l1, ...).
+    """
+    node = OmegaConf.to_container(cfg.controller, resolve=True)
+    name, forced = str(node.pop("name")), node.pop("adaptation", None)
+    # a resolved, non-struct copy, with the controller's own estimator if it fixes one
+    merged = with_options(cfg, **({"adaptation": str(forced)} if forced else {}))
+    labels = {
+        "controller": name,
+        "disturbance": hydra_choice("disturbance"),
+        "adaptation": forced or hydra_choice("adaptation"),
+    }
+    if "_target_" in node:
+        return instantiate_option(OmegaConf.create({"controller": node}), "controller"), merged, labels
+    actor, train_cfg, data = load_actor(cfg.checkpoint)
+    merged = OmegaConf.merge(merged, {"horizon": train_cfg.horizon, "env": {"obs": train_cfg.env.obs}})
+    OmegaConf.set_struct(merged, False)
+    labels = {**labels, "checkpoint": str(cfg.checkpoint), "frames": int(data["frames"])}
+    return DattController(actor, frozen=True), merged, labels

@@ -1,0 +1,24 @@
+"""User-facing error types of every layer (imports nothing of the project).
+
+A :class:`ConfigError` is a user mistake: the entry points print it as one line
+(``error: <key>: <what>``) and exit with status 2, never with a traceback.
+"""
+
+from __future__ import annotations
+
+
+class ConfigError(ValueError):
+    """A user-facing configuration error (one line that names the key and, where there is a
+    fixed set, the allowed values)."""
+
+
+class TrainingDiverged(RuntimeError):
+    """A NaN/inf appeared in the loss, observations or actions (raised by ``datt.train.ppo``)."""
+
+
+def one_line(exc: BaseException) -> str:
+    """Collapse an exception (and Hydra/OmegaConf wrappers) to its innermost one-line message."""
+    while exc.__cause__ is not None:
+        exc = exc.__cause__
+    msg = str(exc).strip().splitlines()
+    return msg[0] if msg else type(exc).__name__

@@ -1,0 +1,1 @@
+"""The DATT networks (encoder, actor, critic) and loading a trained actor."""

@@ -1,0 +1,114 @@
+"""``deploy.py``: takeoff -> track -> land through cflib, against the simulated Crazyflie
+(``deploy=sim``, started here) or a real one (``deploy=crazyflie``)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from urllib.parse import urlparse
+
+from omegaconf import DictConfig, OmegaConf
+
+from datt.configuration import instantiate_option, structured, with_options
+from datt.control.factory import build_controller
+from datt.control.pid import PidController
+from datt.deploy import mocap
+from datt.deploy.link import CrazyflieLink, LinkError
+from datt.deploy.runner import FlightParams, FlightRunner
+from datt.deploy.safety import SafetyParams
+from datt.deploy.schema import DeployParams
+from datt.deploy.thrust import ThrustMap, ThrustParams
+from datt.envs.factory import make_env
+from datt.errors import ConfigError
+from datt.tasks.common import console, hydra_run_dir, set_threads
+
+
+def _start_server(cfg: DictConfig, params: DeployParams, thrust: ThrustParams):
+    """The simulated Crazyflie of ``deploy.server`` on the ``deploy.uri`` port."""
+    from datt.deploy.sim import SimCrazyflie, SimCrazyflieParams
+
+    url = urlparse(params.uri)
+    if url.scheme != "udp":
+        raise ConfigError(f"deploy.uri: the simulated Crazyflie listens on udp://host:port, got {params.uri!r}")
+    server_cfg = {k: (tuple(v) if isinstance(v, list) else v) for k, v in params.server.items()}
+    # the simulated vehicle's motors follow the model at its true mass (never the user's calibration)
+    true_mass = server_cfg.pop("mass_kg", None) or thrust.mass_kg
+    vehicle = ThrustParams(mass_kg=float(true_mass), k2=thrust.k2, k1=thrust.k1, k0=thrust.k0)
+    sim_params = SimCrazyflieParams(host=url.hostname, port=url.port, thrust=vehicle, **server_cfg)
+    return SimCrazyflie(sim_params, disturbance=instantiate_option(cfg, "disturbance")).start()
+
+
+def _mocap_source(params: DeployParams, server):
+    m = params.mocap
+    if m.source == "none":
+        return mocap.NoMocap()
+    if m.source == "simulated":
+        if server is None:
+            raise ConfigError("deploy.mocap.source: 'simulated' needs the simulated Crazyflie (deploy=sim)")
+        return mocap.SimulatedMocap(
+            server, latency_s=m.latency_s, dropout_prob=m.dropout_prob, dropout_after_s=m.dropout_after_s
+        )
+    return mocap.MotionCaptureMocap(str(m.system), str(m.host), str(m.body))
+
+
+def run_deploy(cfg: DictConfig, run_dir: Path | None = None, estop=None, server_hook=None) -> dict:
+    """Fly (or calibrate) once; returns the flight summary written to ``events.json``.
+    ``server_hook(server, runner)`` lets tests inject faults once the flight objects exist."""
+    params = structured(DeployParams, OmegaConf.to_container(cfg.deploy, resolve=True), "deploy")
+    flight = structured(FlightParams, params.flight, "deploy.flight")
+    safety = structured(SafetyParams, params.safety, "deploy.safety")
+    thrust = structured(ThrustParams, params.thrust, "deploy.thrust")
+    run_dir = run_dir or hydra_run_dir()
+    run_dir.mkdir(parents=True, exist_ok=True)
+    set_threads(cfg.threads)
+    controller, merged, labels = build_controller(cfg)
+    model_cfg = with_options(merged, disturbance="none")
+    model_cfg.env.init_pos_range_m = 0.0
+    model_cfg.env.compile = False
+
+    def make_flight_env(family):
+        return make_env(model_cfg, num_envs=1, seed=int(cfg.seed), traj=family)
+
+    server = _start_server(cfg, params, thrust) if params.server is not None else None
+    try:
+        source = _mocap_source(params, server)
+        link = CrazyflieLink(params.uri, params.log_period_ms, params.connect_timeout_s, params.io_timeout_s)
+        track_family = instantiate_option(cfg, "traj")
+        runner = FlightRunner(
+            link,
+            source,
+            make_flight_env,
+            controller,
+            PidController,
+            track_family,
+            flight,
+            safety,
+            ThrustMap(thrust),
+            run_dir,
+            estop=estop,
+            console=console,
+        )
+        if server_hook is not None:
+            server_hook(server, runner)
+        try:
+            summary = runner.fly() if params.mode == "fly" else runner.calibrate(params.calibrate_hover_s)
+        except LinkError as exc:
+            raise ConfigError(str(exc)) from None
+    finally:
+        if server is not None:
+            server.stop()
+    summary["controller"] = labels
+    (run_dir / "events.json").write_text(json.dumps(summary, indent=2, default=str) + "\n")
+    if params.mode == "calibrate":
+        console.print(
+            f"calibration: {summary['outcome']}; hover command {summary['hover_command']} "
+            "(set deploy.thrust.hover_command)"
+        )
+    err = summary["track_error_m"]
+    jitter = summary["jitter_ms"]
+    console.print(
+        f"flight: {summary['outcome']}; tracking error {err if err is None else f'{err:.3f} m'} over "
+        f"{summary['track_steps']} steps; tick jitter median {jitter['median']:.2f} ms, p99 {jitter['p99']:.2f} ms; "
+        f"{summary['late_ticks']} late ticks; log in {run_dir}"
+    )
+    return summary

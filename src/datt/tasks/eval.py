@@ -1,0 +1,54 @@
+"""``eval.py``: one controller over the seeded bank, per seed (``eval.seeds``), plus its per-step
+inference time at batch 1."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from omegaconf import DictConfig
+
+from datt.configuration import structured
+from datt.control.factory import build_controller
+from datt.eval.conditions import evaluate_conditions, measure_inference, print_metrics, write_metrics_csv
+from datt.eval.schema import EvalParams
+from datt.tasks.common import console, hydra_run_dir, set_threads
+
+
+def run_eval(cfg: DictConfig, run_dir: Path | None = None) -> dict:
+    """Evaluate ``cfg.controller``; writes ``metrics.json``, ``metrics.csv`` (and traces/plots)."""
+    params = structured(EvalParams, cfg.eval, "eval")
+    run_dir = run_dir or hydra_run_dir()
+    run_dir.mkdir(parents=True, exist_ok=True)
+    set_threads(cfg.threads)
+    controller, merged, labels = build_controller(cfg)
+    name = labels["controller"]
+    cond = {"disturbance": merged.disturbance, "adaptation": merged.adaptation}
+    label = f"{name} {labels['disturbance']}/{labels['adaptation']}"
+    results = {}
+    for seed in params.seeds:
+        trace = run_dir / f"trace_seed{seed}.pt" if params.save_trace else None
+        results.update(
+            evaluate_conditions(
+                merged,
+                controller,
+                {f"{label} seed {seed}": cond},
+                run_dir,
+                params.plots,
+                name,
+                seed=int(seed),
+                trace_path=trace,
+            )
+        )
+    metrics = {**labels, "conditions": results}
+    print_metrics(console, f"{name} on the seeded bank", results)
+    inference = measure_inference(merged, controller, params.timing)
+    if inference is not None:
+        metrics["inference_ms"] = inference
+        console.print(
+            f"inference at batch 1: median {inference['median_ms']:.3f} ms, p95 {inference['p95_ms']:.3f} ms "
+            f"({inference['steps']} steps after warm-up, {inference['threads']} threads)"
+        )
+    (run_dir / "metrics.json").write_text(json.dumps(metrics, indent=2, default=str) + "\n")
+    write_metrics_csv(run_dir / "metrics.csv", results)
+    return metrics

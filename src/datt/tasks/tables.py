@@ -1,0 +1,95 @@
+"""``tables.py <table>``: (optionally run the table's sweep, then) collect its jobs into the
+paper's table as Markdown, CSV and LaTeX, with plots."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from omegaconf import MISSING, DictConfig
+from rich.table import Table
+
+from datt.configuration import structured
+from datt.errors import ConfigError
+from datt.eval import tables
+from datt.paths import original_cwd, resolve_path
+from datt.tasks.common import console
+
+
+@dataclass
+class SideBySide:
+    group: str = MISSING
+    index: int = MISSING
+
+    def validate(self) -> None:
+        if self.index < 0:
+            raise ConfigError(f"side_by_side.index: must be >= 0, got {self.index}")
+
+
+@dataclass
+class TablesParams:
+    """``conf/tables.yaml``."""
+
+    table: str = MISSING
+    runs: Any = MISSING  # sweep dir(s) or job dirs; null = the newest outputs/sweeps/<table>/<time>
+    out_dir: str | None = MISSING
+    run: bool = MISSING  # run the table's sweep first
+    sweep_overrides: list[str] = MISSING
+    plots: bool = MISSING
+    side_by_side: SideBySide = field(default_factory=SideBySide)
+
+    def validate(self) -> None:
+        self.side_by_side.validate()
+
+
+def run_tables(cfg: DictConfig, run_dir: Path | None = None) -> dict:
+    """Build one table; returns the files written, its rows and the number of jobs read."""
+    params = structured(TablesParams, cfg, "tables")
+    spec = tables.get_spec(params.table)
+    outputs = original_cwd() / "outputs"
+    if params.run:
+        sweep_dir = outputs / "sweeps" / spec.name / time.strftime("%Y-%m-%d_%H-%M-%S")
+        command = spec.entry.removesuffix(".py")
+        overrides = [*params.sweep_overrides, f"hydra.sweep.dir={sweep_dir}"]
+        cmd = [sys.executable, "-m", "datt", command, f"+sweep={spec.name}", *overrides]
+        console.print("running: " + " ".join(cmd[1:]))
+        if subprocess.run(cmd, cwd=original_cwd()).returncode != 0:
+            raise ConfigError(
+                f"run: the {spec.name} sweep failed (see its output above); finished jobs are in {sweep_dir}"
+            )
+        roots = [sweep_dir]
+    elif params.runs:
+        runs = params.runs if isinstance(params.runs, (list, tuple)) else [params.runs]
+        roots = [resolve_path(r) for r in runs]
+        for r in roots:
+            if not r.exists():
+                raise ConfigError(f"runs: {str(r)!r} does not exist")
+    else:
+        roots = tables.default_roots(spec, outputs)
+    jobs = tables.find_jobs(roots)
+    if not jobs:
+        raise ConfigError(f"runs: no Hydra job dirs under {', '.join(map(str, roots))}")
+    rows, _ = tables.collect(spec, jobs)
+    rendered = tables.render(spec, rows, jobs)
+    out_dir = resolve_path(params.out_dir) if params.out_dir else roots[0]
+    files = tables.write(spec, rendered, out_dir)
+    if params.plots and spec.kind == "train":
+        files += tables.plot_train_sweep(spec, rows, jobs, out_dir)
+    if params.plots and spec.kind == "eval":
+        sbs = params.side_by_side
+        path = tables.plot_side_by_side_from_jobs(jobs, sbs.group, sbs.index, out_dir / f"{spec.name}_side_by_side.png")
+        files += [path] if path else []
+    table = Table(title=spec.title)
+    for h in rendered["header"]:
+        table.add_column(h)
+    for r in rendered["rows"]:
+        table.add_row(*r)
+    console.print(table)
+    for note in tables.job_notes(jobs):
+        console.print(note)
+    console.print("wrote " + ", ".join(str(f) for f in files))
+    return {"files": [str(f) for f in files], "rows": rendered["rows"], "jobs": len(jobs)}

@@ -1,0 +1,105 @@
+"""Typed schemas of the training task's config nodes (``train``, ``curriculum``, ``rma`` and the
+run-level keys of ``conf/train.yaml``). No defaults here: the YAML is the only place a default
+lives, and a key it does not give is an error naming the key."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+from omegaconf import MISSING, DictConfig
+
+from datt.configuration import check_horizon, structured
+from datt.errors import ConfigError
+
+
+def _need(ok: bool, key: str, msg: str) -> None:
+    if not ok:
+        raise ConfigError(f"{key}: {msg}")
+
+
+def _is_int(x: Any) -> bool:
+    return isinstance(x, int) and not isinstance(x, bool)
+
+
+@dataclass
+class RunParams:
+    """Top-level keys of a training run."""
+
+    horizon: int = MISSING
+    seed: int = MISSING
+    stage: str = MISSING  # ppo | rma
+    budget: float = MISSING  # scales train.total_steps, curriculum.fixed_ref_steps and rma.iterations
+    sweep_name: str | None = MISSING
+    base_checkpoint: str | None = MISSING
+    resume: Any = MISSING  # false | true | <run dir>
+
+    def validate(self) -> None:
+        check_horizon(self.horizon)
+        _need(self.stage in ("ppo", "rma"), "stage", f"unknown value {self.stage!r}; allowed: ppo, rma")
+        _need(self.budget > 0, "budget", f"must be a number > 0 (fraction of the configured steps), got {self.budget}")
+
+
+@dataclass
+class TrainParams:
+    """``train``: the PPO run's length and bookkeeping."""
+
+    total_steps: int = MISSING
+    checkpoint_every: int = MISSING  # iterations between last.pt writes
+    init_from: str | None = MISSING  # start from this checkpoint's weights (fine-tuning)
+    eval_at_end: bool = MISSING
+    stagger_episodes: bool = MISSING
+    progress: bool = MISSING
+    threads: int | None = MISSING  # null = torch default (cores / parallel jobs under joblib)
+
+    def validate(self) -> None:
+        _need(self.total_steps >= 1, "train.total_steps", f"must be >= 1, got {self.total_steps}")
+        _need(self.checkpoint_every >= 1, "train.checkpoint_every", f"must be >= 1, got {self.checkpoint_every}")
+        _need(self.threads is None or self.threads >= 1, "train.threads", f"must be null or >= 1, got {self.threads}")
+
+
+@dataclass
+class CurriculumParams:
+    """``curriculum``: the first ``fixed_ref_steps`` frames fly the one reference ``fixed``."""
+
+    fixed_ref_steps: int = MISSING
+    fixed: Any = MISSING  # a reference family node with _target_ (datt.refs.Fixed)
+
+    def validate(self) -> None:
+        _need(self.fixed_ref_steps >= 0, "curriculum.fixed_ref_steps", f"must be >= 0, got {self.fixed_ref_steps}")
+
+
+@dataclass
+class RmaParams:
+    """``rma``: fitting an RMA adapter (``stage=rma``, :mod:`datt.train.rma`)."""
+
+    iterations: int = MISSING
+    num_envs: int = MISSING
+    lr: float = MISSING
+    lr_final_frac: float = MISSING  # linear decay of the lr to lr x this (1.0 = constant)
+    history_len: int = MISSING
+    accel_input: bool = MISSING
+    log_every: int = MISSING
+
+    def validate(self) -> None:
+        _need(self.iterations >= 1, "rma.iterations", f"must be >= 1, got {self.iterations}")
+        _need(self.num_envs >= 1, "rma.num_envs", f"must be >= 1, got {self.num_envs}")
+        _need(self.lr > 0, "rma.lr", f"must be > 0, got {self.lr}")
+        _need(0 < self.lr_final_frac <= 1, "rma.lr_final_frac", f"must be in (0, 1], got {self.lr_final_frac}")
+        _need(self.log_every >= 1, "rma.log_every", f"must be >= 1, got {self.log_every}")
+
+
+def run_params(cfg: DictConfig) -> RunParams:
+    """The run-level keys of a composed training config, validated."""
+    keys = RunParams.__dataclass_fields__
+    return structured(RunParams, {k: cfg.get(k) for k in keys if k in cfg}, "run")
+
+
+def budget_factor(cfg: DictConfig) -> float:
+    """``budget`` scales every step count of a run (sweeps on small machines); 1 = as configured."""
+    try:
+        budget = float(cfg.budget)
+    except (TypeError, ValueError):
+        budget = float("nan")
+    _need(budget > 0, "budget", f"must be a number > 0 (fraction of the configured steps), got {cfg.budget!r}")
+    return budget

@@ -1,0 +1,151 @@
+"""The config tree as a whole: every option of every group composes under the entry point that
+uses it, every ``_target_`` instantiates, every task node passes its typed schema, and the
+library's dataclass defaults agree with the YAML (the only place a default lives)."""
+
+from __future__ import annotations
+
+from dataclasses import asdict
+
+import pytest
+from hydra.utils import instantiate
+from omegaconf import OmegaConf
+
+from datt.configuration import available_options, compose, conf_dir, config_groups, structured
+from datt.control.factory import build_controller
+from datt.deploy.runner import FlightParams
+from datt.deploy.safety import SafetyParams
+from datt.deploy.schema import DeployParams
+from datt.deploy.thrust import ThrustParams
+from datt.envs.factory import env_params_from_cfg
+from datt.envs.params import EnvParams
+from datt.eval import tables
+from datt.eval.rollout import build_bank
+from datt.eval.schema import EndOfRunEvalParams, EvalParams
+from datt.policies.networks import PolicyParams
+from datt.tasks.tables import TablesParams
+from datt.train.ppo import AlgoParams
+from datt.train.schema import CurriculumParams, RmaParams, TrainParams, run_params
+
+# the primary config whose defaults list holds each group
+PRIMARY = {"controller": "eval", "deploy": "deploy"}
+GROUPS = sorted(config_groups([conf_dir()]))
+
+
+def _option_cases():
+    for group in GROUPS:
+        for option in available_options(group, [conf_dir()]):
+            yield pytest.param(group, option, id=f"{group}={option}")
+
+
+def _compose(group: str, option: str, tmp_path):
+    if group == "sweep":
+        return compose(tables.TABLES[option].entry.removesuffix(".py"), [f"+sweep={option}"])
+    overrides = [f"{group}={option}"]
+    if group == "bank":
+        overrides = [f"bank@eval.bank={option}"]
+    if (group, option) == ("traj", "csv"):
+        csv = tmp_path / "ref.csv"
+        csv.write_text("t,x,y,z\n0,0,0,0\n1,1,0,0\n")
+        overrides.append(f"traj.path={csv}")
+    return compose(PRIMARY.get(group, "train"), overrides)
+
+
+def _targets(node):
+    """Every mapping with a ``_target_`` in ``node`` (outermost first, not inside each other)."""
+    if OmegaConf.is_dict(node):
+        if "_target_" in node:
+            yield node
+            return
+        for value in node.values():
+            yield from _targets(value)
+    elif OmegaConf.is_list(node):
+        for value in node:
+            yield from _targets(value)
+
+
+@pytest.mark.parametrize("group, option", list(_option_cases()))
+def test_every_option_composes_and_instantiates(group, option, tmp_path):
+    cfg = _compose(group, option, tmp_path)
+    if group == "controller":  # options carry a name (and maybe a fixed estimator) beside _target_
+        controller, merged, labels = build_controller(cfg)
+        assert labels["controller"] == cfg.controller.name and hasattr(controller, "act")
+        node = merged.adaptation
+    else:
+        node = cfg.eval.bank if group == "bank" else cfg if group in ("sweep", "ablation", "experiment") else cfg[group]
+    for target in _targets(node):
+        assert instantiate(target, _convert_="all") is not None
+    # the task's schemas accept what the option composes to
+    if "train" in cfg and "curriculum" in cfg:
+        run_params(cfg)
+        for cls, key in (
+            (TrainParams, "train"),
+            (CurriculumParams, "curriculum"),
+            (RmaParams, "rma"),
+            (EndOfRunEvalParams, "eval"),
+            (AlgoParams, "algo"),
+            (PolicyParams, "policy"),
+        ):
+            structured(cls, cfg[key], key)
+        env_params_from_cfg(cfg.env)
+    if "deploy" in cfg:
+        d = structured(DeployParams, OmegaConf.to_container(cfg.deploy, resolve=True), "deploy")
+        for cls, key in ((FlightParams, "flight"), (SafetyParams, "safety"), (ThrustParams, "thrust")):
+            structured(cls, getattr(d, key), f"deploy.{key}")
+    if "eval" in cfg and "seeds" in cfg.eval:
+        structured(EvalParams, cfg.eval, "eval")
+    if group == "bank":
+        names, counts, _ = build_bank(cfg.eval.bank)
+        assert names and all(c > 0 for c in counts)
+
+
+def test_every_group_has_options():
+    assert {
+        "env",
+        "traj",
+        "disturbance",
+        "adaptation",
+        "policy",
+        "algo",
+        "ablation",
+        "controller",
+        "logger",
+        "deploy",
+        "experiment",
+        "bank",
+        "sweep",
+    } <= set(GROUPS)
+
+
+def test_tables_config_passes_its_schema():
+    cfg = compose("tables")
+    assert structured(TablesParams, cfg, "tables").table in tables.TABLES
+
+
+def test_a_missing_key_is_a_one_line_error_naming_it():
+    cfg = compose("train")
+    OmegaConf.set_struct(cfg, False)
+    del cfg.train["total_steps"]
+    with pytest.raises(Exception, match=r"^train\.total_steps: "):
+        structured(TrainParams, cfg.train, "train")
+
+
+@pytest.mark.parametrize(
+    "cls, path",
+    [(EnvParams, "env/default.yaml"), (PolicyParams, "policy/datt.yaml"), (AlgoParams, "algo/ppo.yaml")],
+)
+def test_library_defaults_equal_the_yaml(cls, path):
+    """The dataclasses keep defaults for the Python API; they must be the YAML's."""
+    yaml = OmegaConf.to_container(OmegaConf.load(conf_dir() / path), resolve=True)
+    code = asdict(cls())
+
+    def compare(a: dict, b: dict, prefix: str) -> None:
+        assert set(a) == set(b), f"{prefix}: keys differ: {set(a) ^ set(b)}"
+        for k in a:
+            if isinstance(a[k], dict):
+                compare(a[k], b[k], f"{prefix}.{k}")
+            else:
+                va = list(a[k]) if isinstance(a[k], tuple) else a[k]
+                vb = list(b[k]) if isinstance(b[k], tuple) else b[k]
+                assert va == vb, f"{prefix}.{k}: YAML {va!r}, code {vb!r}"
+
+    compare(yaml, code, path)
