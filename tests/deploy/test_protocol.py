@@ -100,3 +100,18 @@ def test_hover_calibration_fit():
     assert fit_hover_command(cmds, acc) == pytest.approx(41000.0)
     with pytest.raises(ValueError):
         fit_hover_command([40000.0, 40000.0], [0.0, 1.0])
+
+
+def test_tilt_is_the_angle_of_body_z_from_world_z():
+    """Pure yaw does not tilt; pitch and roll tilt by their angle (x² + y² of the quaternion)."""
+    import math
+
+    from datt.deploy.safety import tilt_deg
+
+    def q(axis, deg):
+        h = math.radians(deg) / 2
+        return [math.cos(h), *(math.sin(h) * a for a in axis)]
+
+    assert tilt_deg(q((0, 0, 1), 170)) == pytest.approx(0.0, abs=1e-9)
+    assert tilt_deg(q((0, 1, 0), 80)) == pytest.approx(80.0)
+    assert tilt_deg(q((1, 0, 0), -30)) == pytest.approx(30.0)

@@ -283,3 +283,30 @@ def test_compiled_kernels_match_eager(make_tracking_env):
     a, b = hover_rollout(eager, 40), hover_rollout(compiled, 40)
     for key in ("state", "ref", "reward"):
         assert torch.allclose(a["next", key], b["next", key], atol=1e-4), key
+
+
+def test_reward_velocity_term_is_capped():
+    """At 3 m/s (cap 1 m/s), on the reference and level: cost = vel * 1, not vel * 3."""
+    from datt.envs.observations import observe_and_cost
+    from datt.envs.params import ObsParams, RewardParams
+
+    pos = torch.zeros(1, 3)
+    vel = torch.tensor([[3.0, 0.0, 0.0]])
+    quat = torch.tensor([[1.0, 0.0, 0.0, 0.0]])
+    future = torch.zeros(2, 1, 3)
+    reward = RewardParams(pos=1.0, yaw=0.5, vel=0.1, vel_cap_mps=1.0)
+    _, _, err, cost = observe_and_cost(pos, pos, vel, quat, future, ObsParams(), reward)
+    assert err.item() == 0.0 and cost.item() == pytest.approx(0.1)
+
+
+def test_tracking_error_is_read_from_the_reference_table(make_tracking_env):
+    """``tracking_error_m`` at step k equals ‖p_k − ref_table[k]‖, the table read directly."""
+    env = make_tracking_env(n=3)
+    td = env.reset()
+    table = env.ref_table.clone()
+    for k in range(1, 6):
+        td["action"] = env.hover_action
+        out = env.step(td)["next"]
+        expect = torch.linalg.vector_norm(env.sim.state.pos_m - table[:, k], dim=-1)
+        assert torch.allclose(out["tracking_error_m"][:, 0], expect, atol=1e-6), k
+        td = out

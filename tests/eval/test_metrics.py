@@ -19,3 +19,9 @@ def test_episode_error_hand_computed_with_crash():
 def test_all_crashed_is_failed():
     s = summarize(torch.tensor([1.0, 2.0]), torch.tensor([True, True]))
     assert math.isnan(s["mean_m"]) and format_error(s) == "failed"
+
+
+def test_the_crash_step_counts_in_the_episode_error():
+    """``crashed_at`` is the step at which the drone terminated; that step's error counts."""
+    e = episode_errors(torch.tensor([[1.0, 3.0, 100.0]]), torch.tensor([1]))
+    assert e.item() == 2.0

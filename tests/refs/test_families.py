@@ -213,3 +213,16 @@ def test_seeded_reproducibility(family):
     fam = family()
     assert torch.equal(fam.sample(4, T_GRID, gen(1)), fam.sample(4, T_GRID, gen(1)))
     assert not torch.equal(fam.sample(4, T_GRID, gen(1)), fam.sample(4, T_GRID, gen(2)))
+
+
+def test_zigzag_segment_durations_follow_their_uniform_law():
+    """Segments are U(seg_min_s, seg_max_s): over many draws min, max and mean match the law
+    (a narrower range, e.g. U(0.5, 1.0) for U(0.5, 1.5), moves the mean by 0.25 s)."""
+    from datt.refs import Zigzag
+
+    gen = torch.Generator().manual_seed(0)
+    knot_t, _ = Zigzag(seg_min_s=0.5, seg_max_s=1.5).sample_knots(2000, 10.0, gen, torch.zeros(1, dtype=torch.float64))
+    seg = knot_t.diff(dim=1).flatten()
+    assert seg.min() >= 0.5 and seg.max() <= 1.5
+    assert seg.min() < 0.51 and seg.max() > 1.49
+    assert seg.mean().item() == pytest.approx(1.0, abs=0.01)

@@ -149,3 +149,27 @@ def test_negative_dt_rejected():
 def test_unknown_dtype_rejected():
     with pytest.raises(ValueError, match="float16"):
         Quadrotor(1, dtype="float16")
+
+
+def test_rotations_compose_in_body_order():
+    """Roll 1 rad/s for 0.5 s, then yaw 2 rad/s for 0.5 s: R = Rx(0.5) Rz(1), so body z ends at
+    Rx(0.5) e3 = (0, -sin 0.5, cos 0.5). Integrating in the world frame would give
+    Rz(1) Rx(0.5) e3 = (0.403, -0.259, 0.878)."""
+    quad = Quadrotor(1, QuadrotorParams(k_rate=1.0, latency_steps=0), dtype="float64")
+    steps = round(0.5 / quad.dt_s)
+    for rates in ((1.0, 0.0, 0.0), (0.0, 0.0, 2.0)):
+        for _ in range(steps):
+            quad.step(cmd(1, G, rates, dtype=quad.dtype))
+    expect = torch.tensor([[0.0, -math.sin(0.5), math.cos(0.5)]], dtype=torch.float64)
+    assert torch.allclose(quat_body_z(quad.state.quat), expect, atol=1e-9)
+
+
+def test_height_after_a_thrust_step_matches_the_actuator_model():
+    """From hover, command g + 2 m/s² with no latency and k_thrust = 1: the vertical acceleration
+    is 2 m/s² from the first step, so after k steps z = 2 (k dt)² / 2 exactly."""
+    quad = Quadrotor(1, QuadrotorParams(k_thrust=1.0, latency_steps=0), dtype="float64")
+    quad.reset(pos_m=torch.zeros(1, 3, dtype=torch.float64))
+    dt = quad.dt_s
+    for k in range(1, 11):
+        quad.step(cmd(1, G + 2.0, dtype=quad.dtype))
+        assert quad.state.pos_m[0, 2].item() == pytest.approx(0.5 * 2.0 * (k * dt) ** 2, abs=1e-12), k
