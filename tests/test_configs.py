@@ -12,10 +12,7 @@ from omegaconf import OmegaConf
 
 from datt.configuration import available_options, compose, conf_dir, config_groups, structured
 from datt.control.factory import build_controller
-from datt.deploy.runner import FlightParams
-from datt.deploy.safety import SafetyParams
-from datt.deploy.schema import DeployParams
-from datt.deploy.thrust import ThrustParams
+from datt.deploy.schema import deploy_params
 from datt.envs.factory import env_params_from_cfg
 from datt.envs.params import EnvParams
 from datt.eval import tables
@@ -88,9 +85,7 @@ def test_every_option_composes_and_instantiates(group, option, tmp_path):
             structured(cls, cfg[key], key)
         env_params_from_cfg(cfg.env)
     if "deploy" in cfg:
-        d = structured(DeployParams, OmegaConf.to_container(cfg.deploy, resolve=True), "deploy")
-        for cls, key in ((FlightParams, "flight"), (SafetyParams, "safety"), (ThrustParams, "thrust")):
-            structured(cls, getattr(d, key), f"deploy.{key}")
+        deploy_params(cfg.deploy)
     if "eval" in cfg and "seeds" in cfg.eval:
         structured(EvalParams, cfg.eval, "eval")
     if group == "bank":
@@ -149,3 +144,8 @@ def test_library_defaults_equal_the_yaml(cls, path):
                 assert va == vb, f"{prefix}.{k}: YAML {va!r}, code {vb!r}"
 
     compare(yaml, code, path)
+
+
+def test_a_top_level_type_error_names_the_top_level_key():
+    with pytest.raises(Exception, match=r"^seed: Value 'abc'"):
+        run_params(compose("train", ["seed=abc"]))

@@ -13,7 +13,7 @@ from pathlib import Path
 
 from omegaconf import DictConfig
 
-from datt.configuration import CONF_PACKAGE, HYDRA_GROUPS, available_options, conf_dir, root_from_uri
+from datt.configuration import CONF_PACKAGE, available_options, conf_dir, config_groups, root_from_uri
 from datt.errors import ConfigError, TrainingDiverged
 
 
@@ -42,7 +42,7 @@ def preflight(argv: list[str]) -> None:
     """Reject unknown config-group options (over the whole search path) in one line, before
     Hydra prints a multi-line error."""
     roots = _argv_search_roots(argv)
-    groups = {p.name for root in roots if root.is_dir() for p in root.iterdir() if p.is_dir()} - HYDRA_GROUPS
+    groups = config_groups(roots)
     for arg in argv:
         if arg.startswith("-") or "=" not in arg:
             continue

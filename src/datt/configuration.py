@@ -104,13 +104,14 @@ def with_options(cfg: DictConfig, **choices) -> DictConfig:
 def structured(cls, node, key: str):
     """Merge ``node`` onto the dataclass schema ``cls`` (type-checked; a field the YAML does not
     give is an error), build it and call its ``validate()``; errors become one-line
-    ConfigErrors under ``key``."""
+    ConfigErrors under ``key`` (``""``: the node is the config's top level)."""
     try:
         merged = OmegaConf.merge(OmegaConf.structured(cls), node or {})
         obj = OmegaConf.to_object(merged)
     except OmegaConfBaseException as exc:
         sub = getattr(exc, "full_key", "") or ""
-        raise ConfigError(f"{key}.{sub}: {one_line(exc)}" if sub else f"{key}: {one_line(exc)}") from None
+        where = ".".join(k for k in (key, sub) if k) or cls.__name__
+        raise ConfigError(f"{where}: {one_line(exc)}") from None
     obj.validate()
     return obj
 

@@ -109,9 +109,8 @@ class _ObservePolicy(nn.Module):
         self.register_buffer("action_half", half)
 
     def forward(self, pos, vel, quat, future, d_hat, cmds):
-        vecs = torch.cat((pos.unsqueeze(0), vel.unsqueeze(0), pos.unsqueeze(0) - future), 0).transpose(
-            0, 1
-        )  # [N, 2+H, 3]
+        vecs = torch.cat((pos.unsqueeze(0), vel.unsqueeze(0), pos.unsqueeze(0) - future), 0)
+        vecs = vecs.transpose(0, 1)  # [N, 2+H, 3]
         if self.body_frame:  # row vectors: v^T R = (R^T v)^T
             vecs = torch.bmm(vecs, quat_to_rotmat_bilinear(quat))  # the form is a constant of the frozen graph
         e_now = vecs[:, 2] if self.feedback else torch.zeros_like(vecs[:, 2])

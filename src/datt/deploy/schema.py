@@ -7,8 +7,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from omegaconf import MISSING
+from omegaconf import MISSING, DictConfig, OmegaConf
 
+from datt.configuration import structured
+from datt.deploy.runner import FlightParams
+from datt.deploy.safety import SafetyParams
+from datt.deploy.thrust import ThrustParams
 from datt.errors import ConfigError
 
 MOCAP_SOURCES = ("none", "simulated", "motioncapture")
@@ -68,3 +72,12 @@ class DeployParams:
             )
         if not (self.connect_timeout_s > 0 and self.io_timeout_s > 0):
             raise ConfigError("deploy.connect_timeout_s / io_timeout_s: must be > 0")
+
+
+def deploy_params(node: DictConfig) -> tuple[DeployParams, FlightParams, SafetyParams, ThrustParams]:
+    """``cfg.deploy`` checked against every schema of the flight session."""
+    params = structured(DeployParams, OmegaConf.to_container(node, resolve=True), "deploy")
+    flight = structured(FlightParams, params.flight, "deploy.flight")
+    safety = structured(SafetyParams, params.safety, "deploy.safety")
+    thrust = structured(ThrustParams, params.thrust, "deploy.thrust")
+    return params, flight, safety, thrust

@@ -24,6 +24,7 @@ from torchrl.envs import EnvBase
 
 from datt.adapt.base import Adaptation, Privileged
 from datt.compile import compile_or_eager
+from datt.configuration import check_horizon
 from datt.envs.observations import observe_and_cost, state_width
 from datt.envs.params import EnvParams
 from datt.errors import ConfigError
@@ -77,8 +78,7 @@ class TrackingEnv(EnvBase):
     ) -> None:
         params = params or EnvParams()
         params.validate()
-        if isinstance(horizon, bool) or not isinstance(horizon, int) or horizon < 1:
-            raise ConfigError(f"horizon: must be an integer >= 1, got {horizon!r}")
+        check_horizon(horizon)
         if num_envs < 1:
             raise ConfigError(f"env.num_envs: must be >= 1, got {num_envs}")
         device = torch.device(device or params.device)
@@ -261,7 +261,7 @@ class TrackingEnv(EnvBase):
     def _ref_ahead(self, steps: int) -> torch.Tensor:
         """p_d(t + k dt), k = 1..steps: ``[N, steps, 3]`` (world), from the reference table."""
         if steps <= 0:
-            return self.ref_table.new_zeros(self.n, 0, 3)
+            return self.ref_table[:, :0]
         idx = self.step_idx.unsqueeze(1) + torch.arange(1, steps + 1, device=self.device)
         idx = idx.clamp_max(self.table_len - 1)
         return torch.gather(self.ref_table, 1, idx.unsqueeze(-1).expand(-1, -1, 3))

@@ -105,8 +105,8 @@ class CommandLatency:
 
     def in_flight(self) -> Tensor:
         """Commands sent but not yet applied, oldest first: ``[steps, N, *shape]``."""
-        if not self.steps:
-            return self._queue[:0]
+        if not self.steps or self._head == 0:  # slot order is already oldest first (a view)
+            return self._queue[: self.steps]
         order = (self._head + torch.arange(self.steps, device=self._queue.device)) % self.steps
         return self._queue.index_select(0, order)
 

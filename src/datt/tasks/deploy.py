@@ -7,16 +7,15 @@ import json
 from pathlib import Path
 from urllib.parse import urlparse
 
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig
 
-from datt.configuration import instantiate_option, structured, with_options
+from datt.configuration import instantiate_option, with_options
 from datt.control.factory import build_controller
 from datt.control.pid import PidController
 from datt.deploy import mocap
 from datt.deploy.link import CrazyflieLink, LinkError
-from datt.deploy.runner import FlightParams, FlightRunner
-from datt.deploy.safety import SafetyParams
-from datt.deploy.schema import DeployParams
+from datt.deploy.runner import FlightRunner
+from datt.deploy.schema import DeployParams, deploy_params
 from datt.deploy.thrust import ThrustMap, ThrustParams
 from datt.envs.factory import make_env
 from datt.errors import ConfigError
@@ -54,10 +53,7 @@ def _mocap_source(params: DeployParams, server):
 def run_deploy(cfg: DictConfig, run_dir: Path | None = None, estop=None, server_hook=None) -> dict:
     """Fly (or calibrate) once; returns the flight summary written to ``events.json``.
     ``server_hook(server, runner)`` lets tests inject faults once the flight objects exist."""
-    params = structured(DeployParams, OmegaConf.to_container(cfg.deploy, resolve=True), "deploy")
-    flight = structured(FlightParams, params.flight, "deploy.flight")
-    safety = structured(SafetyParams, params.safety, "deploy.safety")
-    thrust = structured(ThrustParams, params.thrust, "deploy.thrust")
+    params, flight, safety, thrust = deploy_params(cfg.deploy)
     run_dir = run_dir or hydra_run_dir()
     run_dir.mkdir(parents=True, exist_ok=True)
     set_threads(cfg.threads)

@@ -37,7 +37,7 @@ class RunParams:
     def validate(self) -> None:
         check_horizon(self.horizon)
         _need(self.stage in ("ppo", "rma"), "stage", f"unknown value {self.stage!r}; allowed: ppo, rma")
-        _need(self.budget > 0, "budget", f"must be a number > 0 (fraction of the configured steps), got {self.budget}")
+        check_budget(self.budget)
 
 
 @dataclass
@@ -92,14 +92,20 @@ class RmaParams:
 def run_params(cfg: DictConfig) -> RunParams:
     """The run-level keys of a composed training config, validated."""
     keys = RunParams.__dataclass_fields__
-    return structured(RunParams, {k: cfg.get(k) for k in keys if k in cfg}, "run")
+    return structured(RunParams, {k: cfg.get(k) for k in keys if k in cfg}, "")
+
+
+def check_budget(value: Any) -> float:
+    """``budget`` as a float > 0 (it scales every step count of a run; 1 = as configured)."""
+    try:
+        budget = float(value)
+    except (TypeError, ValueError):
+        budget = float("nan")
+    _need(budget > 0, "budget", f"must be a number > 0 (fraction of the configured steps), got {value!r}")
+    return budget
 
 
 def budget_factor(cfg: DictConfig) -> float:
-    """``budget`` scales every step count of a run (sweeps on small machines); 1 = as configured."""
-    try:
-        budget = float(cfg.budget)
-    except (TypeError, ValueError):
-        budget = float("nan")
-    _need(budget > 0, "budget", f"must be a number > 0 (fraction of the configured steps), got {cfg.budget!r}")
-    return budget
+    """``cfg.budget``, checked: the factor on train.total_steps, curriculum.fixed_ref_steps and
+    rma.iterations (sweeps on small machines)."""
+    return check_budget(cfg.budget)
