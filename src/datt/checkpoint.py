@@ -15,6 +15,7 @@ from typing import Any
 import torch
 
 from datt.errors import ConfigError
+from datt.runs import public_mode
 
 FORMAT = "datt-checkpoint-v1"
 
@@ -30,6 +31,7 @@ def save_checkpoint(path: str | Path, payload: dict[str, Any]) -> Path:
             torch.save({"format": FORMAT, **payload}, f)
             f.flush()
             os.fsync(f.fileno())
+        public_mode(tmp)  # mkstemp's 0600 would hide the run's checkpoints from its group
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)

@@ -2,19 +2,23 @@
 ``datt`` console script and ``python -m datt``.
 
 Only entry points and error reporting live here: every user error ends in one line on stderr
-(``error: <key>: <what>``) and exit code 2; a diverged training run exits with 3.
+(``error: <key>: <what>``) and exit code 2; a diverged training run exits with 3; a multirun exits
+with the number of its jobs that did not finish.
 """
 
 from __future__ import annotations
 
 import sys
+import tempfile
+import traceback
 from collections.abc import Callable
 from pathlib import Path
 
 from omegaconf import DictConfig
 
 from datt.configuration import CONF_PACKAGE, available_options, conf_dir, config_groups, root_from_uri
-from datt.errors import ConfigError, TrainingDiverged
+from datt.errors import ConfigError, FlightAborted, TrainingDiverged, TrainingInterrupted, one_line
+from datt.runs import read_failure, record_failure
 
 
 def _argv_search_roots(argv: list[str]) -> list[Path]:
@@ -54,30 +58,203 @@ def preflight(argv: list[str]) -> None:
                 raise ConfigError(f"{group}: unknown option {value!r}; allowed: {', '.join(allowed)}")
 
 
+def _overrides_of(argv: list[str]) -> list[str] | None:
+    """The Hydra overrides of a command line, with ``--config-dir`` as a search-path override;
+    None when the line uses other Hydra flags (``--cfg``, ``--info`` ...: nothing to check)."""
+    overrides, dirs, skip = [], [], False
+    for i, arg in enumerate(argv):
+        if skip:
+            skip = False
+            continue
+        if arg in ("--config-dir", "-cd"):
+            if i + 1 < len(argv):
+                dirs.append(argv[i + 1])
+            skip = True
+        elif arg.startswith("--config-dir="):
+            dirs.append(arg.split("=", 1)[1])
+        elif arg in ("-m", "--multirun"):
+            continue
+        elif arg.startswith("-"):
+            return None
+        else:
+            overrides.append(arg)
+    if dirs:
+        paths = ",".join(f"file://{Path(d).expanduser().resolve()}" for d in dirs)
+        overrides = [o for o in overrides if not o.lstrip("+").startswith("hydra.searchpath=")]
+        overrides.append(f"hydra.searchpath=[{paths}]")
+    return overrides
+
+
+def check_composition(config_name: str, argv: list[str]) -> None:
+    """Compose the config the command line asks for (each value of a sweep list in turn), so an
+    unknown key or option is one line before any job starts, not Hydra's multi-line report."""
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+    from hydra.errors import HydraException
+
+    from datt.configuration import compose
+
+    overrides = _overrides_of(argv)
+    if overrides is None:
+        return
+    kept = [o for o in overrides if not o.lstrip("+~").startswith("hydra") or o.startswith("hydra.searchpath=")]
+    try:
+        parsed = OverridesParser.create().parse_overrides(kept)
+    except HydraException as exc:
+        raise ConfigError(f"overrides: {one_line(exc)}") from None
+    firsts, variants = [], []
+    for text, ov in zip(kept, parsed):
+        if ov.is_sweep_override():
+            try:
+                values = list(ov.sweep_string_iterator())
+            except HydraException:  # range()/interval(): the sweeper expands it, nothing to check here
+                continue
+            key = ov.get_key_element()
+            firsts.append(f"{key}={values[0]}")
+            variants += [(len(firsts) - 1, f"{key}={v}") for v in values[1:]]
+        else:
+            firsts.append(text)
+    compose(config_name, firsts)
+    for index, text in variants:
+        compose(config_name, [*firsts[:index], text, *firsts[index + 1 :]])
+
+
+def check_output_dir(argv: list[str]) -> None:
+    """The directory runs will be written under must be creatable: one line before Hydra tries
+    (and prints a traceback). Interpolated parts (``${now:...}``) are cut off."""
+    multirun = any(a in ("-m", "--multirun") for a in argv) or any(a.lstrip("+").startswith("sweep=") for a in argv)
+    key, target = ("hydra.sweep.dir", "outputs/multirun") if multirun else ("hydra.run.dir", "outputs")
+    for arg in argv:
+        if arg.startswith(key + "="):
+            target = arg.split("=", 1)[1].split("${")[0] or "."
+    path = Path(target).expanduser().absolute()
+    base = path
+    while not base.exists():
+        base = base.parent
+    problem = None
+    if not base.is_dir():
+        problem = f"{base} is a file, not a directory"
+    else:
+        try:
+            tempfile.TemporaryDirectory(dir=base).cleanup()
+        except OSError as exc:
+            problem = f"cannot write in {base} ({exc.strerror})"
+    if problem:
+        raise ConfigError(f"{key}: {path}: {problem}; run from a writable directory or set {key}=<writable dir>")
+
+
 def _fail(message: str, code: int) -> None:
     print(f"error: {message}", file=sys.stderr)
     sys.exit(code)
 
 
+# Failed jobs of the multirun that ran in this process (set by SweepReport, read by the entry).
+_failed_jobs = 0
+
+
+def _in_multirun() -> bool:
+    try:
+        from hydra.core.hydra_config import HydraConfig
+        from hydra.types import RunMode
+
+        return HydraConfig.get().mode == RunMode.MULTIRUN
+    except (ImportError, ValueError):
+        return False
+
+
+def _job_failed(status: str, message: str, trace: str | None = None) -> None:
+    """A failing multirun job: record why in its ``failed.json`` and let the sweep go on."""
+    from hydra.core.hydra_config import HydraConfig
+
+    hc = HydraConfig.get()
+    job_dir = Path(hc.runtime.output_dir)
+    if read_failure(job_dir) is None:  # the task may have written a fuller record (frames)
+        record_failure(job_dir, status, message)
+    if trace:
+        (job_dir / "traceback.txt").write_text(trace)
+    overrides = " ".join(o for o in hc.overrides.task if not o.startswith("hydra"))
+    print(f"error: job {hc.job.num} ({overrides}): {message}", file=sys.stderr)
+
+
+def sweep_summary(sweep_dir: Path) -> dict[str, int]:
+    """Jobs of a sweep dir by state: done, diverged, errored, incomplete."""
+    counts = {"done": 0, "diverged": 0, "errored": 0, "incomplete": 0}
+    for job in sorted(p.parent for p in sweep_dir.glob("*/.hydra")):
+        failure = read_failure(job)
+        if failure is not None:
+            counts["diverged" if failure["status"] == "diverged" else "errored"] += 1
+        elif (job / "metrics.json").is_file():
+            counts["done"] += 1
+        else:
+            counts["incomplete"] += 1
+    return counts
+
+
+try:
+    from hydra.experimental.callback import Callback as _HydraCallback
+except ImportError:  # pragma: no cover - hydra-core is a dependency
+    _HydraCallback = object  # type: ignore[assignment,misc]
+
+
+class SweepReport(_HydraCallback):
+    """Hydra callback (``conf/hydra/default.yaml``): after a multirun, one line per state and the
+    number of failed jobs for the exit status."""
+
+    def on_multirun_end(self, config: DictConfig, **kwargs: object) -> None:
+        global _failed_jobs
+        sweep_dir = Path(str(config.hydra.sweep.dir))
+        counts = sweep_summary(sweep_dir)
+        _failed_jobs = counts["diverged"] + counts["errored"] + counts["incomplete"]
+        states = ", ".join(f"{n} {state}" for state, n in counts.items() if n)
+        print(f"sweep {sweep_dir}: {sum(counts.values())} jobs: {states or 'none'}", file=sys.stderr)
+
+
 def hydra_main(config_name: str, task: Callable[[DictConfig], object]) -> Callable[[], None]:
-    """``task`` wrapped in ``@hydra.main`` (config tree from the package) with one-line errors."""
+    """``task`` wrapped in ``@hydra.main`` (config tree from the package) with one-line errors.
+
+    A single run exits 2 on a user error, 3 on a divergence, 4 on a flight that did not land,
+    130 when interrupted (after saving). A job of a multirun never exits:
+    it records ``failed.json`` and the sweep goes on; the multirun exits with the number of jobs
+    that did not finish (0 = all done)."""
     import hydra
 
     @hydra.main(config_path=f"pkg://{CONF_PACKAGE}", config_name=config_name, version_base="1.3")
     def _main(cfg: DictConfig) -> None:
+        multirun = _in_multirun()
         try:
             task(cfg)
         except ConfigError as exc:
-            _fail(str(exc), 2)
+            if not multirun:
+                _fail(str(exc), 2)
+            _job_failed("errored", str(exc))
+        except FlightAborted as exc:
+            if not multirun:
+                _fail(f"flight {exc}", 4)
+            _job_failed("errored", f"flight {exc}")
+        except TrainingInterrupted as exc:
+            _fail(f"interrupted by {exc}", 130)  # the user stops the whole sweep too
+        except KeyboardInterrupt:
+            _fail("interrupted", 130)
         except TrainingDiverged as exc:
-            _fail(f"training diverged: {exc}", 3)
+            if not multirun:
+                _fail(f"training diverged: {exc}", 3)
+            _job_failed("diverged", f"training diverged: {exc}")
+        except Exception as exc:  # a crash in one job must not take the sweep's other jobs with it
+            if not multirun:
+                raise
+            _job_failed("errored", f"{type(exc).__name__}: {one_line(exc)}", traceback.format_exc())
 
     def entry() -> None:
+        global _failed_jobs
+        _failed_jobs = 0
         try:
             preflight(sys.argv[1:])
+            check_composition(config_name, sys.argv[1:])
+            check_output_dir(sys.argv[1:])
         except ConfigError as exc:
             _fail(str(exc), 2)
         _main()
+        if _failed_jobs:
+            sys.exit(min(_failed_jobs, 100))
 
     return entry
 
@@ -107,7 +284,7 @@ def _tables_entry(inner: Callable[[], None]) -> Callable[[], None]:
 train_main = hydra_main("train", _task("datt.tasks.train", "run_train"))
 eval_main = hydra_main("eval", _task("datt.tasks.eval", "run_eval"))
 tables_main = _tables_entry(hydra_main("tables", _task("datt.tasks.tables", "run_tables")))
-deploy_main = hydra_main("deploy", _task("datt.tasks.deploy", "run_deploy"))
+deploy_main = hydra_main("deploy", _task("datt.tasks.deploy", "run_deploy_command"))
 COMMANDS = {"train": train_main, "eval": eval_main, "tables": tables_main, "deploy": deploy_main}
 
 

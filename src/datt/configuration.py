@@ -9,6 +9,7 @@ user's options are found everywhere a group is listed or loaded.
 from __future__ import annotations
 
 import re
+import secrets
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -19,6 +20,11 @@ from omegaconf.errors import OmegaConfBaseException
 from datt.errors import ConfigError, one_line
 
 CONF_PACKAGE = "datt.conf"
+# ``${uid:}`` in run/sweep dir names: random per command, cached like Hydra's ``${now:}`` so every
+# job of a multirun resolves the same sweep dir.
+if not OmegaConf.has_resolver("uid"):
+    OmegaConf.register_new_resolver("uid", lambda: secrets.token_hex(2), use_cache=True)
+
 # groups Hydra owns (hydra/launcher, hydra/sweeper ...): never checked against our options
 HYDRA_GROUPS = frozenset({"hydra"})
 

@@ -16,6 +16,16 @@ class TrainingDiverged(RuntimeError):
     """A NaN/inf appeared in the loss, observations or actions (raised by ``datt.train.ppo``)."""
 
 
+class TrainingInterrupted(RuntimeError):
+    """SIGINT/SIGTERM during training: the checkpoint is saved; the message says where and how to
+    resume (the entry points exit with 130)."""
+
+
+class FlightAborted(RuntimeError):
+    """A flight that did not end in a landing (KILLed, refused before arming, link lost); the log
+    is written. The entry points exit with 4."""
+
+
 def one_line(exc: BaseException) -> str:
     """Collapse an exception (and Hydra/OmegaConf wrappers) to its innermost one-line message."""
     while exc.__cause__ is not None:

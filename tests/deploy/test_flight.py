@@ -83,12 +83,29 @@ def test_estop_kills_first(tmp_path):
 
 
 def test_geofence_breach(tmp_path):
-    # the star reaches 0.7 m from the hover point; a fence at x <= 0.3 m is crossed while tracking
+    # the star stays within 0.7 m of the hover point, inside a fence at x, y <= 0.9 m; while
+    # tracking, the vehicle is pushed to x = 1.2 m (a collision, a mocap frame jump)
+    def push(server, runner):
+        def move():
+            with server._lock:
+                server.quad.state.pos_m[0, 0] = 1.2
+
+        after(2.5, move)
+
     summary, server = fly(
-        tmp_path, ["deploy.safety.geofence_max_m=[0.3,2.0,2.5]", "deploy.safety.geofence_margin_m=0.05"]
+        tmp_path, ["deploy.safety.geofence_max_m=[0.9,0.9,2.5]", "deploy.safety.geofence_margin_m=0.05"], hook=push
     )
     assert summary["outcome"].startswith(("killed: geofence breached", "landed early: outside geofence"))
     assert motors_stopped(server)
+
+
+def test_reference_outside_the_geofence_is_refused_before_arming(tmp_path):
+    # the star reaches 0.7 m from the hover point: a fence at x, y <= 0.3 m refuses the flight on the ground
+    summary, server = fly(tmp_path, ["deploy.safety.geofence_max_m=[0.3,0.3,2.5]"])
+    assert summary["outcome"].startswith("preflight failed: deploy.safety.geofence_max_m: the reference leaves")
+    phases = [e["text"] for e in summary["events"] if e["kind"] == "phase"]
+    assert "ARM" not in phases and not server.armed
+    assert motors_stopped(server) and server.true_state()["pos_m"][2] < 0.05
 
 
 def test_mocap_dropout_lands(tmp_path):

@@ -123,7 +123,12 @@ def test_interrupted_run_resumes_to_the_same_total(tmp_path):
     final = load_checkpoint(tmp_path / "last.pt")
     assert final["frames"] == total and final["iteration"] == 4 and final["phase"] == "main"
     rows = (tmp_path / "metrics.csv").read_text().splitlines()
-    assert len(rows) == 1 + 2 + 3  # header, 2 rows before the kill (1 logged twice), then 3 more
+    # header + one row per iteration: iteration 2 (logged, then killed before its checkpoint) is
+    # dropped on resume and trained again, never listed twice
+    assert len(rows) == 1 + 4
+    assert [int(r.split(",")[2]) for r in rows[1:]] == [1, 2, 3, 4]
+    assert [row["iteration"] for row in final["history"]] == [1, 2, 3, 4]  # the whole learning curve
+    assert metrics["train_wall_s"] == pytest.approx(final["train_wall_s"]) and metrics["train_wall_s"] > 0
 
 
 def test_nan_guard_stops_with_last_good_checkpoint(tmp_path):

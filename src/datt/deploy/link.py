@@ -39,6 +39,18 @@ def _cflib():
     return cflib.crtp, Crazyflie, LogConfig
 
 
+def _connect_failure(message: str | None, timeout_s: float) -> str:
+    """cflib's connect failure (message + traceback) as one line with what to do."""
+    if message is None:
+        return f"no answer within {timeout_s:.0f} s (vehicle off, out of range, or another channel/address?)"
+    text = str(message).split("Traceback")[0]
+    lines = [ln.strip() for ln in text.splitlines() if ln.strip()]
+    why = "; ".join(lines[:2]) or "connection failed"
+    if "Crazyradio" in why:
+        return f"{why}: plug in a Crazyradio and check its USB permissions (docs/deploy.md)"
+    return why
+
+
 @dataclass
 class StateSample:
     """Onboard estimate (world frame, SI): pos_m, vel_mps (3), quat (w, x, y, z), battery."""
@@ -111,19 +123,25 @@ class CrazyflieLink:
         crtp, Crazyflie, LogConfig = _cflib()
         import logging
 
-        logging.getLogger("cflib").setLevel(logging.WARNING)  # its INFO chatter drowns the flight log
-        crtp.init_drivers()
-        self.cf = Crazyflie(rw_cache=None)
-        done, error = threading.Event(), []
-        self.cf.connected.add_callback(lambda uri: done.set())
-        self.cf.connection_failed.add_callback(lambda uri, msg: (error.append(msg), done.set()))
-        self.cf.connection_lost.add_callback(self._on_lost)
-        self.cf.open_link(self.uri)
-        if not done.wait(self.connect_timeout_s) or error:
+        cflib_log = logging.getLogger("cflib")
+        # cflib logs a connect failure with its traceback; we report it in one line below
+        cflib_log.setLevel(logging.CRITICAL)
+        try:
+            crtp.init_drivers()
+            self.cf = Crazyflie(rw_cache=None)
+            done, error = threading.Event(), []
+            self.cf.connected.add_callback(lambda uri: done.set())
+            self.cf.connection_failed.add_callback(lambda uri, msg: (error.append(msg), done.set()))
+            self.cf.connection_lost.add_callback(self._on_lost)
+            self.cf.open_link(self.uri)
+            ok = done.wait(self.connect_timeout_s) and not error
+        finally:
+            cflib_log.setLevel(logging.WARNING)  # its INFO chatter would drown the flight log
+        if not ok:
             self.close()
-            lines = [ln.strip() for ln in str(error[0]).splitlines() if ln.strip()][:2] if error else []
-            why = "; ".join(lines) if lines else f"no answer within {self.connect_timeout_s:.0f} s"
-            raise LinkError(f"connect: {self.uri}: {why}")
+            raise LinkError(
+                f"connect: {self.uri}: {_connect_failure(error[0] if error else None, self.connect_timeout_s)}"
+            )
         self.cf.param.set_value("flightmode.stabModeRoll", 0)
         self.cf.param.set_value("flightmode.stabModePitch", 0)
         for name, variables, store in (("state_a", BLOCK_A, "_a"), ("state_b", BLOCK_B, "_b")):

@@ -17,9 +17,11 @@ row per tick), ``events.json`` (phases, safety decisions, timing), and track plo
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import json
 import math
+import signal
 import threading
 import time
 from dataclasses import dataclass, field
@@ -31,6 +33,40 @@ import torch
 from datt.deploy.safety import KILL, LAND, OK, SafetyParams, check, tilt_deg
 from datt.deploy.thrust import ThrustMap
 from datt.refs.base import RefFamily
+
+
+@contextlib.contextmanager
+def _signals_interrupt():
+    """SIGINT and SIGTERM raise ``KeyboardInterrupt`` inside (main thread only), even where the
+    process inherited them ignored (started in the background): any stop request during a
+    flight KILLs it and writes the log."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def interrupt(signum, frame):
+        raise KeyboardInterrupt("Ctrl-C" if signum == signal.SIGINT else signal.Signals(signum).name)
+
+    previous = {sig: signal.signal(sig, interrupt) for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+
+
+@contextlib.contextmanager
+def _signals_ignored():
+    """SIGINT/SIGTERM ignored inside (main thread only): cleanup that must finish."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = {sig: signal.signal(sig, signal.SIG_IGN) for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
 
 
 class Ramp(RefFamily):
@@ -169,7 +205,9 @@ class FlightRunner:
         """CONNECT -> PREFLIGHT -> ``build(start)`` -> ARM -> ``airborne(origin, built)`` -> DISARM;
         the flight log is written whatever happens. Models are built (and the policy traced)
         before the motors spin, so nothing stalls the control loop mid-flight."""
+        stop_signals = _signals_interrupt()
         try:
+            stop_signals.__enter__()
             self._set_phase("CONNECT")
             self.link.connect()
             if self.mocap is not None:
@@ -185,21 +223,27 @@ class FlightRunner:
             airborne(origin, built)
         except _Abort:
             pass
-        except KeyboardInterrupt:
-            self._kill("operator interrupt (Ctrl-C)")
+        except KeyboardInterrupt as exc:
+            self._kill(f"operator interrupt ({exc.args[0] if exc.args else 'Ctrl-C'})")
         finally:
-            self._set_phase("DISARM")
-            try:
-                self.link.send_rates(0.0, 0.0, 0.0, 0)
-                self.link.arm(False)
-            except Exception as exc:  # a dead link cannot disarm; the vehicle's watchdog does
-                self._event("disarm failed", str(exc))
-            if self.link.link_lost.is_set():  # the sends above were skipped; say why
-                self._event("link lost", self.link.lost_reason)
-            if self.mocap is not None:
-                self.mocap.stop()
-            self.link.close()
-            summary = self._write()
+            stop_signals.__exit__(None, None, None)
+            with _signals_ignored():  # a second Ctrl-C must not cut the disarm or the log short
+                self._set_phase("DISARM")
+                try:
+                    self.link.send_rates(0.0, 0.0, 0.0, 0)
+                    self.link.arm(False)
+                except Exception as exc:  # a dead link cannot disarm; the vehicle's watchdog does
+                    self._event("disarm failed", str(exc))
+                if self.link.link_lost.is_set():  # the sends above were skipped; say why
+                    self._event("link lost", self.link.lost_reason)
+                summary = self._write()  # before closing anything: a hanging close keeps the log
+                try:
+                    if self.mocap is not None:
+                        self.mocap.stop()
+                    self.link.close()
+                except Exception as exc:
+                    self._event("close failed", str(exc))
+                    summary = self._write()
         return summary
 
     def _takeoff(self, start_rel: np.ndarray) -> tuple:
@@ -210,10 +254,9 @@ class FlightRunner:
         """Takeoff, track the reference with the configured controller, land."""
 
         def build(start_rel):
-            return [
-                self._takeoff(start_rel),
-                ("TRACK", self._model(self.track_controller, self.track_family), self.p.track_s),
-            ]
+            track = self._model(self.track_controller, self.track_family)
+            self._check_reference_in_geofence(track, self.p.track_s)
+            return [self._takeoff(start_rel), ("TRACK", track, self.p.track_s)]
 
         def airborne(origin, phases):
             for name, model, duration in phases:
@@ -290,6 +333,25 @@ class FlightRunner:
             raise _Abort(self.outcome)
         self._event("preflight ok", f"battery {state.vbat_v:.2f} V")
         return np.array(state.pos_m)
+
+    def _check_reference_in_geofence(self, model: FlightModel, duration_s: float | None) -> None:
+        """Refuse before arming a reference that would leave the geofence (it would be KILLed mid-air)."""
+        env = model.env
+        steps = env.params.episode_steps if duration_s is None else int(round(duration_s * self.p.rate_hz))
+        path = env.ref_table[0, : steps + 1].double().numpy() + self._origin()
+        lo, hi = np.asarray(self.safety.geofence_min_m), np.asarray(self.safety.geofence_max_m)
+        outside = np.nonzero(((path < lo) | (path > hi)).any(axis=1))[0]
+        if len(outside):
+            k = int(outside[0])
+            axis = int(np.nonzero((path[k] < lo) | (path[k] > hi))[0][0])
+            bound = "geofence_min_m" if path[k, axis] < lo[axis] else "geofence_max_m"
+            self.outcome = (
+                f"preflight failed: deploy.safety.{bound}: the reference leaves the geofence at "
+                f"t={k / self.p.rate_hz:.2f} s ({'xyz'[axis]}={path[k, axis]:.2f} m; "
+                f"fence {lo[axis]:.2f}..{hi[axis]:.2f} m)"
+            )
+            self._event("preflight failed", self.outcome)
+            raise _Abort(self.outcome)
 
     def _tick_loop(self, model: FlightModel, steps: int, origin: np.ndarray, allow_land: bool = True) -> str:
         dt = 1.0 / self.p.rate_hz

@@ -37,10 +37,13 @@ class EvalParams:
     save_trace: bool = MISSING
     timing: TimingParams = field(default_factory=TimingParams)
     bank: Any = MISSING
+    traj_count: int = MISSING  # references drawn when the command gives traj= (a bank of one group)
 
     def validate(self) -> None:
         if not self.seeds:
             raise ConfigError("eval.seeds: must list at least one seed, e.g. [0] or [0,1,2]")
+        if self.traj_count < 1:
+            raise ConfigError(f"eval.traj_count: must be >= 1, got {self.traj_count}")
         self.timing.validate()
 
 

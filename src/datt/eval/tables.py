@@ -4,8 +4,10 @@ A table collects every job directory of its sweep (``outputs/sweeps/<table>/<tim
 the directories given as ``runs=``), reads each job's ``metrics.json`` and Hydra overrides, groups
 jobs by their swept keys (all overrides except ``seed``) and reports mean ± std over seeds next to
 the paper's numbers, as Markdown, CSV and LaTeX (plus PNG plots for training sweeps). A job that
-diverged (``failed.json``) or whose drones all crashed counts as *failed*, as in the paper; jobs
-without ``metrics.json`` are listed as incomplete with how far they got, never silently dropped.
+diverged (``failed.json`` with status ``diverged``) or whose drones all crashed counts as *failed*,
+as in the paper. Every job of a sweep is listed, never silently dropped: *errored* jobs (a bad
+value or a crash, with the reason from ``failed.json``), *incomplete* ones (with how far they got)
+and *missing* ones (jobs the sweep's ``multirun.yaml`` defines that never started).
 
 Kinds of table (the registry ``TABLES``):
 
@@ -28,6 +30,7 @@ import numpy as np
 import yaml
 
 from datt.errors import ConfigError
+from datt.runs import read_failure
 
 
 @dataclass
@@ -64,7 +67,7 @@ class Job:
     path: Path
     overrides: dict[str, str]
     metrics: dict | None
-    status: str  # finished | failed | incomplete
+    status: str  # finished | diverged | errored | incomplete | missing
     note: str = ""
 
 
@@ -190,7 +193,8 @@ TABLES: dict[str, TableSpec] = {
 
 # -- collecting runs -----------------------------------------------------------------------
 def find_jobs(roots: list[Path]) -> list[Job]:
-    """Every Hydra job dir (one with ``.hydra/``) under ``roots``."""
+    """Every Hydra job dir (one with ``.hydra/``) under ``roots``, plus the jobs a sweep dir's
+    ``multirun.yaml`` defines that have no directory (missing)."""
     jobs = []
     for root in roots:
         if not root.exists():
@@ -202,21 +206,55 @@ def find_jobs(roots: list[Path]) -> list[Job]:
         )
         for d in dirs:
             jobs.append(read_job(d))
+        found = [j.overrides for j in jobs]
+        for sweep_dir in [root, *sorted(p.parent for p in root.glob("**/multirun.yaml") if p.parent != root)]:
+            for num, overrides in enumerate(sweep_jobs(sweep_dir)):
+                expected = _override_dict(overrides)
+                if expected in found:
+                    found.remove(expected)
+                else:  # matched by overrides: sweeps name job dirs by number or by controller
+                    jobs.append(Job(sweep_dir / str(num), expected, None, "missing", f"job {num} never started"))
     return jobs
 
 
-def read_job(path: Path) -> Job:
+def sweep_jobs(sweep_dir: Path) -> list[list[str]]:
+    """The override list of each job a multirun defines (``multirun.yaml``: the command's
+    overrides and the sweeper's params, expanded as Hydra's basic sweeper does), in job order."""
+    path = sweep_dir / "multirun.yaml"
+    if not path.is_file():
+        return []
+    from hydra._internal.core_plugins.basic_sweeper import BasicSweeper
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+    from omegaconf import OmegaConf
+
+    try:
+        cfg = OmegaConf.load(path)
+        hydra_cfg = cfg.hydra
+        args = [f"{k}={v}" for k, v in (hydra_cfg.sweeper.get("params") or {}).items()]
+        args += list(hydra_cfg.overrides.task)
+        batches = BasicSweeper.split_arguments(OverridesParser.create().parse_overrides(args), None)
+    except Exception:  # another sweeper (optuna ...) or a hand-edited file: list only what exists
+        return []
+    return [job for batch in batches for job in batch]
+
+
+def _override_dict(items) -> dict[str, str]:
     overrides = {}
+    for item in items:
+        key, _, value = str(item).partition("=")
+        key = key.lstrip("+~")
+        if key not in ("sweep", "budget") and not key.startswith("hydra"):
+            overrides[key] = value
+    return overrides
+
+
+def read_job(path: Path) -> Job:
     ov_file = path / ".hydra" / "overrides.yaml"
-    if ov_file.is_file():
-        for item in yaml.safe_load(ov_file.read_text()) or []:
-            key, _, value = str(item).partition("=")
-            key = key.lstrip("+~")
-            if key not in ("sweep", "budget") and not key.startswith("hydra"):
-                overrides[key] = value
-    if (path / "failed.json").is_file():
-        note = json.loads((path / "failed.json").read_text()).get("message", "")
-        return Job(path, overrides, None, "failed", note)
+    overrides = _override_dict(yaml.safe_load(ov_file.read_text()) or []) if ov_file.is_file() else {}
+    failure = read_failure(path)
+    if failure is not None:
+        status = "diverged" if failure["status"] == "diverged" else "errored"
+        return Job(path, overrides, None, status, str(failure.get("message", "")))
     if (path / "metrics.json").is_file():
         return Job(path, overrides, json.loads((path / "metrics.json").read_text()), "finished")
     return Job(path, overrides, None, "incomplete", _progress(path))
@@ -284,7 +322,7 @@ def collect(spec: TableSpec, jobs: list[Job]) -> tuple[dict[str, list[Cell]], di
         return rows.setdefault(key, [Cell() for _ in spec.columns])
 
     for job in jobs:
-        if job.status == "incomplete":
+        if job.status not in ("finished", "diverged"):  # errored/incomplete/missing: listed in the notes
             continue
         m = job.metrics or {}
         if spec.kind == "train":
@@ -369,9 +407,17 @@ def job_notes(jobs: list[Job]) -> list[str]:
     for job in jobs:
         if job.status == "incomplete":
             notes.append(f"- incomplete: `{job.path}` ({job.note})")
-        elif job.status == "failed":
+        elif job.status == "diverged":
             notes.append(f"- failed (diverged): `{job.path}` {job.note}".rstrip())
+        elif job.status == "errored":
+            notes.append(f"- errored: `{job.path}` {job.note}".rstrip())
+        elif job.status == "missing":
+            notes.append(f"- missing: {job.note} ({_format_overrides(job.overrides)})")
     return notes
+
+
+def _format_overrides(overrides: dict[str, str]) -> str:
+    return " ".join(f"{k}={v}" for k, v in overrides.items()) or "no overrides"
 
 
 def write(spec: TableSpec, rendered: dict, out_dir: Path) -> list[Path]:

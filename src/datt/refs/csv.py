@@ -35,13 +35,20 @@ def load_csv_reference(path: str | Path, key: str = "traj.path") -> tuple[Tensor
     p = _resolve(path)
     if not p.is_file():
         raise ConfigError(f"{key}: file {str(p)!r} not found")
-    with p.open(newline="") as f:
-        reader = csv.DictReader(f)
+    try:
+        first = p.open(encoding="utf-8-sig").readline()
+    except UnicodeDecodeError:
+        raise ConfigError(f"{key}: {p.name} is not UTF-8 text; save it as UTF-8 CSV") from None
+    # Spreadsheets in many locales write ';' (decimal comma) or tabs; a BOM is dropped by utf-8-sig.
+    delimiter = next((d for d in (",", ";", "\t") if d in first), ",")
+    with p.open(newline="", encoding="utf-8-sig") as f:
+        reader = csv.DictReader(f, delimiter=delimiter)
         header = [h.strip() for h in (reader.fieldnames or [])]
         missing = [c for c in REQUIRED_COLUMNS if c not in header]
         if missing:
             raise ConfigError(
-                f"{key}: {p.name} is missing column(s) {', '.join(missing)}; required: {', '.join(REQUIRED_COLUMNS)}"
+                f"{key}: {p.name} is missing column(s) {', '.join(missing)}; required: {', '.join(REQUIRED_COLUMNS)} "
+                f"(header read as {header} with separator {delimiter!r})"
             )
         rows = []
         for line_no, row in enumerate(reader, start=2):
@@ -49,7 +56,8 @@ def load_csv_reference(path: str | Path, key: str = "traj.path") -> tuple[Tensor
             try:
                 rows.append([float(row[c]) for c in REQUIRED_COLUMNS])
             except (TypeError, ValueError):
-                raise ConfigError(f"{key}: {p.name} line {line_no}: non-numeric value in t,x,y,z") from None
+                hint = " (decimal commas? use '.' for decimals)" if delimiter == ";" else ""
+                raise ConfigError(f"{key}: {p.name} line {line_no}: non-numeric value in t,x,y,z{hint}") from None
     if len(rows) < 2:
         raise ConfigError(f"{key}: {p.name} needs at least 2 data rows, got {len(rows)}")
     data = torch.tensor(rows, dtype=torch.float64)
@@ -66,21 +74,44 @@ def load_csv_reference(path: str | Path, key: str = "traj.path") -> tuple[Tensor
     return t - t[0], data[:, 1:]
 
 
+def check_extent(pos_m: Tensor, max_abs_m: float, name: str, key: str = "traj.max_abs_m") -> None:
+    """Refuse positions beyond ``max_abs_m`` (a unit mistake such as mm for m, or a far-away frame)."""
+    worst = pos_m.abs().max().item()
+    if worst > max_abs_m:
+        row = int(pos_m.abs().amax(dim=1).argmax()) + 2
+        raise ConfigError(
+            f"{key}: {name} line {row} is {worst:.4g} m from the origin, beyond {max_abs_m:g} m (positions are "
+            "metres; use relative=true for a far-away frame, or raise traj.max_abs_m)"
+        )
+
+
 class CsvReference(RefFamily):
     """Linear interpolation of a user file, the same reference for every drone.
 
-    ``time_scale`` stretches time (2.0 = twice as slow); ``relative=True`` shifts the path so it
-    starts at the origin (where drones reset); after the last row the reference holds the last
-    position unless ``loop=True`` (then it repeats; the file should end where it starts).
+    ``max_abs_m`` bounds every position (after ``relative``): a file in mm or in a far-away frame
+    is refused rather than trained on. ``time_scale`` stretches time (2.0 = twice as slow);
+    ``relative=True`` shifts the path so it starts at the origin (where drones reset); after the
+    last row the reference holds the last position unless ``loop=True`` (then it repeats; the
+    file should end where it starts).
     """
 
-    def __init__(self, path: str, time_scale: float = 1.0, relative: bool = False, loop: bool = False) -> None:
+    def __init__(
+        self,
+        path: str,
+        time_scale: float = 1.0,
+        relative: bool = False,
+        loop: bool = False,
+        max_abs_m: float = 20.0,
+    ) -> None:
         if time_scale <= 0:
             raise ConfigError(f"traj.time_scale: must be > 0, got {time_scale}")
+        if max_abs_m <= 0:
+            raise ConfigError(f"traj.max_abs_m: must be > 0, got {max_abs_m}")
         t, pos = load_csv_reference(path)
         self.path = path
         self.t_s = t * time_scale
         self.pos_m = pos - pos[:1] if relative else pos
+        check_extent(self.pos_m, max_abs_m, Path(path).name)
         self.loop = loop
 
     def sample(self, n: int, t_s: Tensor, generator: torch.Generator) -> Tensor:

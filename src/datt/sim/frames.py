@@ -86,7 +86,7 @@ def quat_to_rotmat(q: Tensor) -> Tensor:
     return torch.stack((row0, row1, row2), dim=-2)
 
 
-def _rotmat_quadratic_form() -> Tensor:
+def _rotmat_quadratic_form() -> Tensor:  # pragma: no mutate block (runs at import: see docs/mutation.md)
     # R(q) of a unit quaternion is a quadratic form in q: R.flatten() = (q q^T).flatten() @ C.
     C = torch.zeros(4, 4, 9, dtype=torch.float64)
     w, x, y, z = range(4)

@@ -18,7 +18,7 @@ from datt.deploy.runner import FlightRunner
 from datt.deploy.schema import DeployParams, deploy_params
 from datt.deploy.thrust import ThrustMap, ThrustParams
 from datt.envs.factory import make_env
-from datt.errors import ConfigError
+from datt.errors import ConfigError, FlightAborted
 from datt.tasks.common import console, hydra_run_dir, set_threads
 
 
@@ -107,4 +107,16 @@ def run_deploy(cfg: DictConfig, run_dir: Path | None = None, estop=None, server_
         f"{summary['track_steps']} steps; tick jitter median {jitter['median']:.2f} ms, p99 {jitter['p99']:.2f} ms; "
         f"{summary['late_ticks']} late ticks; log in {run_dir}"
     )
+    return summary
+
+
+def run_deploy_command(cfg: DictConfig) -> dict:
+    """``deploy.py``: :func:`run_deploy`, and a flight that did not land is a failing command
+    (a refused setting: one line naming it, exit 2; KILLed or lost: exit 4)."""
+    summary = run_deploy(cfg)
+    outcome = str(summary["outcome"])
+    if outcome.startswith("preflight failed: deploy."):  # a setting refused the flight before arming
+        raise ConfigError(outcome.removeprefix("preflight failed: "))
+    if not outcome.startswith("landed"):
+        raise FlightAborted(outcome)
     return summary

@@ -6,18 +6,35 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from omegaconf import DictConfig
+from omegaconf import DictConfig, OmegaConf
 
-from datt.configuration import structured
+from datt.configuration import instantiate_option, structured
 from datt.control.factory import build_controller
 from datt.eval.conditions import evaluate_conditions, measure_inference, print_metrics, write_metrics_csv
 from datt.eval.schema import EvalParams
-from datt.tasks.common import console, hydra_run_dir, set_threads
+from datt.tasks.common import command_overrides, console, hydra_run_dir, set_threads
+
+
+def bank_of_given_traj(cfg: DictConfig, count: int) -> DictConfig:
+    """A ``traj=<option>`` on the command line replaces the bank by one group of that family
+    (``count`` references, seed ``seed``; a CSV file is one reference), so
+    ``eval.py traj=csv traj.path=my.csv`` flies the user's file. A bank given on the same command
+    line (``bank@eval.bank=...``) wins."""
+    keys = {o.lstrip("+~").split("=", 1)[0]: o.split("=", 1)[-1] for o in command_overrides() or []}
+    name = keys.get("traj")
+    if name is None or any(k.startswith(("bank", "eval.bank")) for k in keys):  # a bank given too: it wins
+        return cfg
+    instantiate_option(cfg, "traj")  # a bad file or value: one line naming traj.<key>, before any flight
+    cfg = OmegaConf.create(OmegaConf.to_container(cfg, resolve=True))
+    single = "CsvReference" in str(cfg.traj.get("_target_", ""))
+    cfg.eval.bank = {name: [{"traj": cfg.traj, "seed": int(cfg.seed), "count": 1 if single else count}]}
+    return cfg
 
 
 def run_eval(cfg: DictConfig, run_dir: Path | None = None) -> dict:
     """Evaluate ``cfg.controller``; writes ``metrics.json``, ``metrics.csv`` (and traces/plots)."""
     params = structured(EvalParams, cfg.eval, "eval")
+    cfg = bank_of_given_traj(cfg, params.traj_count)
     run_dir = run_dir or hydra_run_dir()
     run_dir.mkdir(parents=True, exist_ok=True)
     set_threads(cfg.threads)

@@ -57,10 +57,11 @@ def run_tables(cfg: DictConfig, run_dir: Path | None = None) -> dict:
         overrides = [*params.sweep_overrides, f"hydra.sweep.dir={sweep_dir}"]
         cmd = [sys.executable, "-m", "datt", command, f"+sweep={spec.name}", *overrides]
         console.print("running: " + " ".join(cmd[1:]))
-        if subprocess.run(cmd, cwd=original_cwd()).returncode != 0:
-            raise ConfigError(
-                f"run: the {spec.name} sweep failed (see its output above); finished jobs are in {sweep_dir}"
-            )
+        code = subprocess.run(cmd, cwd=original_cwd()).returncode
+        if code != 0 and not (sweep_dir / "multirun.yaml").is_file():  # refused before any job started
+            raise ConfigError(f"run: the {spec.name} sweep did not start (see its output above)")
+        if code != 0:
+            console.print(f"{code} job(s) of the sweep did not finish; the table lists each one's state")
         roots = [sweep_dir]
     elif params.runs:
         runs = params.runs if isinstance(params.runs, (list, tuple)) else [params.runs]

@@ -4,36 +4,22 @@
 from __future__ import annotations
 
 import json
-import time
+import shutil
 from pathlib import Path
 
 from omegaconf import DictConfig, OmegaConf
 
-from datt.configuration import structured
-from datt.errors import ConfigError, TrainingDiverged
+from datt.configuration import config_groups, search_roots, structured
+from datt.errors import TrainingDiverged
 from datt.eval.conditions import evaluate_conditions, print_metrics
 from datt.eval.plots import plot_learning_curve
 from datt.eval.schema import EndOfRunEvalParams
-from datt.paths import original_cwd, resolve_path
+from datt.runs import RunLock, finite_json, record_failure, write_json
 from datt.tasks.common import console, hydra_run_dir, set_threads
+from datt.tasks.resume import finished_frames, resume_config, resume_dir
 from datt.train.loggers import CsvLogger, MultiLogger, WandbLogger
 from datt.train.ppo import Trainer
-from datt.train.schema import TrainParams, run_params
-
-
-def resume_dir(resume) -> Path | None:
-    """The run dir ``resume=`` names: ``true`` = the newest run with a ``last.pt`` under outputs/."""
-    if resume in (False, None, "false", "False"):
-        return None
-    if resume in (True, "true", "True"):
-        candidates = sorted((original_cwd() / "outputs").glob("**/last.pt"), key=lambda p: p.stat().st_mtime)
-        if not candidates:
-            raise ConfigError("resume: no run with a last.pt under outputs/; pass resume=<run dir>")
-        return candidates[-1].parent
-    path = resolve_path(resume)
-    if not (path / "last.pt").is_file():
-        raise ConfigError(f"resume: {str(path)!r} has no last.pt")
-    return path
+from datt.train.schema import TrainParams, budget_factor, check_ablation, run_params
 
 
 def wandb_group_and_tags(cfg: DictConfig, run_dir: Path) -> tuple[str | None, list[str]]:
@@ -54,21 +40,62 @@ def wandb_group_and_tags(cfg: DictConfig, run_dir: Path) -> tuple[str | None, li
 
 
 def run_train(cfg: DictConfig, run_dir: Path | None = None) -> dict:
-    """Train, checkpoint, evaluate; returns the metrics written to ``metrics.json``."""
+    """Train, checkpoint, evaluate; returns the metrics written to ``metrics.json``.
+
+    ``resume=<run>`` carries on that run with its own saved config (:mod:`datt.tasks.resume`);
+    the run dir is locked while this process writes it."""
     run = run_params(cfg)
     train = structured(TrainParams, cfg.train, "train")
+    check_ablation(cfg)
     set_threads(train.threads)
     if run.stage == "rma":
         from datt.tasks.rma import run_rma
 
         return run_rma(cfg, run_dir or hydra_run_dir())
-    end_eval = structured(EndOfRunEvalParams, cfg.eval, "eval")
     resumed = resume_dir(run.resume)
-    run_dir = resumed or run_dir or hydra_run_dir()
-    run_dir.mkdir(parents=True, exist_ok=True)
-    if resumed is None:
-        (run_dir / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
+    if resumed is not None:
+        cfg = resume_config(cfg, resumed, config_groups(search_roots()))
+        _drop_own_hydra_dir(resumed, run_dir)
+        done = finished_frames(resumed, int(int(cfg.train.total_steps) * budget_factor(cfg)))
+        if done is not None:  # report, write nothing
+            console.print(
+                f"run {resumed} is finished ({done:,} frames); nothing to do. To train on, resume with a larger "
+                f"train.total_steps (> {done:,})"
+            )
+            metrics_path = resumed / "metrics.json"
+            return json.loads(metrics_path.read_text()) if metrics_path.is_file() else {"frames": done}
+        run_dir = resumed
+    run_dir = run_dir or hydra_run_dir()
+    with RunLock(run_dir):
+        return _train_locked(cfg, run_dir, resumed is not None)
+
+
+def _drop_own_hydra_dir(resumed: Path, given: Path | None) -> None:
+    """A resume trains in the resumed run's dir: the fresh dir Hydra made for this command holds
+    only its own config copy and log, so it goes (no empty run for tables/resume=true to find)."""
+    if given is not None:
+        return
+    try:
+        own = hydra_run_dir()
+    except ValueError:  # not inside a Hydra job
+        return
+    if own.resolve() == resumed.resolve() or not own.is_dir():
+        return
+    if all(p.name == ".hydra" or p.suffix == ".log" for p in own.iterdir()):
+        shutil.rmtree(own, ignore_errors=True)
+
+
+def _train_locked(cfg: DictConfig, run_dir: Path, resumed: bool) -> dict:
+    run = run_params(cfg)
+    train = structured(TrainParams, cfg.train, "train")
+    end_eval = structured(EndOfRunEvalParams, cfg.eval, "eval")
     loggers = [CsvLogger(run_dir)]
+    trainer = Trainer(cfg, run_dir, MultiLogger(loggers), console)
+    if resumed:
+        trainer.load(run_dir / "last.pt")
+        loggers[0].keep_until(trainer.frames)  # rows logged after the checkpoint are trained again
+        console.print(f"resuming {run_dir} at {trainer.frames:,} of {trainer.total_frames:,} frames")
+    (run_dir / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
     if cfg.logger.wandb:
         group, tags = wandb_group_and_tags(cfg, run_dir)
         loggers.append(
@@ -83,26 +110,20 @@ def run_train(cfg: DictConfig, run_dir: Path | None = None) -> dict:
                 run_id=f"{run_dir.parent.name}-{run_dir.name}",
             )
         )
-    logger = MultiLogger(loggers)
-    trainer = Trainer(cfg, run_dir, logger, console)
-    if resumed is not None:
-        trainer.load(resumed / "last.pt")
-        console.print(f"resuming {resumed} at {trainer.frames:,} frames")
+    logger = trainer.logger
     console.print(f"run dir: {run_dir}")
-    t0 = time.perf_counter()
     try:
         history = trainer.train()
     except TrainingDiverged as exc:
         # tables.py reports this run as "failed" (as the paper does for diverged ablations)
-        (run_dir / "failed.json").write_text(json.dumps({"message": str(exc), "frames": trainer.frames}) + "\n")
+        record_failure(run_dir, "diverged", f"training diverged: {exc}", frames=trainer.frames)
         raise
     finally:
         logger.close()
-    wall_s = time.perf_counter() - t0
     metrics = {
         "frames": trainer.frames,
-        "train_wall_s": wall_s,
-        "steps_per_s": (trainer.frames / wall_s) if history else None,
+        "train_wall_s": trainer.train_wall_s,  # summed over every segment of a resumed run
+        "steps_per_s": (trainer.frames / trainer.train_wall_s) if history and trainer.train_wall_s > 0 else None,
         "horizon": trainer.env.horizon,
         "seed": run.seed,
     }
@@ -117,5 +138,5 @@ def run_train(cfg: DictConfig, run_dir: Path | None = None) -> dict:
         hover = evaluate_conditions(cfg, None, {"hover": clean}, run_dir, False, "hover", seed=seed)["hover"]
         metrics["hover_reference"] = hover
         print_metrics(console, f"evaluation ({run_dir.name})", {**metrics["conditions"], "hover (reference)": hover})
-    (run_dir / "metrics.json").write_text(json.dumps(metrics, indent=2) + "\n")
-    return metrics
+    write_json(run_dir / "metrics.json", metrics)
+    return finite_json(metrics)

@@ -11,6 +11,8 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+from datt.errors import ConfigError, one_line
+
 
 class Logger:
     def log(self, metrics: Mapping[str, float], step: int) -> None:
@@ -30,8 +32,18 @@ class CsvLogger(Logger):
             with self.path.open(newline="") as f:
                 self.rows = list(csv.DictReader(f))
 
+    def keep_until(self, step: int) -> None:
+        """Drop the rows logged after ``step`` (a resume trains them again from its checkpoint)."""
+        kept = [row for row in self.rows if float(row.get("step") or 0) <= step]
+        if len(kept) != len(self.rows):
+            self.rows = kept
+            self._write()
+
     def log(self, metrics: Mapping[str, float], step: int) -> None:
         self.rows.append({"step": step, **{k: _plain(v) for k, v in metrics.items()}})
+        self._write()
+
+    def _write(self) -> None:
         fields: list[str] = []
         for row in self.rows:
             fields += [k for k in row if k not in fields]
@@ -61,18 +73,26 @@ class WandbLogger(Logger):
 
         os.environ.setdefault("WANDB_SILENT", "true")
         self._wandb = wandb
-        self.run = wandb.init(
-            project=project,
-            group=group,
-            tags=list(tags or []),
-            mode=mode,
-            dir=str(run_dir),
-            config=dict(config),
-            name=name,
-            id=run_id,
-            resume="allow" if run_id else None,
-            settings=wandb.Settings(console="off", x_disable_stats=True),
-        )
+        if mode == "online" and not (os.environ.get("WANDB_API_KEY") or _wandb_logged_in()):
+            raise ConfigError(
+                "logger.mode: online needs a wandb login (`wandb login` or WANDB_API_KEY); "
+                "or use logger.mode=offline and `wandb sync` later"
+            )
+        try:
+            self.run = wandb.init(
+                project=project,
+                group=group,
+                tags=list(tags or []),
+                mode=mode,
+                dir=str(run_dir),
+                config=dict(config),
+                name=name,
+                id=run_id,
+                resume="allow" if run_id else None,
+                settings=wandb.Settings(console="off", x_disable_stats=True),
+            )
+        except (wandb.errors.UsageError, wandb.errors.CommError) as exc:
+            raise ConfigError(f"logger: wandb could not start a {mode} run ({one_line(exc)})") from None
 
     def log(self, metrics: Mapping[str, float], step: int) -> None:
         self.run.log({k: _plain(v) for k, v in metrics.items()}, step=step)
@@ -92,6 +112,17 @@ class MultiLogger(Logger):
     def close(self) -> None:
         for logger in self.loggers:
             logger.close()
+
+
+def _wandb_logged_in() -> bool:
+    """Whether ~/.netrc (where `wandb login` writes) holds a key for the wandb API host."""
+    import netrc
+
+    host = os.environ.get("WANDB_BASE_URL", "https://api.wandb.ai").split("://")[-1].rstrip("/")
+    try:
+        return netrc.netrc().authenticators(host) is not None
+    except (FileNotFoundError, netrc.NetrcParseError, OSError):
+        return False
 
 
 def _plain(v: Any) -> Any:

@@ -32,8 +32,9 @@ from torchrl.objectives.value import GAE
 from datt.checkpoint import load_checkpoint, save_checkpoint
 from datt.configuration import instantiate_option, structured
 from datt.envs.factory import make_env
-from datt.errors import ConfigError, TrainingDiverged
+from datt.errors import ConfigError, TrainingDiverged, TrainingInterrupted
 from datt.policies.networks import PolicyParams, make_actor, make_critic
+from datt.runs import StopRequest
 from datt.train.loggers import Logger
 from datt.train.schema import CurriculumParams, TrainParams, budget_factor
 
@@ -73,6 +74,7 @@ class AlgoParams:
         need(self.epochs >= 1, "epochs", f"must be >= 1, got {self.epochs}")
         need(self.minibatch_size >= 1, "minibatch_size", f"must be >= 1, got {self.minibatch_size}")
         need(self.lr > 0, "lr", f"must be > 0, got {self.lr}")
+        need(0 <= self.lr_final_frac <= 1, "lr_final_frac", f"must be in [0, 1], got {self.lr_final_frac}")
         need(self.reward_scale > 0, "reward_scale", f"must be > 0, got {self.reward_scale}")
         need(
             self.lr_schedule in ("constant", "linear"),
@@ -141,7 +143,8 @@ class Trainer:
         self.frames = 0
         self.iteration = 0
         self.best_error = math.inf
-        self.history: list[dict] = []
+        self.history: list[dict] = []  # one row per iteration, kept in the checkpoint (whole learning curve)
+        self.train_wall_s = 0.0  # training time summed over every segment of the run
 
     # -- checkpoints -------------------------------------------------------------------------
     def state(self) -> dict:
@@ -157,6 +160,8 @@ class Trainer:
             "config_yaml": OmegaConf.to_yaml(self.cfg, resolve=True),
             "rng_torch": torch.get_rng_state(),
             "rng_env": self.env.generator.get_state(),
+            "history": self.history,
+            "train_wall_s": self.train_wall_s,
         }
 
     def save(self, name: str = "last.pt") -> Path:
@@ -190,6 +195,8 @@ class Trainer:
         self.best_error = float(data["best_error_m"])
         torch.set_rng_state(data["rng_torch"])
         self.env.generator.set_state(data["rng_env"])
+        self.history = [dict(row) for row in data.get("history", [])]
+        self.train_wall_s = float(data.get("train_wall_s", 0.0))
         self._update_phase()
 
     # -- loop -------------------------------------------------------------------------------
@@ -211,10 +218,9 @@ class Trainer:
 
     def _check_finite(self, name: str, value: torch.Tensor) -> None:
         if not torch.isfinite(value).all():
-            raise TrainingDiverged(
-                f"non-finite {name} at iteration {self.iteration} (frame {self.frames}); "
-                f"last good checkpoint: {self.run_dir / 'last.pt'}"
-            )
+            last = self.run_dir / "last.pt"
+            where = f"last good checkpoint: {last}" if last.is_file() else "no checkpoint was written before it"
+            raise TrainingDiverged(f"non-finite {name} at iteration {self.iteration} (frame {self.frames}); {where}")
 
     def update(self, batch) -> dict:
         """GAE + PPO epochs on one collected batch ``[num_envs, rollout_steps]``."""
@@ -283,11 +289,12 @@ class Trainer:
         )
         start = time.perf_counter()
         frames_at_start = self.frames
-        with progress:
+        stop = StopRequest()
+        with stop, progress:
             task = progress.add_task(
                 "train", total=self.total_frames, completed=self.frames, rate=0.0, err=0.0, ret=0.0
             )
-            t_iter = time.perf_counter()
+            t_iter = t_last = time.perf_counter()
             for batch in collector:
                 ret_per_step = batch["next", "reward"].mean().item()  # before update() scales it
                 stats = self.update(batch)
@@ -321,8 +328,16 @@ class Trainer:
                     self.best_error = err
                     self.save("best.pt")
                 self._update_phase()
-                if self.iteration % every == 0:
+                self.train_wall_s += now - t_last
+                t_last = now
+                if self.iteration % every == 0 or stop.signal:
                     self.save("last.pt")
+                if stop.signal:
+                    collector.shutdown()
+                    raise TrainingInterrupted(
+                        f"{stop.signal}: checkpoint at {self.frames:,} of {self.total_frames:,} frames in "
+                        f"{self.run_dir / 'last.pt'}; resume with resume={self.run_dir}"
+                    )
                 if self.frames >= self.total_frames:
                     break
         collector.shutdown()

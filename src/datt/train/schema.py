@@ -7,9 +7,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from omegaconf import MISSING, DictConfig
+from omegaconf import MISSING, DictConfig, OmegaConf
 
-from datt.configuration import check_horizon, structured
+from datt.configuration import check_horizon, hydra_choice, load_option, structured
 from datt.errors import ConfigError
 
 
@@ -109,3 +109,26 @@ def budget_factor(cfg: DictConfig) -> float:
     """``cfg.budget``, checked: the factor on train.total_steps, curriculum.fixed_ref_steps and
     rma.iterations (sweeps on small machines)."""
     return check_budget(cfg.budget)
+
+
+def check_ablation(cfg: DictConfig) -> None:
+    """An ablation option and a command-line value that undoes it (``ablation=h5 horizon=15``)
+    would train one thing under the other's label: every key the chosen ablation sets must keep
+    its value."""
+    name = hydra_choice("ablation", "none")
+    if name in ("none", "custom"):
+        return
+    sets = OmegaConf.to_container(load_option("ablation", name), resolve=True)
+
+    def walk(node, prefix):
+        for key, value in node.items():
+            path = f"{prefix}{key}"
+            if isinstance(value, dict):
+                walk(value, path + ".")
+            elif OmegaConf.select(cfg, path) != value:
+                raise ConfigError(
+                    f"{path}: {OmegaConf.select(cfg, path)} contradicts ablation={name} (which sets {path}={value}); "
+                    "drop one of the two"
+                )
+
+    walk(sets, "")

@@ -34,6 +34,7 @@ import torch
 
 from datt.deploy import crtp
 from datt.deploy.thrust import ThrustMap, ThrustParams
+from datt.errors import ConfigError
 from datt.sim.quadrotor import Quadrotor, QuadrotorParams
 
 LOG_VARS = [  # (group, name, type)
@@ -111,8 +112,16 @@ class SimCrazyflie:
     # -- lifecycle -------------------------------------------------------------------------
     def start(self) -> SimCrazyflie:
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-        self.sock.bind((self.p.host, self.p.port))
+        # No SO_REUSEADDR: on Linux it lets a second UDP server share the port and steal the
+        # packets; UDP has no TIME_WAIT to wait out, so a free port binds without it.
+        try:
+            self.sock.bind((self.p.host, self.p.port))
+        except OSError as exc:
+            self.sock.close()
+            raise ConfigError(
+                f"deploy.uri: udp://{self.p.host}:{self.p.port} cannot be bound ({exc.strerror}); another simulated "
+                "Crazyflie may be running: stop it or pick another port, e.g. deploy.uri=udp://127.0.0.1:19851"
+            ) from None
         self.sock.settimeout(0.05)
         self._running.set()
         self._t0 = time.monotonic()

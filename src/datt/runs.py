@@ -1,0 +1,173 @@
+"""Run directories that never lose work: an exclusive lock while a process writes a run, failure
+records a sweep can read, and JSON/permissions every tool can read.
+
+A run dir is locked with ``flock`` on ``<run>/.lock`` (released by the kernel when the holder
+exits, so a killed run never leaves a stale lock); the file names the holder.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import signal
+import socket
+import tempfile
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+from datt.errors import ConfigError
+
+try:  # POSIX; elsewhere runs are not locked
+    import fcntl
+except ImportError:  # pragma: no cover - Windows
+    fcntl = None  # type: ignore[assignment]
+
+LOCK_NAME = ".lock"
+FAILED_NAME = "failed.json"
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+def public_mode(path: str | Path) -> None:
+    """Give a file written through ``mkstemp`` (0600) the mode a plain ``open`` would have."""
+    os.chmod(path, 0o666 & ~_umask())
+
+
+def finite_json(value: Any) -> Any:
+    """``value`` with every NaN/inf float replaced by ``None`` (JSON has no NaN)."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, dict):
+        return {k: finite_json(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [finite_json(v) for v in value]
+    return value
+
+
+def write_json(path: str | Path, value: Any) -> Path:
+    """Strict JSON (NaN/inf -> null), written atomically (temp file + ``os.replace``)."""
+    path = Path(path)
+    text = json.dumps(finite_json(value), indent=2, allow_nan=False) + "\n"
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w") as f:
+            f.write(text)
+        public_mode(tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return path
+
+
+def record_failure(run_dir: str | Path, status: str, message: str, **extra: Any) -> Path:
+    """``failed.json``: why a run stopped. ``status``: ``diverged`` (non-finite training; the paper's
+    *failed*) or ``errored`` (a bad value or a crash); ``tables.py`` lists both."""
+    if status not in ("diverged", "errored"):
+        raise ValueError(f"status must be diverged or errored, got {status!r}")
+    return write_json(Path(run_dir) / FAILED_NAME, {"status": status, "message": message, **extra})
+
+
+def read_failure(run_dir: str | Path) -> dict | None:
+    """The ``failed.json`` of a run (older ones without ``status`` were divergences), or None."""
+    path = Path(run_dir) / FAILED_NAME
+    if not path.is_file():
+        return None
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return {"status": "errored", "message": f"unreadable {FAILED_NAME}"}
+    data.setdefault("status", "diverged")
+    return data
+
+
+class RunLock:
+    """Exclusive hold on a run dir while this process trains or resumes it.
+
+    ``with RunLock(run_dir): ...``; a second process gets a :class:`ConfigError` naming the holder.
+    """
+
+    def __init__(self, run_dir: str | Path) -> None:
+        self.run_dir = Path(run_dir)
+        self._file = None
+
+    def acquire(self) -> RunLock:
+        self.run_dir.mkdir(parents=True, exist_ok=True)
+        path = self.run_dir / LOCK_NAME
+        f = open(path, "a+")
+        if fcntl is not None:
+            try:
+                fcntl.flock(f.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except OSError:
+                f.seek(0)
+                holder = f.read().strip() or "another process"
+                f.close()
+                raise ConfigError(
+                    f"run dir {str(self.run_dir)!r} is in use by {holder}; wait for it to finish or use another run"
+                ) from None
+        f.seek(0)
+        f.truncate()
+        f.write(f"pid {os.getpid()} on {socket.gethostname()} since {time.strftime('%Y-%m-%d %H:%M:%S')}\n")
+        f.flush()
+        self._file = f
+        return self
+
+    def release(self) -> None:
+        if self._file is not None:
+            self._file.close()  # closing drops the flock
+            self._file = None
+
+    def __enter__(self) -> RunLock:
+        return self.acquire()
+
+    def __exit__(self, *exc: object) -> None:
+        self.release()
+
+
+def is_locked(run_dir: str | Path) -> bool:
+    """Whether another process holds ``run_dir``'s lock right now."""
+    path = Path(run_dir) / LOCK_NAME
+    if fcntl is None or not path.is_file():
+        return False
+    with open(path) as f:
+        try:
+            fcntl.flock(f.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            return True
+        fcntl.flock(f.fileno(), fcntl.LOCK_UN)
+    return False
+
+
+class StopRequest:
+    """While active (``with StopRequest() as stop``), SIGINT and SIGTERM only set ``stop.signal``
+    (``"SIGINT"``/``"SIGTERM"``), so a loop can finish its step and save before it stops; a second
+    signal raises ``KeyboardInterrupt`` at once. Outside the main thread it does nothing."""
+
+    SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+    def __init__(self) -> None:
+        self.signal: str | None = None
+        self._previous: dict = {}
+
+    def _handle(self, signum: int, frame: object) -> None:
+        if self.signal is not None:
+            raise KeyboardInterrupt
+        self.signal = signal.Signals(signum).name
+
+    def __enter__(self) -> StopRequest:
+        if threading.current_thread() is threading.main_thread():
+            for sig in self.SIGNALS:
+                self._previous[sig] = signal.signal(sig, self._handle)
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        for sig, handler in self._previous.items():
+            signal.signal(sig, handler)
+        self._previous = {}

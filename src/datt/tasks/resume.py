@@ -1,0 +1,125 @@
+"""Resuming a training run: the run's own saved config, and which overrides may change it.
+
+A resumed run trains on with ``<run>/config.yaml``. An override on the resume command may only
+change how the run is carried on (``RESUMABLE``: extend ``train.total_steps``, logging,
+checkpoint cadence, threads, end-of-run evaluation); anything that changes what is trained
+(env, policy, algo, references, seed ...) is refused in one line.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import yaml
+from omegaconf import DictConfig, OmegaConf
+
+from datt.checkpoint import load_checkpoint
+from datt.errors import ConfigError
+from datt.paths import original_cwd, resolve_path
+from datt.runs import is_locked
+from datt.tasks.common import command_overrides
+
+# Dotted keys (or prefixes ending in ".") an override may change on resume.
+RESUMABLE = (
+    "resume",
+    "train.total_steps",
+    "train.checkpoint_every",
+    "train.progress",
+    "train.threads",
+    "train.eval_at_end",
+    "logger.",
+    "eval.",
+)
+RESUMABLE_GROUPS = ("logger", "bank@eval.bank")
+
+
+def resume_dir(resume) -> Path | None:
+    """The run dir ``resume=`` names: ``true`` = the newest run with a ``last.pt`` under outputs/
+    that no other process holds."""
+    if resume in (False, None, "false", "False"):
+        return None
+    if resume in (True, "true", "True"):
+        candidates = sorted((original_cwd() / "outputs").glob("**/last.pt"), key=lambda p: p.stat().st_mtime)
+        free = [c.parent for c in candidates if not is_locked(c.parent)]
+        if not free:
+            held = " (the newest is in use by another process)" if candidates else ""
+            raise ConfigError(f"resume: no run with a last.pt under outputs/{held}; pass resume=<run dir>")
+        return free[-1]
+    path = resolve_path(resume)
+    if not (path / "last.pt").is_file():
+        raise ConfigError(f"resume: {str(path)!r} has no last.pt")
+    return path
+
+
+def _resumable(key: str) -> bool:
+    return any(key == k or (k.endswith(".") and key.startswith(k)) for k in RESUMABLE)
+
+
+def _leaves(node, prefix: str = "") -> dict[str, object]:
+    if isinstance(node, dict):
+        out: dict[str, object] = {}
+        for k, v in node.items():
+            out.update(_leaves(v, f"{prefix}{k}."))
+        return out
+    return {prefix[:-1]: node}
+
+
+def _saved_choices(run_dir: Path) -> dict[str, str] | None:
+    path = run_dir / ".hydra" / "hydra.yaml"
+    if not path.is_file():
+        return None
+    data = yaml.safe_load(path.read_text()) or {}
+    return {str(k): str(v) for k, v in ((data.get("hydra") or {}).get("runtime") or {}).get("choices", {}).items()}
+
+
+def resume_config(cfg: DictConfig, run_dir: Path, groups: set[str]) -> DictConfig:
+    """The config a resume of ``run_dir`` trains with: the run's saved config plus the allowed
+    overrides of this command. ``cfg``: this command's composed config; ``groups``: the config
+    group names (an override of one is a group choice, compared with the run's own choice)."""
+    path = run_dir / "config.yaml"
+    if path.is_file():
+        saved = OmegaConf.load(path)
+    else:  # a run trained through the library API: the checkpoint holds the config it trained with
+        saved = OmegaConf.create(load_checkpoint(run_dir / "last.pt", key="resume")["config_yaml"])
+    now = OmegaConf.to_container(cfg, resolve=True)
+    before = OmegaConf.to_container(saved, resolve=True)
+    now_leaves, before_leaves = _leaves(now), _leaves(before)
+    overrides = command_overrides()
+    changed: list[str] = []
+    if overrides is None:  # called as a library: every key that differs was asked for
+        changed = [k for k in sorted(set(now_leaves) | set(before_leaves)) if now_leaves.get(k) != before_leaves.get(k)]
+    else:
+        choices = _saved_choices(run_dir)
+        for text in overrides:
+            key, _, value = text.lstrip("+~").partition("=")
+            if key in groups or "/" in key or "@" in key:
+                if key in RESUMABLE_GROUPS:
+                    changed += [k for k in now_leaves if k.startswith(key.split("@")[-1] + ".")]
+                    continue
+                was = (choices or {}).get(key)
+                if was != value:
+                    raise ConfigError(
+                        f"resume: {key}={value} changes what the run trains (it used {key}={was}); "
+                        "start a new run instead"
+                    )
+                continue
+            changed += [k for k in now_leaves if k == key or k.startswith(key + ".")]
+    merged = OmegaConf.create(before)
+    for key in changed:
+        if now_leaves.get(key) == before_leaves.get(key):
+            continue
+        if not _resumable(key):
+            raise ConfigError(
+                f"resume: {key}={now_leaves.get(key)} changes what the run trains (it used "
+                f"{before_leaves.get(key)}); on resume only {', '.join(k.rstrip('.') for k in RESUMABLE[1:])} "
+                "may change; start a new run instead"
+            )
+        OmegaConf.update(merged, key, now_leaves.get(key), force_add=True)
+    OmegaConf.update(merged, "resume", str(run_dir), force_add=True)
+    return merged
+
+
+def finished_frames(run_dir: Path, total_frames: int) -> int | None:
+    """The frames of ``run_dir``'s last checkpoint if they already reach ``total_frames``."""
+    frames = int(load_checkpoint(run_dir / "last.pt", key="resume")["frames"])
+    return frames if frames >= total_frames else None

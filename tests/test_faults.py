@@ -1,0 +1,462 @@
+"""Fault catalogue (issue 16): every bad-input and fault case found by trying the entry points as a
+new user would, one test each, the reproduction as its body. Each must end in one line naming the
+key (exit 2), a clear non-zero exit, or work that is kept; never a traceback or lost files.
+
+Most cases run the entry points in this process (the same code path as the scripts, without ~3 s
+of imports each); the signal cases run them as real processes.
+"""
+
+import csv
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+import warnings
+from pathlib import Path
+
+import pytest
+import torch
+
+from datt import cli
+from datt.checkpoint import load_checkpoint, save_checkpoint
+from datt.errors import ConfigError
+from datt.refs.csv import load_csv_reference
+from datt.runs import RunLock, write_json
+from datt.tasks.resume import resume_dir
+
+ROOT = Path(__file__).resolve().parents[1]
+TINY = [
+    "logger=csv",
+    "env.compile=false",
+    "train.progress=false",
+    "algo.num_envs=64",
+    "algo.rollout_steps=16",
+    "algo.minibatch_size=512",
+    "algo.epochs=1",
+    "curriculum.fixed_ref_steps=0",
+    "train.eval_at_end=false",
+    "eval.plots=false",
+]
+RESUME = ["logger=csv", "train.progress=false"]  # a resume repeats nothing of the run's own settings
+FLIGHT = [
+    "deploy.flight.takeoff_s=1.5",
+    "deploy.flight.hover_s=0.5",
+    "deploy.flight.track_s=3.0",
+    "deploy.flight.land_s=1.5",
+    "deploy.safety.max_state_age_s=0.8",
+    "deploy.safety.max_mocap_age_s=0.4",
+]
+_port = iter(range(19960, 19999))
+
+
+def run_cli(entry, args, cwd, monkeypatch, capsys):
+    """``<entry>.py args`` in this process: (exit status, stderr lines without warnings, stdout)."""
+    from hydra.core.global_hydra import GlobalHydra
+    from hydra.core.hydra_config import HydraConfig
+
+    monkeypatch.chdir(cwd)
+    monkeypatch.setattr(sys, "argv", [f"{entry}.py", *args])
+    capsys.readouterr()
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # a library's warning is not the error line under test
+            cli.COMMANDS[entry]()
+        code = 0
+    except SystemExit as exc:
+        code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
+    finally:  # leave no Hydra job state behind for the next test
+        HydraConfig.instance().cfg = None
+        GlobalHydra.instance().clear()
+    out = capsys.readouterr()
+    lines = [ln for ln in out.err.splitlines() if ln.strip() and "warn" not in ln.lower()]
+    return code, lines, out.out
+
+
+def one_line(result, start, status=2):
+    """``result`` of :func:`run_cli` is one stderr line starting with ``start``, exit ``status``."""
+    code, lines = result[0], result[1]
+    assert code == status, lines
+    assert len(lines) == 1 and lines[0].startswith(start), lines
+
+
+def train_run(run_dir, monkeypatch, capsys, *extra):
+    code, lines, _ = run_cli("train", [*TINY, *extra, f"hydra.run.dir={run_dir}"], run_dir.parent, monkeypatch, capsys)
+    assert code == 0, lines
+    return run_dir
+
+
+def snapshot(path):
+    return {p.name: (p.stat().st_size, p.stat().st_mtime_ns) for p in sorted(path.rglob("*")) if p.is_file()}
+
+
+def write_csv(path, rows, delimiter=",", bom=False):
+    with open(path, "w", newline="", encoding="utf-8-sig" if bom else "utf-8") as f:
+        w = csv.writer(f, delimiter=delimiter)
+        w.writerow(["t", "x", "y", "z"])
+        w.writerows(rows)
+    return path
+
+
+SMALL_CSV = [[0.0, 0.0, 0.0, 0.0], [1.0, 0.2, 0.0, 0.0], [2.0, 0.2, 0.2, 0.0], [3.0, 0.0, 0.0, 0.0]]
+
+
+# -- 1-4: data loss and aborted work ------------------------------------------------------------
+def test_01_resume_trains_on_with_the_runs_own_config(tmp_path, monkeypatch, capsys):
+    run = train_run(tmp_path / "R", monkeypatch, capsys, "train.total_steps=2048", "algo.num_envs=32")
+    code, lines, out = run_cli(
+        "train", [*RESUME, f"resume={run}", "train.total_steps=4096"], tmp_path, monkeypatch, capsys
+    )
+    assert code == 0, lines
+    assert "resuming" in out and "of 4,096 frames" in out
+    ckpt = load_checkpoint(run / "last.pt")
+    assert ckpt["frames"] == 4096
+    assert "num_envs: 32" in (run / "config.yaml").read_text()  # not the command's 64 nor the default 1024
+    assert "total_steps: 4096" in (run / "config.yaml").read_text()
+    assert not list(tmp_path.glob("outputs/*/*"))  # the resume command left no run dir of its own
+
+
+def test_01_resume_refuses_an_override_that_changes_the_run(tmp_path, monkeypatch, capsys):
+    run = train_run(tmp_path / "R", monkeypatch, capsys, "train.total_steps=1024")
+    before = snapshot(run)
+    result = run_cli("train", [*RESUME, f"resume={run}", "algo.num_envs=128"], tmp_path, monkeypatch, capsys)
+    one_line(result, "error: resume: algo.num_envs=128 changes what the run trains (it used 64)")
+    result = run_cli("train", [*RESUME, f"resume={run}", "traj=star"], tmp_path, monkeypatch, capsys)
+    one_line(result, "error: resume: traj=star changes what the run trains (it used traj=mixed)")
+    assert snapshot(run) == before
+
+
+def test_01_resume_of_a_finished_run_writes_nothing(tmp_path, monkeypatch, capsys):
+    run = train_run(tmp_path / "R", monkeypatch, capsys, "train.total_steps=1024")
+    before = snapshot(run)
+    code, lines, out = run_cli("train", [*RESUME, f"resume={run}"], tmp_path, monkeypatch, capsys)
+    assert code == 0 and not lines
+    assert "is finished (1,024 frames); nothing to do" in " ".join(out.split())
+    assert snapshot(run) == before
+
+
+def test_02_failing_and_diverging_jobs_do_not_stop_the_sweep(tmp_path, monkeypatch, capsys):
+    sweep = tmp_path / "sweep"
+    args = [*TINY, "train.total_steps=1024", "algo.lr=1e-3,1e6,abc", f"hydra.sweep.dir={sweep}", "-m"]
+    code, lines, _ = run_cli("train", args, tmp_path, monkeypatch, capsys)
+    assert code == 2  # the number of jobs that did not finish
+    assert lines[-1] == f"sweep {sweep}: 3 jobs: 1 done, 1 diverged, 1 errored"
+    assert (sweep / "0" / "metrics.json").is_file()
+    assert json.loads((sweep / "1" / "failed.json").read_text())["status"] == "diverged"
+    errored = json.loads((sweep / "2" / "failed.json").read_text())
+    assert errored == {
+        "status": "errored",
+        "message": "algo.lr: Value 'abc' of type 'str' could not be converted to Float",
+    }
+    # the table lists every job: the done one as a number, the diverged one as failed, the errored one with its reason
+    code, lines, out = run_cli(
+        "tables",
+        ["ablation", f"runs={sweep}", f"out_dir={tmp_path / 't'}", "plots=false"],
+        tmp_path,
+        monkeypatch,
+        capsys,
+    )
+    assert code == 0, lines
+    md = (tmp_path / "t" / "ablation.md").read_text()
+    assert "algo.lr=0.001" in md and "| failed |" in md
+    assert f"- failed (diverged): `{sweep / '1'}`" in md
+    assert f"- errored: `{sweep / '2'}` algo.lr: Value 'abc'" in md
+
+
+def test_02_a_job_that_never_started_is_listed_as_missing(tmp_path, monkeypatch, capsys):
+    sweep = tmp_path / "sweep"
+    run_cli(
+        "train",
+        [*TINY, "train.total_steps=1024", "seed=0,1", f"hydra.sweep.dir={sweep}", "-m"],
+        tmp_path,
+        monkeypatch,
+        capsys,
+    )
+    import shutil
+
+    shutil.rmtree(sweep / "1")  # as if the sweep had been killed before job 1
+    code, lines, _ = run_cli(
+        "tables",
+        ["ablation", f"runs={sweep}", f"out_dir={tmp_path / 't'}", "plots=false"],
+        tmp_path,
+        monkeypatch,
+        capsys,
+    )
+    assert code == 0, lines
+    md = (tmp_path / "t" / "ablation.md").read_text()
+    assert "- missing: job 1 never started (" in md and "seed=1" in md.split("- missing:")[1]
+
+
+def test_03_runs_started_together_get_their_own_dirs(tmp_path):
+    cmd = [sys.executable, str(ROOT / "train.py"), *TINY, "train.total_steps=1024"]
+    procs = [subprocess.Popen(cmd, cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE) for _ in range(2)]
+    for p in procs:
+        assert p.wait(timeout=300) == 0, p.stderr.read().decode()[-2000:]
+    runs = sorted((tmp_path / "outputs" / "train").iterdir())
+    assert len(runs) == 2 and all((r / "last.pt").is_file() and (r / "metrics.csv").is_file() for r in runs)
+
+
+def test_03_a_run_dir_in_use_is_refused(tmp_path, monkeypatch, capsys):
+    run = tmp_path / "R"
+    with RunLock(run):
+        result = run_cli(
+            "train", [*TINY, "train.total_steps=1024", f"hydra.run.dir={run}"], tmp_path, monkeypatch, capsys
+        )
+    one_line(result, f"error: run dir '{run}' is in use by pid {os.getpid()} on ")
+    assert not (run / "last.pt").exists()
+
+
+def test_03_resume_true_skips_a_run_in_use(tmp_path, monkeypatch):
+    old, new = tmp_path / "outputs" / "train" / "a", tmp_path / "outputs" / "train" / "b"
+    for run in (old, new):
+        save_checkpoint(run / "last.pt", {"frames": 1})
+        time.sleep(0.01)
+    monkeypatch.chdir(tmp_path)
+    assert resume_dir(True) == new
+    with RunLock(new):
+        assert resume_dir(True) == old
+
+
+def _popen(cmd, cwd):
+    """A real process whose output lines arrive as printed (a pipe is block-buffered otherwise)."""
+    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    return subprocess.Popen(cmd, cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+
+
+def _read_until(proc, text, timeout_s):
+    deadline = time.monotonic() + timeout_s
+    seen = []
+    while time.monotonic() < deadline:
+        line = proc.stdout.readline()
+        seen.append(line)
+        if text in line:
+            return seen
+    raise AssertionError(f"{text!r} not seen: {''.join(seen)[-2000:]}")
+
+
+@pytest.mark.parametrize(
+    "signals, reason",
+    [((signal.SIGINT, signal.SIGINT), "Ctrl-C"), ((signal.SIGTERM,), "SIGTERM")],
+    ids=["ctrl_c_twice", "sigterm"],
+)
+def test_04_interrupted_flight_keeps_its_log(tmp_path, signals, reason):
+    """Two Ctrl-C 0.3 s apart during TRACK (the second used to cut the log short), or a SIGTERM."""
+    pytest.importorskip("cflib")
+    port = next(_port)
+    cmd = [sys.executable, str(ROOT / "deploy.py"), *FLIGHT, f"deploy.uri=udp://127.0.0.1:{port}", "hydra.run.dir=."]
+    proc = _popen(cmd, tmp_path)
+    _read_until(proc, "phase: TRACK", 120)
+    for sig in signals:
+        proc.send_signal(sig)
+        time.sleep(0.3)
+    proc.wait(timeout=60)
+    events = json.loads((tmp_path / "events.json").read_text())
+    assert events["outcome"] == f"killed: operator interrupt ({reason})"
+    assert (tmp_path / "flight.csv").stat().st_size > 100
+    assert proc.returncode == 4 and "Traceback" not in proc.stderr.read()
+
+
+# -- 5-7: silently wrong -------------------------------------------------------------------------
+def test_05_eval_flies_the_given_traj(tmp_path, monkeypatch, capsys):
+    ref = write_csv(tmp_path / "mine.csv", SMALL_CSV)
+    args = [
+        "controller=pid",
+        "traj=csv",
+        f"traj.path={ref}",
+        "eval.timing.steps=0",
+        "eval.plots=false",
+        "hydra.run.dir=e",
+    ]
+    code, lines, _ = run_cli("eval", args, tmp_path, monkeypatch, capsys)
+    assert code == 0, lines
+    (cond,) = json.loads((tmp_path / "e" / "metrics.json").read_text())["conditions"].values()
+    assert list(cond["groups"]) == ["csv"] and cond["groups"]["csv"]["episodes"] == 1
+
+
+def test_05_eval_of_a_missing_csv_is_one_line(tmp_path, monkeypatch, capsys):
+    result = run_cli(
+        "eval", ["traj=csv", "traj.path=/nonexistent.csv", "hydra.run.dir=e"], tmp_path, monkeypatch, capsys
+    )
+    one_line(result, "error: traj.path: file '/nonexistent.csv' not found")
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["seed=1.5"], "error: seed: Value '1.5' of type 'float' could not be converted to Integer"),
+        (["algo.lr_final_frac=-5"], "error: algo.lr_final_frac: must be in [0, 1], got -5.0"),
+        (["ablation=h5", "horizon=15"], "error: horizon: 15 contradicts ablation=h5 (which sets horizon=5)"),
+    ],
+)
+def test_06_values_that_would_train_something_else(tmp_path, monkeypatch, capsys, args, message):
+    result = run_cli(
+        "train", [*TINY, "train.total_steps=1024", *args, "hydra.run.dir=r"], tmp_path, monkeypatch, capsys
+    )
+    one_line(result, message)
+    assert not (tmp_path / "r" / "last.pt").exists()
+
+
+def test_06_csv_reference_far_from_the_origin(tmp_path, monkeypatch, capsys):
+    ref = write_csv(tmp_path / "big.csv", [[0.0, 0.0, 0.0, 0.0], [1.0, 1e6, 0.0, 0.0]])
+    args = [*TINY, "train.total_steps=1024", "traj=csv", f"traj.path={ref}", "hydra.run.dir=r"]
+    one_line(run_cli("train", args, tmp_path, monkeypatch, capsys), "error: traj.max_abs_m: big.csv line 3 is 1e+06 m")
+
+
+def test_06_reference_outside_the_geofence_is_refused_before_arming(tmp_path, monkeypatch, capsys):
+    pytest.importorskip("cflib")
+    args = [
+        *FLIGHT,
+        f"deploy.uri=udp://127.0.0.1:{next(_port)}",
+        "deploy.safety.geofence_max_m=[0.3,0.3,2.5]",
+        "hydra.run.dir=f",
+    ]
+    code, lines, _ = run_cli("deploy", args, tmp_path, monkeypatch, capsys)
+    one_line((code, lines), "error: deploy.safety.geofence_max_m: the reference leaves the geofence at t=")
+    events = json.loads((tmp_path / "f" / "events.json").read_text())
+    assert "ARM" not in [e["text"] for e in events["events"] if e["kind"] == "phase"]
+
+
+def test_07_resume_bookkeeping(tmp_path, monkeypatch, capsys):
+    os.umask(0o022)
+    run = train_run(tmp_path / "R", monkeypatch, capsys, "train.total_steps=2048", "eval.plots=true")
+    first = json.loads((run / "metrics.json").read_text())
+    code, lines, _ = run_cli(
+        "train", [*RESUME, f"resume={run}", "train.total_steps=4096"], tmp_path, monkeypatch, capsys
+    )
+    assert code == 0, lines
+    rows = list(csv.DictReader((run / "metrics.csv").open()))
+    assert [int(r["iteration"]) for r in rows] == [1, 2, 3, 4]  # no iteration twice
+    ckpt = load_checkpoint(run / "last.pt")
+    assert [r["iteration"] for r in ckpt["history"]] == [1, 2, 3, 4]  # the learning curve's data
+    metrics = json.loads((run / "metrics.json").read_text(), parse_constant=lambda c: pytest.fail(f"JSON has {c}"))
+    assert metrics["train_wall_s"] > first["train_wall_s"]  # summed over both segments
+    assert metrics["steps_per_s"] == pytest.approx(4096 / metrics["train_wall_s"])
+    assert (run / "last.pt").stat().st_mode & 0o777 == 0o644 and (run / "metrics.json").stat().st_mode & 0o777 == 0o644
+
+
+def test_07_metrics_json_has_no_nan(tmp_path):
+    write_json(tmp_path / "m.json", {"a": float("nan"), "b": [1.0, float("inf")]})
+    assert json.loads((tmp_path / "m.json").read_text(), parse_constant=pytest.fail) == {"a": None, "b": [1.0, None]}
+
+
+# -- 8: one line where there was a traceback ----------------------------------------------------
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["train.totl_steps=5"], "error: train.totl_steps: no such key"),
+        (["seed=abc"], "error: seed: Value 'abc' of type 'str' could not be converted to Integer"),
+        (["train.total_steps=abc"], "error: train.total_steps: Value 'abc' of type 'str' could not be converted"),
+        (["hydra.run.dir=/proc/datt_run"], "error: hydra.run.dir: /proc/datt_run: cannot write in /proc"),
+    ],
+)
+def test_08_train_input_errors(tmp_path, monkeypatch, capsys, args, message):
+    one_line(run_cli("train", [*TINY, "train.total_steps=1024", *args], tmp_path, monkeypatch, capsys), message)
+
+
+def test_08_output_dir_below_a_file(tmp_path, monkeypatch, capsys):
+    (tmp_path / "afile").write_text("")
+    result = run_cli("train", [*TINY, f"hydra.run.dir={tmp_path / 'afile' / 'run'}"], tmp_path, monkeypatch, capsys)
+    one_line(
+        result, f"error: hydra.run.dir: {tmp_path / 'afile' / 'run'}: {tmp_path / 'afile'} is a file, not a directory"
+    )
+
+
+def test_08_rma_adapter_given_as_policy_checkpoint(tmp_path, monkeypatch, capsys):
+    args = ["checkpoint=checkpoints/datt_h10_rma.pt", "eval.timing.steps=0", "hydra.run.dir=e"]
+    code, lines, _ = run_cli("eval", args, tmp_path, monkeypatch, capsys)
+    one_line((code, lines), "error: checkpoint: ")
+    assert "an RMA adapter, not a policy" in lines[0]
+
+
+def test_08_wandb_online_without_a_login(tmp_path, monkeypatch, capsys):
+    monkeypatch.delenv("WANDB_API_KEY", raising=False)
+    monkeypatch.setenv("HOME", str(tmp_path))  # no ~/.netrc
+    monkeypatch.setenv("NETRC", str(tmp_path / "none"))
+    args = [*[a for a in TINY if a != "logger=csv"], "logger.mode=online", "train.total_steps=1024", "hydra.run.dir=r"]
+    one_line(run_cli("train", args, tmp_path, monkeypatch, capsys), "error: logger.mode: online needs a wandb login")
+
+
+def test_08_divergence_at_iteration_0_names_no_missing_checkpoint(tmp_path, monkeypatch, capsys):
+    args = [*TINY, "train.total_steps=1024", "algo.lr=1e6", "hydra.run.dir=r"]
+    result = run_cli("train", args, tmp_path, monkeypatch, capsys)
+    one_line(result, "error: training diverged: non-finite loss at iteration 0 (frame 0); no checkpoint was written", 3)
+    assert json.loads((tmp_path / "r" / "failed.json").read_text())["status"] == "diverged"
+
+
+def test_08_ctrl_c_during_training_saves_a_checkpoint(tmp_path):
+    cmd = [sys.executable, str(ROOT / "train.py"), *TINY, "train.total_steps=100000000", "hydra.run.dir=r"]
+    proc = _popen(cmd, tmp_path)
+    _read_until(proc, "run dir:", 120)
+    time.sleep(3.0)
+    proc.send_signal(signal.SIGINT)
+    proc.wait(timeout=120)
+    err = [ln for ln in proc.stderr.read().splitlines() if ln.strip() and "warn" not in ln.lower()]
+    assert proc.returncode == 130 and len(err) == 1, err
+    assert err[0].startswith("error: interrupted by SIGINT: checkpoint at ") and "resume with resume=" in err[0]
+    assert load_checkpoint(tmp_path / "r" / "last.pt")["frames"] > 0
+
+
+@pytest.mark.parametrize("variant", ["bom", "semicolon"])
+def test_08_csv_with_a_bom_or_semicolons(tmp_path, variant):
+    plain = load_csv_reference(write_csv(tmp_path / "plain.csv", SMALL_CSV))
+    path = write_csv(
+        tmp_path / "v.csv", SMALL_CSV, delimiter=";" if variant == "semicolon" else ",", bom=variant == "bom"
+    )
+    t, pos = load_csv_reference(path)
+    assert torch.equal(t, plain[0]) and torch.equal(pos, plain[1])
+
+
+def test_08_busy_udp_port_and_a_second_simulated_server(tmp_path, monkeypatch, capsys):
+    pytest.importorskip("cflib")
+    from datt.deploy.sim import SimCrazyflie, SimCrazyflieParams
+
+    port = next(_port)
+    first = SimCrazyflie(SimCrazyflieParams(host="127.0.0.1", port=port)).start()
+    try:
+        with pytest.raises(ConfigError, match=f"deploy.uri: udp://127.0.0.1:{port} cannot be bound"):
+            SimCrazyflie(SimCrazyflieParams(host="127.0.0.1", port=port)).start()
+        result = run_cli(
+            "deploy", [f"deploy.uri=udp://127.0.0.1:{port}", "hydra.run.dir=f"], tmp_path, monkeypatch, capsys
+        )
+        one_line(result, f"error: deploy.uri: udp://127.0.0.1:{port} cannot be bound (Address already in use)")
+    finally:
+        first.stop()
+
+
+def test_08_crazyflie_without_a_radio(tmp_path, monkeypatch, capsys):
+    pytest.importorskip("cflib")
+    from cflib.crtp.radiodriver import RadioManager  # noqa: F401  (the driver the real link uses)
+
+    args = ["deploy=crazyflie", "deploy.connect_timeout_s=2", "hydra.run.dir=f"]
+    code, lines, _ = run_cli("deploy", args, tmp_path, monkeypatch, capsys)
+    if code == 0 or "Crazyradio" not in " ".join(lines):  # pragma: no cover - a radio is plugged in
+        pytest.skip("a Crazyradio is present")
+    one_line((code, lines), "error: connect: radio://")
+    assert "plug in a Crazyradio" in lines[0] and "firmware" not in lines[0]
+
+
+def test_08_killed_flight_exits_non_zero(tmp_path, monkeypatch, capsys):
+    pytest.importorskip("cflib")
+    args = [*FLIGHT, f"deploy.uri=udp://127.0.0.1:{next(_port)}", "deploy.safety.max_tilt_deg=2", "hydra.run.dir=f"]
+    code, lines, _ = run_cli("deploy", args, tmp_path, monkeypatch, capsys)
+    one_line((code, lines), "error: flight killed: tilt", 4)
+    assert (tmp_path / "f" / "flight.csv").is_file()
+
+
+def test_lock_is_released_when_its_holder_dies(tmp_path):
+    code = f"from datt.runs import RunLock; RunLock({str(tmp_path)!r}).acquire(); import os; os._exit(0)"
+    subprocess.run([sys.executable, "-c", code], check=True, timeout=60)
+    with RunLock(tmp_path):  # no stale lock left behind
+        pass
+
+
+def test_second_signal_during_a_stop_request_interrupts_at_once():
+    from datt.runs import StopRequest
+
+    with StopRequest() as stop:
+        os.kill(os.getpid(), signal.SIGINT)
+        assert stop.signal == "SIGINT"
+        with pytest.raises(KeyboardInterrupt):
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(0.1)

@@ -1,0 +1,82 @@
+"""The PPO wiring against hand computation: GAE's γ and λ, and the configured advantage normalisation."""
+
+import pytest
+import torch
+from tensordict import TensorDict
+
+from datt.train.loggers import CsvLogger
+from datt.train.ppo import Trainer
+
+from .test_training import tiny_cfg
+
+GAMMA, LMBDA, VALUE = 0.9, 0.5, 0.5
+
+
+def constant_critic_trainer(tmp_path, *extra):
+    trainer = Trainer(tiny_cfg(f"algo.gamma={GAMMA}", f"algo.lmbda={LMBDA}", *extra), tmp_path, CsvLogger(tmp_path))
+    with torch.no_grad():
+        head = trainer.critic.module.head
+        head.weight.zero_()
+        head.bias.fill_(VALUE)
+    return trainer
+
+
+def three_step_batch(trainer, rewards, terminated):
+    """One env, three steps; observations are zeros (the critic is constant anyway)."""
+    env = trainer.env
+    obs = {
+        "state": torch.zeros(1, 3, env.state_dim),
+        "ref": torch.zeros(1, 3, env.horizon, 3),
+        "d_hat": torch.zeros(1, 3, 3),
+    }
+    term = torch.tensor(terminated, dtype=torch.bool).reshape(1, 3, 1)
+    nxt = dict(obs, reward=torch.tensor(rewards).reshape(1, 3, 1), terminated=term, done=term.clone())
+    return TensorDict(dict(obs, next=TensorDict(nxt, [1, 3])), [1, 3])
+
+
+def hand_gae(rewards, terminated):
+    """A_t = δ_t + γλ(1 − d_t) A_{t+1}, δ_t = r_t + γ(1 − d_t) V − V with V constant."""
+    adv, running = [0.0] * 3, 0.0
+    for t in reversed(range(3)):
+        alive = 0.0 if terminated[t] else 1.0
+        delta = rewards[t] + GAMMA * alive * VALUE - VALUE
+        running = delta + GAMMA * LMBDA * alive * running
+        adv[t] = running
+    return adv
+
+
+@pytest.mark.parametrize("terminated", [[False, False, False], [False, True, False]])
+def test_gae_matches_hand_computation(tmp_path, terminated):
+    rewards = [1.0, 2.0, 3.0]
+    trainer = constant_critic_trainer(tmp_path)
+    batch = three_step_batch(trainer, rewards, terminated)
+    trainer.gae(batch)
+    expect = torch.tensor(hand_gae(rewards, terminated))
+    # no termination: δ = r − 0.05 -> A = [0.95 + 0.45(1.95 + 0.45·2.95), 1.95 + 0.45·2.95, 2.95]
+    torch.testing.assert_close(batch["advantage"].reshape(3), expect)
+    torch.testing.assert_close(batch["value_target"].reshape(3), expect + VALUE)
+
+
+def _objective_for_scaled_advantages(trainer):
+    """The PPO objective on one real rollout with advantages A and 10·A + 3."""
+    torch.manual_seed(0)
+    with torch.no_grad():
+        td = trainer.env.rollout(4, trainer.actor, break_when_any_done=False).reshape(-1)
+    adv = torch.linspace(-1.0, 1.0, td.shape[0]).unsqueeze(-1)
+    out = []
+    for scaled in (adv, 10 * adv + 3):
+        data = td.clone()
+        data.set("advantage", scaled)
+        data.set("value_target", torch.zeros_like(scaled))
+        out.append(trainer.loss(data)["loss_objective"].item())
+    return out
+
+
+def test_normalize_advantage_is_the_configured_one(tmp_path):
+    # Normalised advantages make the objective invariant to an affine rescaling of A; raw ones do not.
+    on = constant_critic_trainer(tmp_path / "on", "algo.normalize_advantage=true")
+    plain, scaled = _objective_for_scaled_advantages(on)
+    assert scaled == pytest.approx(plain, rel=1e-4, abs=1e-6)
+    off = constant_critic_trainer(tmp_path / "off", "algo.normalize_advantage=false")
+    plain, scaled = _objective_for_scaled_advantages(off)
+    assert abs(scaled - plain) > 1.0, (plain, scaled)
