@@ -10,7 +10,7 @@ import pytest
 from hydra.utils import instantiate
 from omegaconf import OmegaConf
 
-from datt.configuration import available_options, compose, conf_dir, config_groups, structured
+from datt.configuration import available_options, compose, conf_dir, config_groups, load_option, structured
 from datt.control.factory import build_controller
 from datt.deploy.schema import deploy_params
 from datt.envs.factory import env_params_from_cfg
@@ -149,3 +149,38 @@ def test_library_defaults_equal_the_yaml(cls, path):
 def test_a_top_level_type_error_names_the_top_level_key():
     with pytest.raises(Exception, match=r"^seed: Value 'abc'"):
         run_params(compose("train", ["seed=abc"]))
+
+
+def _target_defaults_differ(node):
+    """Keys where a ``_target_`` node's YAML value differs from the class's Python default."""
+    import importlib
+    import inspect
+
+    module, _, name = node["_target_"].rpartition(".")
+    target = getattr(importlib.import_module(module), name)
+    params = inspect.signature(target).parameters
+    differ = []
+    for key, value in node.items():
+        if key == "_target_" or key not in params or params[key].default is inspect.Parameter.empty:
+            continue
+        default = params[key].default
+        as_tuple = tuple(value) if isinstance(value, list) else value
+        if isinstance(value, dict) or default is None:
+            continue
+        if (tuple(default) if isinstance(default, (list, tuple)) else default) != as_tuple:
+            differ.append(f"{key}: yaml {value!r} vs python {default!r}")
+    return differ
+
+
+@pytest.mark.parametrize("group", ["traj", "disturbance"])
+def test_python_defaults_are_the_config_defaults(group):
+    """``Wind()`` in a notebook is the same wind as ``disturbance=wind``: one default per value.
+    A class behind several options (``Polygon``: ``polygon`` and ``star``) matches one of them."""
+    by_target: dict[str, dict[str, list[str]]] = {}
+    for option in available_options(group):
+        node = OmegaConf.to_container(load_option(group, option), resolve=False)
+        if "_target_" in node:
+            by_target.setdefault(node["_target_"], {})[option] = _target_defaults_differ(node)
+    assert by_target
+    for target, options in by_target.items():
+        assert any(not differ for differ in options.values()), (target, options)

@@ -26,28 +26,14 @@ from datt.refs.csv import load_csv_reference
 from datt.runs import RunLock, write_json
 from datt.tasks.resume import resume_dir
 
+from .deploy import SHORT_FLIGHT
+from .train.test_training import TINY as TRAIN_TINY
+
 ROOT = Path(__file__).resolve().parents[1]
-TINY = [
-    "logger=csv",
-    "env.compile=false",
-    "train.progress=false",
-    "algo.num_envs=64",
-    "algo.rollout_steps=16",
-    "algo.minibatch_size=512",
-    "algo.epochs=1",
-    "curriculum.fixed_ref_steps=0",
-    "train.eval_at_end=false",
-    "eval.plots=false",
-]
+# a few-second training run, nothing written but the run dir
+TINY = [*TRAIN_TINY, "curriculum.fixed_ref_steps=0", "train.eval_at_end=false", "eval.plots=false"]
 RESUME = ["logger=csv", "train.progress=false"]  # a resume repeats nothing of the run's own settings
-FLIGHT = [
-    "deploy.flight.takeoff_s=1.5",
-    "deploy.flight.hover_s=0.5",
-    "deploy.flight.track_s=3.0",
-    "deploy.flight.land_s=1.5",
-    "deploy.safety.max_state_age_s=0.8",
-    "deploy.safety.max_mocap_age_s=0.4",
-]
+FLIGHT = SHORT_FLIGHT
 _port = iter(range(19960, 19999))
 
 
@@ -85,6 +71,14 @@ def train_run(run_dir, monkeypatch, capsys, *extra):
     code, lines, _ = run_cli("train", [*TINY, *extra, f"hydra.run.dir={run_dir}"], run_dir.parent, monkeypatch, capsys)
     assert code == 0, lines
     return run_dir
+
+
+def ablation_table(sweep, tmp_path, monkeypatch, capsys):
+    """``tables.py ablation runs=<sweep>``: the Markdown it writes."""
+    args = ["ablation", f"runs={sweep}", f"out_dir={tmp_path / 't'}", "plots=false"]
+    code, lines, _ = run_cli("tables", args, tmp_path, monkeypatch, capsys)
+    assert code == 0, lines
+    return (tmp_path / "t" / "ablation.md").read_text()
 
 
 def snapshot(path):
@@ -150,15 +144,7 @@ def test_02_failing_and_diverging_jobs_do_not_stop_the_sweep(tmp_path, monkeypat
         "message": "algo.lr: Value 'abc' of type 'str' could not be converted to Float",
     }
     # the table lists every job: the done one as a number, the diverged one as failed, the errored one with its reason
-    code, lines, out = run_cli(
-        "tables",
-        ["ablation", f"runs={sweep}", f"out_dir={tmp_path / 't'}", "plots=false"],
-        tmp_path,
-        monkeypatch,
-        capsys,
-    )
-    assert code == 0, lines
-    md = (tmp_path / "t" / "ablation.md").read_text()
+    md = ablation_table(sweep, tmp_path, monkeypatch, capsys)
     assert "algo.lr=0.001" in md and "| failed |" in md
     assert f"- failed (diverged): `{sweep / '1'}`" in md
     assert f"- errored: `{sweep / '2'}` algo.lr: Value 'abc'" in md
@@ -176,15 +162,7 @@ def test_02_a_job_that_never_started_is_listed_as_missing(tmp_path, monkeypatch,
     import shutil
 
     shutil.rmtree(sweep / "1")  # as if the sweep had been killed before job 1
-    code, lines, _ = run_cli(
-        "tables",
-        ["ablation", f"runs={sweep}", f"out_dir={tmp_path / 't'}", "plots=false"],
-        tmp_path,
-        monkeypatch,
-        capsys,
-    )
-    assert code == 0, lines
-    md = (tmp_path / "t" / "ablation.md").read_text()
+    md = ablation_table(sweep, tmp_path, monkeypatch, capsys)
     assert "- missing: job 1 never started (" in md and "seed=1" in md.split("- missing:")[1]
 
 

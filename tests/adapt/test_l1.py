@@ -79,8 +79,9 @@ def test_estimator_is_stable_for_configured_a_s():
     assert rho < rho_authors < 1.0 and rho_authors > 0.99
 
 
-def test_error_dynamics_matrix_predicts_the_simulated_response():
-    est = L1Adaptation(a_s=-0.5, cutoff_tau_s=0.2)
+@pytest.mark.parametrize("filtered", [False, True], ids=["sigma_feedback", "authors_filtered_feedback"])
+def test_error_dynamics_matrix_predicts_the_simulated_response(filtered):
+    est = L1Adaptation(a_s=-0.5, cutoff_tau_s=0.2, predictor_uses_filtered=filtered)
     est.bind(1, 0.02, 9.81, "cpu", torch.float64)
     m, b = est.error_dynamics()
     x = torch.zeros(3, dtype=torch.float64)  # estimates start at 0; unit disturbance
@@ -93,6 +94,7 @@ def test_error_dynamics_matrix_predicts_the_simulated_response():
             "disturbance=constant",
             "adaptation.a_s=-0.5",
             "adaptation.cutoff_tau_s=0.2",
+            f"adaptation.predictor_uses_filtered={str(filtered).lower()}",
             "env.dtype=float64",
             "env.safety_box_m=[1000,1000,1000]",
         ],

@@ -15,21 +15,14 @@ import pytest
 pytest.importorskip("cflib")
 
 from datt.configuration import compose  # noqa: E402
-from datt.deploy import safety  # noqa: E402
 from datt.tasks.deploy import run_deploy  # noqa: E402
 
+from . import SHORT_FLIGHT  # noqa: E402
+
+pytestmark = pytest.mark.flight  # real flights (seconds each): not in the mutation-testing selection
+
 _ports = itertools.count(19900)
-SHORT = [
-    "deploy.flight.takeoff_s=1.5",
-    "deploy.flight.hover_s=0.5",
-    "deploy.flight.track_s=3.0",
-    "deploy.flight.land_s=1.5",
-    # a loaded CI machine stalls the server's threads for up to ~0.5 s (seen: 0.47 s); the
-    # default 0.1 s would KILL. The mocap limit stays at 0.4 s: after a dropout the onboard
-    # estimate drifts, and 0.8 s of chasing it once tilted past the 75 deg KILL limit.
-    "deploy.safety.max_state_age_s=0.8",
-    "deploy.safety.max_mocap_age_s=0.4",
-]
+SHORT = SHORT_FLIGHT
 
 
 def fly(tmp_path, overrides=(), hook=None, estop=None):
@@ -162,37 +155,6 @@ def test_preflight_refuses_a_flat_battery(tmp_path):
     assert not server.armed and server.cmd[3] == 0
 
 
-def test_safety_decisions_unit():
-    p = safety.SafetyParams()
-    from datt.deploy.link import StateSample
-
-    ok = StateSample(t_s=10.0, pos_m=(0, 0, 1), vel_mps=(0, 0, 0), quat=(1, 0, 0, 0), vbat_v=3.9)
-    check = lambda **kw: safety.check(
-        p,
-        **{
-            "now_s": 10.01,
-            "state": ok,
-            "command": [9.81, 0, 0, 0],
-            "estop": False,  # noqa: E731
-            "link_lost": False,
-            "mocap_age_s": None,
-            **kw,
-        },
-    )
-    assert check().action == safety.OK
-    assert check(estop=True).reason == "operator e-stop"
-    assert check(now_s=10.5).action == safety.KILL
-    assert check(command=[math.nan, 0, 0, 0]).action == safety.KILL
-    assert check(command=[9.81, 0, 0, 5.0]).action == safety.LAND
-    assert check(mocap_age_s=0.3).action == safety.LAND
-    tilted = StateSample(10.0, (0, 0, 1), (0, 0, 0), (math.cos(0.7), math.sin(0.7), 0, 0), 3.9)  # 80 deg roll
-    assert check(state=tilted).action == safety.KILL
-    far = StateSample(10.0, (3.0, 0, 1), (0, 0, 0), (1, 0, 0, 0), 3.9)
-    assert check(state=far).action == safety.KILL
-    near = StateSample(10.0, (2.2, 0, 1), (0, 0, 0), (1, 0, 0, 0), 3.9)
-    assert check(state=near).action == safety.LAND
-
-
 @pytest.mark.hardware
 def test_real_crazyflie_connects_and_logs():  # pragma: no cover - needs a Crazyradio and a vehicle
     from datt.deploy.link import CrazyflieLink
@@ -227,25 +189,3 @@ def test_hover_calibration_finds_the_true_hover_command(tmp_path):
     assert abs(nominal - true_hover) / true_hover > 0.03
     assert summary["outcome"] == "landed"
     assert abs(summary["hover_command"] - true_hover) / true_hover < 0.01
-
-
-def test_flight_model_records_the_commands_it_sends():
-    """A policy with ``obs.action_history`` sees in flight the commands the runner sent, as in
-    the sim env (the history is part of its observation)."""
-    import numpy as np
-    import torch
-
-    from datt.control.pid import PidController
-    from datt.deploy.runner import FlightModel
-    from datt.envs.factory import make_env
-    from datt.refs import Polygon
-
-    cfg = compose("sim", ["env.obs.action_history=2", "adaptation=l1"])
-    model = FlightModel(lambda family: make_env(cfg, num_envs=1, seed=0, traj=family), PidController(), Polygon())
-    env = model.env
-    hover = env.scaled_command(env.hover_action)
-    assert torch.allclose(env.cmd_history[0], hover.expand(2, 4))
-    sent = [model.act([0.1, -0.2, 0.0], [0.5, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0]) for _ in range(2)]
-    expected = env.scaled_command(torch.as_tensor(np.stack(sent), dtype=env.dtype))
-    torch.testing.assert_close(env.cmd_history[0], expected)
-    assert not torch.allclose(expected[0], hover[0])

@@ -285,6 +285,24 @@ def test_compiled_kernels_match_eager(make_tracking_env):
         assert torch.allclose(a["next", key], b["next", key], atol=1e-4), key
 
 
+def test_compile_kernels_wires_every_kernel(make_tracking_env):
+    """``compile_kernels`` swaps in the compiled integrator, observation/reward kernel and L1
+    update (the ``eager`` backend: the wiring, without the 30 s of inductor) and the rollout is
+    unchanged; ``repr`` names the parts."""
+    overrides = ["disturbance=brownian", "adaptation=l1"]
+    eager = make_tracking_env(overrides, n=8)
+    compiled = make_tracking_env(overrides, n=8)
+    assert compiled.compile_kernels(backend="eager") is compiled
+    assert compiled._observe_kernel.__name__ == "compiled_observe_and_cost"
+    a, b = hover_rollout(eager, 20), hover_rollout(compiled, 20)
+    for key in ("state", "ref", "reward"):
+        assert torch.equal(a["next", key], b["next", key]), key
+    assert repr(eager) == (
+        "TrackingEnv(num_envs=8, horizon=10, traj=Zigzag, disturbance=Brownian, adaptation=L1Adaptation)"
+    )
+    assert eager.ref_lookahead_s() == pytest.approx(9 * 0.06)  # H = 10 points 0.06 s apart, the first at t
+
+
 def test_reward_velocity_term_is_capped():
     """At 3 m/s (cap 1 m/s), on the reference and level: cost = vel * 1, not vel * 3."""
     from datt.envs.observations import observe_and_cost

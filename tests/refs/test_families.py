@@ -226,3 +226,138 @@ def test_zigzag_segment_durations_follow_their_uniform_law():
     assert seg.min() >= 0.5 and seg.max() <= 1.5
     assert seg.min() < 0.51 and seg.max() > 1.49
     assert seg.mean().item() == pytest.approx(1.0, abs=0.01)
+
+
+CSV_ROWS = [(0.0, 0.0, 0.0, 0.0), (0.5, 1.0, 0.0, 0.2), (1.0, 1.0, 1.0, 0.4), (2.0, -1.0, 0.5, 0.0)]
+
+
+@pytest.mark.parametrize(
+    "sep, encoding", [(",", "utf-8"), (";", "utf-8"), ("\t", "utf-8"), (",", "utf-8-sig"), (";", "utf-8-sig")]
+)
+def test_csv_separators_and_bom(tmp_path, sep, encoding):
+    """Spreadsheets write ';' or tabs, and Excel a UTF-8 BOM: the same file in each form reads the same."""
+    text = sep.join("txyz") + "\n" + "\n".join(sep.join(str(v) for v in r) for r in CSV_ROWS) + "\n"
+    path = tmp_path / "ref.csv"
+    path.write_text(text, encoding=encoding)
+    t, pos = load_csv_reference(path)
+    assert t.tolist() == [0.0, 0.5, 1.0, 2.0]
+    assert pos.tolist() == [list(r[1:]) for r in CSV_ROWS]
+
+
+def test_csv_times_start_at_zero_and_loop_on_the_last_time(tmp_path):
+    shifted = [(t + 3.0, x, y, z) for t, x, y, z in CSV_ROWS]
+    t, _ = load_csv_reference(write_csv(tmp_path / "ref.csv", shifted))
+    assert t.tolist() == [0.0, 0.5, 1.0, 2.0]
+    fam = CsvReference(str(tmp_path / "ref.csv"), loop=True)
+    table = fam.sample(1, T64, gen())
+    assert table.dtype == torch.float64 and table.shape == (1, len(T64), 3)
+    assert torch.allclose(table[0, 100 + 25], table[0, 25]) and torch.allclose(table[0, 100 + 75], table[0, 75])
+    f32 = fam.sample(2, T64.float(), gen())
+    assert f32.dtype == torch.float32 and f32.shape == (2, len(T64), 3)
+
+
+def test_csv_relative_moves_the_start_to_the_origin(tmp_path):
+    rows = [(t, x + 5.0, y - 2.0, z + 1.0) for t, x, y, z in CSV_ROWS]
+    path = write_csv(tmp_path / "ref.csv", rows)
+    rel = CsvReference(str(path), relative=True).sample(1, T64, gen())
+    plain = CsvReference(str(path)).sample(1, T64, gen())
+    assert rel[0, 0].tolist() == [0.0, 0.0, 0.0]
+    assert torch.allclose(rel, plain - torch.tensor([5.0, -2.0, 1.0], dtype=torch.float64))
+
+
+@pytest.mark.parametrize(
+    "content, message",
+    [
+        (
+            "t;x;y;z\n0;0;0;0\n1;0,5;0;0\n",
+            "traj.path: bad.csv line 3: non-numeric value in t,x,y,z (decimal commas? use '.' for decimals)",
+        ),
+        ("t,x,y,z\n0,0,0,0\n1,a,0,0\n", "traj.path: bad.csv line 3: non-numeric value in t,x,y,z"),
+        (
+            "t;x;y\n0;0;0\n1;1;1\n",
+            "traj.path: bad.csv is missing column(s) z; required: t, x, y, z "
+            "(header read as ['t', 'x', 'y'] with separator ';')",
+        ),
+        (
+            "t,x,y,z\n0,0,0,0\n1,1,1,0\n1,2,1,0\n",
+            "traj.path: bad.csv line 4: time must strictly increase (t=1.0 after 1.0)",
+        ),
+    ],
+)
+def test_csv_error_messages(tmp_path, content, message):
+    path = tmp_path / "bad.csv"
+    path.write_text(content)
+    with pytest.raises(ConfigError) as info:
+        load_csv_reference(path)
+    assert str(info.value) == message
+
+
+def test_csv_not_utf8(tmp_path):
+    path = tmp_path / "bad.csv"
+    path.write_bytes(b"t,x,y,z\n0,0,0,\xff\n")
+    with pytest.raises(ConfigError, match=r"^traj.path: bad.csv is not UTF-8 text; save it as UTF-8 CSV$"):
+        load_csv_reference(path)
+
+
+def test_csv_extent_limit(tmp_path):
+    rows = [(0.0, 0.0, 0.0, 0.0), (1.0, 0.0, 0.0, 0.0), (2.0, 3.0, -4.0, 0.0), (3.0, 0.0, 0.0, 0.0)]
+    path = write_csv(tmp_path / "ref.csv", rows)
+    CsvReference(str(path), max_abs_m=4.0)  # exactly at the limit is allowed
+    with pytest.raises(ConfigError) as info:
+        CsvReference(str(path), max_abs_m=3.5)
+    assert str(info.value) == (
+        "traj.max_abs_m: ref.csv line 4 is 4 m from the origin, beyond 3.5 m (positions are metres; use "
+        "relative=true for a far-away frame, or raise traj.max_abs_m)"
+    )
+    small = write_csv(tmp_path / "small.csv", [(0.0, 0.0, 0.0, 0.0), (1.0, 0.2, 0.0, 0.0)])
+    assert CsvReference(str(small), max_abs_m=0.5).pos_m.abs().max() == pytest.approx(0.2)  # a limit under 1 m works
+    with pytest.raises(ConfigError, match=r"^traj.max_abs_m: must be > 0, got 0.0$"):
+        CsvReference(str(small), max_abs_m=0.0)
+    with pytest.raises(ConfigError, match=r"^traj.time_scale: must be > 0, got 0.0$"):
+        CsvReference(str(small), time_scale=0.0)
+    assert CsvReference(str(small)).path == str(small) and not CsvReference(str(small)).loop
+
+
+def test_csv_relative_path_is_relative_to_the_working_directory(tmp_path, monkeypatch):
+    write_csv(tmp_path / "ref.csv", CSV_ROWS)
+    monkeypatch.chdir(tmp_path)
+    t, _ = load_csv_reference("ref.csv")
+    assert len(t) == 4
+
+
+def test_chained_poly_knots_cover_the_episode_and_velocities_are_symmetric():
+    fam = ChainedPoly(piece_min_s=1.5, piece_max_s=4.0, knot_vel_max_mps=1.5)
+    knot_t, coeffs = fam.sample_pieces(4000, 10.0, gen(3), torch.zeros((), dtype=torch.float64))
+    assert knot_t.shape[1] - 1 == math.ceil(10.0 / 1.5)  # enough pieces even if every gap is the shortest
+    assert (knot_t[:, -1] >= 10.0).all()
+    # node velocity = p'(knot) = coefficient c1 of each piece: U(-1.5, 1.5), 0 at the first node
+    v = coeffs[:, :, 1]
+    assert v[:, 0].abs().max() < 1e-12
+    inner = v[:, 1:].reshape(-1)
+    assert inner.min() < -1.4 and inner.max() > 1.4 and inner.abs().max() <= 1.5 + 1e-12
+    assert abs(inner.mean()) < 0.02
+
+
+def test_poly_peak_is_found_on_a_fine_grid_in_float64():
+    """The amplitude cap: the largest |x| or |y| over the whole episode equals max_amplitude_m
+    for every sample that reached it (measured on a 10x finer grid than the cap's own)."""
+    fam = Poly(duration_s=10.0, vel_max_mps=3.0, acc_max_mps2=3.0, max_amplitude_m=0.4)
+    like = torch.zeros((), dtype=torch.float64)
+    knot_t, coeffs = fam.sample_pieces(64, gen(4), like)
+    assert knot_t.dtype == torch.float64 and coeffs.dtype == torch.float64
+    fine = torch.linspace(0, 10.0, 20001, dtype=torch.float64)
+    peak = eval_pieces(knot_t, coeffs, fine).abs().amax(dim=(1, 2))
+    assert torch.allclose(peak, torch.full_like(peak, 0.4), atol=1e-6)
+    table = fam.sample(3, T64.float(), gen(4))
+    assert table.dtype == torch.float32
+
+
+def test_mixed_draws_only_from_its_generator():
+    """The family choice and every member's draw use the generator passed in: the global RNG
+    state does not change the references."""
+    fam = Mixed({"zigzag": Zigzag(), "poly": Poly()}, weights={"zigzag": 0.5, "poly": 0.5})
+    torch.manual_seed(1)
+    a = fam.sample(16, T_GRID, gen(9))
+    torch.manual_seed(2)
+    b = fam.sample(16, T_GRID, gen(9))
+    assert torch.equal(a, b)

@@ -119,3 +119,113 @@ def test_plate_extra_mass_and_anisotropic_drag():
 def test_bad_parameters_rejected(bad):
     with pytest.raises(ValueError, match="disturbance"):
         bad()
+
+
+def test_wind_draws_follow_their_definitions():
+    """Per episode: mean wind horizontal, heading uniform over the circle, speed uniform in
+    [min, max]; Fourier modes with unit directions scaled by amp × speed and wavenumbers 2π/λ."""
+    wind = Wind(
+        speed_min_mps=1.0,
+        speed_max_mps=2.0,
+        num_modes=2,
+        spatial_amp=0.5,
+        wavelength_min_m=2.0,
+        wavelength_max_m=3.0,
+        gust_std_mps=0.4,
+        gust_vertical_ratio=0.25,
+    )
+    model, _ = bound(wind, 20000)
+    speed = model.w_mean.norm(dim=-1)
+    assert model.w_mean[:, 2].abs().max() == 0
+    assert 1.0 <= speed.min() < 1.01 and 1.99 < speed.max() <= 2.0 and abs(speed.mean() - 1.5) < 0.01
+    heading = torch.atan2(model.w_mean[:, 1], model.w_mean[:, 0])
+    for lo in (-math.pi, -math.pi / 2, 0.0, math.pi / 2):  # each quadrant holds a quarter
+        share = ((heading >= lo) & (heading < lo + math.pi / 2)).double().mean()
+        assert abs(share - 0.25) < 0.015
+    k = model.mode_k.norm(dim=-1)
+    assert model.mode_k.shape == (20000, 2, 3)
+    assert 2 * math.pi / 3.0 - 1e-9 <= k.min() and k.max() <= 2 * math.pi / 2.0 + 1e-9
+    amp = model.mode_dir.norm(dim=-1)
+    assert torch.allclose(amp, 0.5 * speed[:, None].expand(-1, 2), atol=1e-9)
+    assert model.mode_dir[:, 0].mean(0).abs().max() < 0.02 and model.mode_dir[:, :, 2].abs().mean() > 0.1
+    phase = model.mode_phase
+    assert phase.min() < -3.1 and phase.max() > 3.1
+    gust_std = model.gust.std(0)
+    assert torch.allclose(gust_std, torch.tensor([0.4, 0.4, 0.1], dtype=gust_std.dtype), rtol=0.05)
+    # the field at a point: mean + gust + Σ modes
+    pos = torch.randn(20000, 3, dtype=torch.float64)
+    modes = (model.mode_dir * torch.sin((model.mode_k * pos[:, None]).sum(-1) + phase)[..., None]).sum(1)
+    assert torch.allclose(model.wind_mps(pos), model.w_mean + model.gust + modes)
+
+
+def test_wind_gust_is_an_ou_process():
+    """One step of the exact OU discretisation: g' = a g + std sqrt(1 − a²) ε, a = exp(−dt/τ)."""
+    wind = Wind(num_modes=0, gust_std_mps=0.5, gust_tau_s=0.25, gust_vertical_ratio=1.0)
+    model, quad = bound(wind, 50000)
+    model.gust.fill_(1.0)
+    model.update(quad.state)
+    a = math.exp(-0.02 / 0.25)
+    assert torch.allclose(model.gust.mean(0), torch.full((3,), a, dtype=torch.float64), atol=0.003)
+    assert torch.allclose(
+        model.gust.std(0), torch.full((3,), 0.5 * math.sqrt(1 - a * a), dtype=torch.float64), rtol=0.03
+    )
+
+
+@pytest.mark.parametrize(
+    "kwargs, ok",
+    [
+        ({"speed_min_mps": 0.0, "speed_max_mps": 0.0}, True),  # still air is allowed
+        ({"drag_coef_per_m": 0.0, "gust_std_mps": 0.0, "num_modes": 0}, True),
+        ({"speed_min_mps": 2.0, "speed_max_mps": 1.0}, False),
+        ({"speed_min_mps": -0.5}, False),
+        ({"drag_coef_per_m": -0.1}, False),
+        ({"gust_std_mps": -0.1}, False),
+        ({"gust_tau_s": 0.0}, False),
+        ({"num_modes": -1}, False),
+    ],
+)
+def test_wind_parameter_bounds(kwargs, ok):
+    if ok:
+        Wind(**kwargs)
+        return
+    with pytest.raises(ValueError, match=r"^disturbance[.:]"):
+        Wind(**kwargs)
+
+
+@pytest.mark.parametrize(
+    "make, message",
+    [
+        (
+            lambda: Wind(speed_min_mps=3, speed_max_mps=1),
+            "disturbance.speed_min_mps/speed_max_mps: need 0 <= min <= max",
+        ),
+        (
+            lambda: Wind(gust_tau_s=0),
+            "disturbance: drag_coef_per_m, gust_std_mps, num_modes must be >= 0 and gust_tau_s > 0",
+        ),
+        (lambda: ConstantForce(-1), "disturbance.max_mps2: must be >= 0, got -1"),
+        (lambda: Brownian(sigma2=-0.1), "disturbance.sigma2: must be >= 0, got -0.1"),
+        (
+            lambda: DragPlate(mass_ratio=-0.1),
+            "disturbance: mass_ratio >= 0 and three drag_coef_body_per_m >= 0 required",
+        ),
+        (lambda: DragPlate(drag_coef_body_per_m=(0.1, -0.1, 0.1)), "disturbance: mass_ratio >= 0"),
+        (lambda: DragPlate(drag_coef_body_per_m=(0.1, 0.1)), "disturbance: mass_ratio >= 0"),
+    ],
+)
+def test_bad_parameter_messages(make, message):
+    with pytest.raises(ValueError) as info:
+        make()
+    assert str(info.value).startswith(message)
+
+
+def test_plate_in_wind_sees_the_air_relative_velocity():
+    """With ``wind``, the plate's drag acts on w − v (a drone moving with the wind feels none)."""
+    wind = Wind(speed_min_mps=2.0, speed_max_mps=2.0, num_modes=0, gust_std_mps=0.0)
+    plate = DragPlate(mass_ratio=0.0, drag_coef_body_per_m=(0.5, 0.5, 0.5), wind=wind)
+    model, quad = bound(plate, 3)
+    quad.state.thrust_mps2.zero_()
+    w = wind.w_mean  # body = world at identity attitude: drag c ⊙ |w| ⊙ w per axis
+    assert torch.allclose(model.update(quad.state), 0.5 * w.abs() * w)
+    quad.state.vel_mps = wind.w_mean.clone()
+    assert model.update(quad.state).abs().max() < 1e-12

@@ -8,6 +8,7 @@ from datt.sim.frames import (
     quat_exp_rotvec,
     quat_from_euler,
     quat_mul,
+    quat_normalize,
     quat_rotate,
     quat_rotate_inverse,
     quat_to_rotmat,
@@ -69,3 +70,35 @@ def test_wrap_angle_range():
         torch.cos(w), torch.cos(a), atol=1e-5
     )
     assert w[2].item() == torch.tensor(math.pi).item()
+
+
+def _axis_rotation(axis, angle):
+    rotvec = torch.zeros(*angle.shape, 3, dtype=angle.dtype)
+    rotvec[..., axis] = angle
+    return quat_exp_rotvec(rotvec)
+
+
+def test_euler_is_yaw_then_pitch_then_roll_in_body_order():
+    """ZYX: q = q_z(yaw) ⊗ q_y(pitch) ⊗ q_x(roll), on a [2, 5] batch (leading dims broadcast)."""
+    g = torch.Generator().manual_seed(7)
+    roll, pitch, yaw = (torch.rand(2, 5, generator=g, dtype=torch.float64) * 3 - 1.5 for _ in range(3))
+    expect = quat_mul(_axis_rotation(2, yaw), quat_mul(_axis_rotation(1, pitch), _axis_rotation(0, roll)))
+    expect = expect * torch.sign(expect[..., :1])  # q and -q are the same rotation
+    q = quat_from_euler(roll, pitch, yaw)
+    assert q.shape == (2, 5, 4)
+    assert torch.allclose(q * torch.sign(q[..., :1]), expect, atol=1e-12)
+    assert torch.allclose(quat_yaw(q), yaw, atol=1e-12)
+
+
+def test_frame_helpers_broadcast_over_leading_dims():
+    q = random_quats(6, seed=5).reshape(2, 3, 4)
+    v = torch.randn(2, 3, 3, dtype=torch.float64)
+    flat = quat_to_rotmat(q.reshape(6, 4)).reshape(2, 3, 3, 3)
+    assert torch.allclose(quat_to_rotmat(q), flat, atol=1e-12)
+    assert torch.allclose(quat_rotate(q, v), (flat @ v.unsqueeze(-1)).squeeze(-1), atol=1e-12)
+    assert torch.allclose(quat_body_z(q), flat[..., 2], atol=1e-12)
+    assert torch.allclose(quat_mul(q, q).reshape(6, 4), quat_mul(q.reshape(6, 4), q.reshape(6, 4)), atol=1e-12)
+    rv = torch.randn(2, 3, 3, dtype=torch.float64)
+    assert torch.allclose(quat_exp_rotvec(rv).reshape(6, 4), quat_exp_rotvec(rv.reshape(6, 3)), atol=1e-12)
+    assert torch.allclose(quat_yaw(q).reshape(6), quat_yaw(q.reshape(6, 4)), atol=1e-12)
+    assert torch.allclose(quat_normalize(3 * q), q, atol=1e-12)

@@ -80,3 +80,51 @@ def test_normalize_advantage_is_the_configured_one(tmp_path):
     off = constant_critic_trainer(tmp_path / "off", "algo.normalize_advantage=false")
     plain, scaled = _objective_for_scaled_advantages(off)
     assert abs(scaled - plain) > 1.0, (plain, scaled)
+
+
+def test_load_checks_and_restores_the_bookkeeping(tmp_path):
+    from datt.checkpoint import load_checkpoint, save_checkpoint
+    from datt.errors import ConfigError
+
+    trainer = Trainer(tiny_cfg(), tmp_path, CsvLogger(tmp_path))
+    trainer.history = [{"iteration": 1, "frames": 1024}]
+    trainer.train_wall_s = 12.5
+    trainer.frames, trainer.iteration = 1024, 1
+    trainer.save()
+    fresh = Trainer(tiny_cfg(), tmp_path, CsvLogger(tmp_path))
+    fresh.load(tmp_path / "last.pt")
+    assert fresh.history == [{"iteration": 1, "frames": 1024}] and fresh.train_wall_s == 12.5
+    assert (fresh.frames, fresh.iteration) == (1024, 1)
+    # a checkpoint from before the history was kept: empty history, no wall time
+    old = load_checkpoint(tmp_path / "last.pt")
+    del old["history"], old["train_wall_s"]
+    save_checkpoint(tmp_path / "old.pt", {k: v for k, v in old.items() if k != "format"})
+    fresh.load(tmp_path / "old.pt")
+    assert fresh.history == [] and fresh.train_wall_s == 0.0
+    with pytest.raises(ConfigError, match=r"^resume: file '.*nope.pt' not found$"):
+        fresh.load(tmp_path / "nope.pt")
+    other = Trainer(tiny_cfg("horizon=5"), tmp_path / "h5", CsvLogger(tmp_path))
+    with pytest.raises(ConfigError) as info:
+        other.load(tmp_path / "last.pt")
+    assert str(info.value) == "resume: checkpoint has horizon=10, config has 5"
+
+
+def test_init_from_copies_weights_and_checks_the_shape(tmp_path):
+    from datt.errors import ConfigError
+
+    source = Trainer(tiny_cfg(), tmp_path / "a", CsvLogger(tmp_path))
+    source.frames = 2048
+    ckpt = source.save()
+    tuned = Trainer(tiny_cfg(f"train.init_from={ckpt}"), tmp_path / "b", CsvLogger(tmp_path))
+    for name, value in source.actor.state_dict().items():
+        assert torch.equal(tuned.actor.state_dict()[name], value), name
+    for name, value in source.critic.state_dict().items():
+        assert torch.equal(tuned.critic.state_dict()[name], value), name
+    assert tuned.frames == 0  # fine-tuning starts its own count
+    with pytest.raises(ConfigError) as info:
+        Trainer(tiny_cfg(f"train.init_from={ckpt}", "horizon=5"), tmp_path / "c", CsvLogger(tmp_path))
+    assert str(info.value) == "train.init_from: checkpoint has horizon=10, config has 5"
+    with pytest.raises(ConfigError, match=r"^train.init_from: policy shape differs from policy config \("):
+        Trainer(tiny_cfg(f"train.init_from={ckpt}", "policy.hidden=[32,32]"), tmp_path / "d", CsvLogger(tmp_path))
+    with pytest.raises(ConfigError, match=r"^train.init_from: file '.*nope.pt' not found$"):
+        Trainer(tiny_cfg(f"train.init_from={tmp_path / 'nope.pt'}"), tmp_path / "e", CsvLogger(tmp_path))

@@ -1,0 +1,173 @@
+"""Safety decisions and the flight model, without flying (fast; in the mutation-testing selection)."""
+
+import math
+
+import numpy as np
+import pytest
+
+from datt.configuration import compose
+from datt.deploy import safety
+
+
+def test_safety_decisions_unit():
+    p = safety.SafetyParams()
+    from datt.deploy.link import StateSample
+
+    ok = StateSample(t_s=10.0, pos_m=(0, 0, 1), vel_mps=(0, 0, 0), quat=(1, 0, 0, 0), vbat_v=3.9)
+    check = lambda **kw: safety.check(
+        p,
+        **{
+            "now_s": 10.01,
+            "state": ok,
+            "command": [9.81, 0, 0, 0],
+            "estop": False,  # noqa: E731
+            "link_lost": False,
+            "mocap_age_s": None,
+            **kw,
+        },
+    )
+    assert check().action == safety.OK
+    assert check(estop=True).reason == "operator e-stop"
+    assert check(now_s=10.5).action == safety.KILL
+    assert check(command=[math.nan, 0, 0, 0]).action == safety.KILL
+    assert check(command=[9.81, 0, 0, 5.0]).action == safety.LAND
+    assert check(mocap_age_s=0.3).action == safety.LAND
+    tilted = StateSample(10.0, (0, 0, 1), (0, 0, 0), (math.cos(0.7), math.sin(0.7), 0, 0), 3.9)  # 80 deg roll
+    assert check(state=tilted).action == safety.KILL
+    far = StateSample(10.0, (3.0, 0, 1), (0, 0, 0), (1, 0, 0, 0), 3.9)
+    assert check(state=far).action == safety.KILL
+    near = StateSample(10.0, (2.2, 0, 1), (0, 0, 0), (1, 0, 0, 0), 3.9)
+    assert check(state=near).action == safety.LAND
+
+
+def test_flight_model_records_the_commands_it_sends():
+    """A policy with ``obs.action_history`` sees in flight the commands the runner sent, as in
+    the sim env (the history is part of its observation)."""
+    import torch
+
+    from datt.control.pid import PidController
+    from datt.deploy.runner import FlightModel
+    from datt.envs.factory import make_env
+    from datt.refs import Polygon
+
+    cfg = compose("sim", ["env.obs.action_history=2", "adaptation=l1"])
+    model = FlightModel(lambda family: make_env(cfg, num_envs=1, seed=0, traj=family), PidController(), Polygon())
+    env = model.env
+    hover = env.scaled_command(env.hover_action)
+    assert torch.allclose(env.cmd_history[0], hover.expand(2, 4))
+    sent = [model.act([0.1, -0.2, 0.0], [0.5, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0]) for _ in range(2)]
+    expected = env.scaled_command(torch.as_tensor(np.stack(sent), dtype=env.dtype))
+    torch.testing.assert_close(env.cmd_history[0], expected)
+    assert not torch.allclose(expected[0], hover[0])
+
+
+def _state(t_s=10.0, pos=(0.0, 0.0, 1.0), vel=(0.0, 0.0, 0.0), quat=(1.0, 0.0, 0.0, 0.0), vbat=3.9):
+    from datt.deploy.link import StateSample
+
+    return StateSample(t_s=t_s, pos_m=pos, vel_mps=vel, quat=quat, vbat_v=vbat)
+
+
+def decide(**kw):
+    args = {
+        "now_s": 10.01,
+        "state": _state(),
+        "command": [9.81, 0.0, 0.0, 0.0],
+        "estop": False,
+        "link_lost": False,
+        "mocap_age_s": None,
+    }
+    params = kw.pop("params", safety.SafetyParams())
+    args.update(kw)
+    d = safety.check(params, **args)
+    return d.action, d.reason
+
+
+@pytest.mark.parametrize(
+    "case, expect",
+    [
+        ({}, ("OK", "")),
+        ({"estop": True, "link_lost": True}, ("KILL", "operator e-stop")),  # the e-stop wins
+        ({"link_lost": True}, ("KILL", "link lost")),
+        ({"state": None}, ("KILL", "no state estimate")),
+        ({"now_s": 10.1}, ("OK", "")),  # 100 ms old: at the limit, still fresh
+        ({"now_s": 10.15}, ("KILL", "state estimate stale (150 ms > 100 ms)")),
+        ({"state": _state(vel=(math.nan, 0.0, 0.0))}, ("KILL", "non-finite state estimate")),
+        ({"state": _state(quat=(1.0, 0.0, 0.0, math.inf))}, ("KILL", "non-finite state estimate")),
+        ({"state": _state(pos=(2.6, 0.0, 1.0))}, ("KILL", "geofence breached by 0.60 m (> margin 0.5 m)")),
+        ({"state": _state(pos=(0.0, -2.7, 1.0))}, ("KILL", "geofence breached by 0.70 m (> margin 0.5 m)")),
+        ({"state": _state(pos=(0.0, 0.0, 3.1))}, ("KILL", "geofence breached by 0.60 m (> margin 0.5 m)")),
+        ({"state": _state(pos=(2.5, 0.0, 1.0))}, ("LAND", "outside geofence by 0.50 m")),  # at the margin
+        ({"state": _state(pos=(0.0, 0.0, -0.3))}, ("LAND", "outside geofence by 0.20 m")),
+        ({"state": _state(pos=(2.0, -2.0, 2.5))}, ("OK", "")),  # on the fence is inside
+        # tilt = angle of body z from world z: 80° pitch KILLs, a pure yaw of 170° is level
+        ({"state": _state(quat=(math.cos(0.7), 0.0, math.sin(0.7), 0.0))}, ("KILL", "tilt 80 deg > 75 deg")),
+        ({"state": _state(quat=(math.cos(1.48), 0.0, 0.0, math.sin(1.48)))}, ("OK", "")),
+        ({"command": [math.nan, 0.0, 0.0, 0.0]}, ("KILL", "non-finite command")),
+        ({"command": [9.81, 0.0, math.inf, 0.0]}, ("KILL", "non-finite command")),
+        ({"command": None}, ("OK", "")),
+        ({"state": _state(vbat=2.95)}, ("KILL", "battery 2.95 V < 3.0 V")),
+        ({"state": _state(vbat=3.0)}, ("LAND", "battery 3.00 V < 3.3 V")),
+        ({"state": _state(vbat=3.3)}, ("OK", "")),
+        ({"state": _state(vel=(3.0, 3.0, 0.0))}, ("LAND", "speed 4.2 m/s > 4.0 m/s")),
+        ({"state": _state(vel=(0.0, 0.0, 4.0))}, ("OK", "")),
+        ({"mocap_age_s": 0.3}, ("LAND", "mocap stale (300 ms > 100 ms)")),
+        ({"mocap_age_s": 0.1}, ("OK", "")),
+        ({"command": [39.81, 20.0, -20.0, 2.0]}, ("OK", "")),  # the limits themselves are allowed
+        ({"command": [39.9, 0.0, 0.0, 0.0]}, ("LAND", "command out of range")),
+        ({"command": [-0.1, 0.0, 0.0, 0.0]}, ("LAND", "command out of range")),
+        ({"command": [9.81, 20.1, 0.0, 0.0]}, ("LAND", "command out of range")),
+        ({"command": [9.81, 0.0, -20.1, 0.0]}, ("LAND", "command out of range")),
+        ({"command": [9.81, 0.0, 0.0, -2.1]}, ("LAND", "command out of range")),
+        # a KILL reason comes before any LAND reason in the same tick
+        ({"state": _state(pos=(2.2, 0.0, 1.0), vbat=2.9)}, ("KILL", "battery 2.90 V < 3.0 V")),
+        ({"state": _state(pos=(2.2, 0.0, 1.0), vel=(5.0, 0.0, 0.0))}, ("LAND", "outside geofence by 0.20 m")),
+        ({"state": _state(vel=(5.0, 0.0, 0.0)), "mocap_age_s": 0.3}, ("LAND", "speed 5.0 m/s > 4.0 m/s")),
+        ({"mocap_age_s": 0.3, "command": [50.0, 0.0, 0.0, 0.0]}, ("LAND", "mocap stale (300 ms > 100 ms)")),
+        ({"command": [50.0, 0.0, 0.0, 0.0], "state": _state(vbat=3.1)}, ("LAND", "command out of range")),
+    ],
+)
+def test_safety_decision_table(case, expect):
+    assert decide(**case) == expect
+
+
+def test_safety_params_are_the_deploy_config_defaults():
+    from dataclasses import asdict
+
+    from datt.deploy.schema import deploy_params
+
+    _, _, from_yaml, _ = deploy_params(compose("deploy", []).deploy)
+    assert asdict(from_yaml) == asdict(safety.SafetyParams())
+
+
+@pytest.mark.parametrize(
+    "kwargs, message",
+    [
+        ({"geofence_min_m": [0.0, -2.0, -0.1]}, None),
+        (
+            {"geofence_min_m": [2.0, -2.0, -0.1]},
+            "deploy.safety.geofence_min_m/max_m: need 3 values each with min < max",
+        ),
+        ({"geofence_min_m": [-2.0, -2.0]}, "deploy.safety.geofence_min_m/max_m: need 3 values each with min < max"),
+        ({"kill_battery_v": 3.3}, None),
+        ({"kill_battery_v": 3.4}, "deploy.safety.kill_battery_v: must be <= land_battery_v"),
+    ],
+)
+def test_safety_params_validation(kwargs, message):
+    from datt.errors import ConfigError
+
+    params = safety.SafetyParams(**kwargs)
+    if message is None:
+        params.validate()
+        return
+    with pytest.raises(ConfigError) as info:
+        params.validate()
+    assert str(info.value) == message
+
+
+def test_tilt_of_rolls_pitches_and_yaws():
+    half = [math.radians(a) / 2 for a in (30.0, 80.0, 179.0)]
+    assert safety.tilt_deg((math.cos(half[0]), math.sin(half[0]), 0.0, 0.0)) == pytest.approx(30.0)
+    assert safety.tilt_deg((math.cos(half[1]), 0.0, math.sin(half[1]), 0.0)) == pytest.approx(80.0)
+    assert safety.tilt_deg((math.cos(half[2]), 0.0, 0.0, math.sin(half[2]))) == pytest.approx(0.0, abs=1e-9)
+    assert safety.tilt_deg((0.0, 1.0, 0.0, 0.0)) == pytest.approx(180.0)  # upside down
+    assert safety.tilt_deg((0.0, 1.0000001, 0.0, 0.0)) == pytest.approx(180.0)  # rounding beyond -1 is clamped
