@@ -171,3 +171,21 @@ def test_tilt_of_rolls_pitches_and_yaws():
     assert safety.tilt_deg((math.cos(half[2]), 0.0, 0.0, math.sin(half[2]))) == pytest.approx(0.0, abs=1e-9)
     assert safety.tilt_deg((0.0, 1.0, 0.0, 0.0)) == pytest.approx(180.0)  # upside down
     assert safety.tilt_deg((0.0, 1.0000001, 0.0, 0.0)) == pytest.approx(180.0)  # rounding beyond -1 is clamped
+
+
+def test_safety_limits_are_strict_inequalities():
+    """Exactly at a limit is allowed: state age, tilt, thrust 0, rate limit (+1e-6 tolerance)."""
+    at_age = safety.SafetyParams(max_state_age_s=0.125)
+    assert decide(params=at_age, now_s=0.125, state=_state(t_s=0.0)) == ("OK", "")
+    q = (math.cos(0.6), math.sin(0.6), 0.0, 0.0)
+    at_tilt = safety.SafetyParams(max_tilt_deg=safety.tilt_deg(q))
+    assert decide(params=at_tilt, state=_state(quat=q)) == ("OK", "")
+    assert decide(command=[0.0, 0.0, 0.0, 0.0]) == ("OK", "")
+    assert decide(command=[0.5, 0.0, 0.0, 0.0]) == ("OK", "")
+    assert decide(command=[9.81, 20.0 + 1e-6, 0.0, 0.0]) == ("OK", "")
+
+
+def test_stale_messages_in_milliseconds():
+    params = safety.SafetyParams(max_state_age_s=0.7, max_mocap_age_s=0.7)
+    assert decide(params=params, now_s=10.9) == ("KILL", "state estimate stale (900 ms > 700 ms)")
+    assert decide(params=params, mocap_age_s=0.9) == ("LAND", "mocap stale (900 ms > 700 ms)")

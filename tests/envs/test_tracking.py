@@ -328,3 +328,50 @@ def test_tracking_error_is_read_from_the_reference_table(make_tracking_env):
         expect = torch.linalg.vector_norm(env.sim.state.pos_m - table[:, k], dim=-1)
         assert torch.allclose(out["tracking_error_m"][:, 0], expect, atol=1e-6), k
         td = out
+
+
+def test_control_input_is_the_state_reference_and_commands(make_tracking_env):
+    env = make_tracking_env(["env.quad.latency_steps=2", "env.obs.action_history=3", "adaptation=l1"], n=3)
+    hover_rollout(env, 3)
+    ci = env.control_input()
+    s = env.sim.state
+    assert ci.batch_size == torch.Size([3])
+    for key, value in (
+        ("pos_m", s.pos_m),
+        ("vel_mps", s.vel_mps),
+        ("quat", s.quat),
+        ("rate_radps", s.rate_radps),
+        ("thrust_mps2", s.thrust_mps2),
+        ("d_hat", env.adaptation.d_hat),
+        ("step", env.step_idx),
+        ("cmd_history", env.cmd_history),
+    ):
+        assert torch.equal(ci[key], value), key
+    assert ci["cmd_in_flight"].shape == (3, 2, 4)
+    assert torch.equal(ci["cmd_in_flight"], env.sim.latency.in_flight().transpose(0, 1))
+    assert ci["ref_window_m"].shape == (3, env.horizon, 3)
+    assert torch.equal(ci["ref_window_m"][:, 0], env.reference_now_m())
+    assert ci["ref_ahead_m"].shape == (3, 0, 3)  # nothing ahead unless asked
+
+
+def test_reference_ahead_reads_the_table_and_holds_its_end(make_tracking_env):
+    env = make_tracking_env(["traj=zigzag"], n=2)
+    env.reset()
+    env.step_idx[:] = torch.tensor([5, env.table_len - 3])
+    ahead = env.control_input(ahead_steps=4)["ref_ahead_m"]
+    assert ahead.shape == (2, 4, 3)
+    assert torch.equal(ahead[0], env.ref_table[0, 6:10])  # p_d(t + k dt), k = 1..4
+    last = env.table_len - 1
+    assert torch.equal(ahead[1], env.ref_table[1, [last - 1, last, last, last]])
+    one = env.control_input(ahead_steps=1)["ref_ahead_m"]
+    assert one.shape == (2, 1, 3) and torch.equal(one[0, 0], env.ref_table[0, 6])
+
+
+def test_set_state_keeps_the_envs_precision(make_tracking_env):
+    env = make_tracking_env(["env.dtype=float64"], n=1)
+    env.reset()
+    env.set_state([0.1, 0.2, 0.3], [0.4, 0.5, 0.6], [0.1, 0.7, 0.7, 0.1])
+    s = env.sim.state
+    assert s.pos_m.dtype == torch.float64
+    assert s.pos_m.tolist() == [[0.1, 0.2, 0.3]] and s.vel_mps.tolist() == [[0.4, 0.5, 0.6]]
+    assert s.quat.tolist() == [[0.1, 0.7, 0.7, 0.1]]

@@ -188,6 +188,7 @@ def test_csv_round_trip(tmp_path):
     "content, message",
     [
         ("t,x,y\n0,0,0\n1,1,1\n", "missing column(s) z"),
+        ("t,x\n0,0\n1,1\n", "missing column(s) y, z"),
         ("t,x,y,z\n0,0,0,0\n1,nan,1,0\n", "line 3: NaN"),
         ("t,x,y,z\n0,0,0,0\n1,1,1,0\n0.5,1,1,0\n", "line 4: time must strictly increase"),
         ("t,x,y,z\n0,0,0,0\n", "at least 2 data rows"),
@@ -294,8 +295,10 @@ def test_csv_error_messages(tmp_path, content, message):
 
 def test_csv_not_utf8(tmp_path):
     path = tmp_path / "bad.csv"
-    path.write_bytes(b"t,x,y,z\n0,0,0,\xff\n")
-    with pytest.raises(ConfigError, match=r"^traj.path: bad.csv is not UTF-8 text; save it as UTF-8 CSV$"):
+    path.write_bytes(b"t,x,y,z\n" + b"0,0,0,0\n" * 5000 + b"1,0,0,\xff\n")  # far past the first read
+    with pytest.raises(
+        ConfigError, match=r"^traj.path: bad.csv is not UTF-8 text \(byte 40014\); save it as UTF-8 CSV$"
+    ):
         load_csv_reference(path)
 
 
@@ -361,3 +364,164 @@ def test_mixed_draws_only_from_its_generator():
     torch.manual_seed(2)
     b = fam.sample(16, T_GRID, gen(9))
     assert torch.equal(a, b)
+
+
+def test_piecewise_linear_by_hand():
+    knot_t = torch.tensor([[0.0, 1.0, 3.0], [0.0, 2.0, 2.0]], dtype=torch.float64)  # drone 1: a repeated knot
+    knot_p = torch.tensor(
+        [[[0.0, 1.0], [2.0, 1.0], [-2.0, 3.0]], [[1.0, 0.0], [3.0, 0.0], [5.0, 0.0]]], dtype=torch.float64
+    )
+    t = torch.tensor([-1.0, 0.0, 0.5, 1.0, 2.0, 3.0, 4.0], dtype=torch.float64)
+    out = piecewise_linear(knot_t, knot_p, t)
+    assert out.shape == (2, 7, 2)
+    assert out[0, :, 0].tolist() == [0.0, 0.0, 1.0, 2.0, 0.0, -2.0, -2.0]  # holds both ends
+    assert out[0, :, 1].tolist() == [1.0, 1.0, 1.0, 1.0, 2.0, 3.0, 3.0]
+    # at a repeated knot the earlier value holds at that instant, the later one after it
+    assert torch.isfinite(out).all() and out[1, :, 0].tolist() == [1.0, 1.0, 1.5, 2.0, 3.0, 5.0, 5.0]
+    f32 = piecewise_linear(knot_t, knot_p, t.float())
+    assert f32.dtype == torch.float64 and torch.equal(f32, out)  # computed in the knots' dtype
+
+
+def test_zigzag_waypoint_laws():
+    """Independent: each waypoint coordinate U(−r, r). Alternating: |x| U(0, r), signs alternate
+    from a random first sign (both occur), per axis."""
+    r = 0.8
+    _, plain = Zigzag(range_m=r).sample_knots(4000, 10.0, gen(5), T64)
+    wp = plain[:, 1:]
+    assert wp.abs().max() <= r and wp.min() < -0.79 and wp.max() > 0.79 and wp.mean().abs() < 0.01
+    assert (wp[:, :-1] * wp[:, 1:] > 0).double().mean() == pytest.approx(0.5, abs=0.02)  # signs independent
+    _, alt = Zigzag(range_m=r, alternate_sign=True).sample_knots(4000, 10.0, gen(5), T64)
+    wp = alt[:, 1:]
+    assert wp.abs().max() <= r and wp.abs().mean() == pytest.approx(r / 2, abs=0.01)
+    assert (wp[:, :-1] * wp[:, 1:] <= 0).all()
+    first_positive = (wp[:, 0] > 0).double().mean(0)
+    assert torch.allclose(first_positive, torch.full((2,), 0.5, dtype=torch.float64), atol=0.03)
+    assert ((wp[:, 0, 0] > 0) != (wp[:, 0, 1] > 0)).any()  # x and y pick their first sign independently
+
+
+@pytest.mark.parametrize(
+    "family, kwargs, message",
+    [
+        (Zigzag, {"seg_min_s": 0.0}, "traj.seg_min_s/seg_max_s: need 0 < min <= max, got 0.0, 1.5"),
+        (Zigzag, {"seg_min_s": 2.0}, "traj.seg_min_s/seg_max_s: need 0 < min <= max, got 2.0, 1.5"),
+        (Zigzag, {"range_m": -0.1}, "traj.range_m: must be >= 0, got -0.1"),
+        (Polygon, {"points_min": 2}, "traj.points_min/points_max: need 3 <= min <= max, got 2, 6"),
+        (Polygon, {"points_min": 7}, "traj.points_min/points_max: need 3 <= min <= max, got 7, 6"),
+        (Polygon, {"step": 0}, "traj.step: must be >= 1 and coprime with every point count, got 0"),
+        (Polygon, {"step": 2}, "traj.step: must be >= 1 and coprime with every point count, got 2"),
+        (Polygon, {"radius_m": 0.0}, "traj: radius_m > 0, 0 < speed_min_mps <= speed_max_mps, lead_in_s >= 0 required"),
+        (Polygon, {"speed_min_mps": 0.0}, "traj: radius_m > 0, 0 < speed_min_mps"),
+        (Polygon, {"speed_min_mps": 2.0}, "traj: radius_m > 0, 0 < speed_min_mps"),
+        (Polygon, {"lead_in_s": -1.0}, "traj: radius_m > 0, 0 < speed_min_mps"),
+        (ChainedPoly, {"piece_min_s": 0.0}, "traj.piece_min_s/piece_max_s: need 0 < min <= max, got 0.0, 4.0"),
+        (Poly, {"duration_s": 0.0}, "traj: duration_s > 0, vel_max_mps >= 0, acc_max_mps2 >= 0, max_amplitude_m > 0"),
+        (Poly, {"vel_max_mps": -1.0}, "traj: duration_s > 0"),
+        (Poly, {"acc_max_mps2": -1.0}, "traj: duration_s > 0"),
+        (Poly, {"max_amplitude_m": 0.0}, "traj: duration_s > 0"),
+    ],
+)
+def test_family_parameter_messages(family, kwargs, message):
+    with pytest.raises(ValueError) as info:
+        family(**kwargs)
+    assert str(info.value).startswith(message)
+
+
+def test_family_parameter_edges_are_allowed():
+    Zigzag(seg_min_s=1.0, seg_max_s=1.0, range_m=0.0)
+    Polygon(points_min=3, points_max=3, step=1, speed_min_mps=1.0, speed_max_mps=1.0, lead_in_s=0.0)
+    ChainedPoly(piece_min_s=2.0, piece_max_s=2.0)
+    Poly(vel_max_mps=0.0, acc_max_mps2=0.0)
+
+
+def test_polygon_draws_and_timing():
+    """Point counts U{3..6}, speeds U(0.9, 1.6), random rotation over the circle; a side of a
+    {p} polygon of radius r is 2 r sin(π/p), flown at the drone's speed."""
+    fam = Polygon()
+    table = fam.sample(600, T64, gen(2))
+    speed = (table.diff(dim=1).norm(dim=-1) / DT).amax(1)
+    assert speed.min() > 0.9 - 1e-6 and speed.max() < 1.6 + 1e-6 and speed.min() < 0.95 and speed.max() > 1.55
+    first_dir = torch.atan2(table[:, 5, 1], table[:, 5, 0])  # direction of the first side
+    for lo in (-math.pi, -math.pi / 2, 0.0, math.pi / 2):
+        share = ((first_dir >= lo) & (first_dir < lo + math.pi / 2)).double().mean()
+        assert share == pytest.approx(0.25, abs=0.06)
+    square = Polygon(points_min=4, points_max=4, speed_min_mps=1.0, speed_max_mps=1.0, random_rotation=False)
+    sq = square.sample(1, T64, gen())[0]
+    side = 2 * 0.5 * math.sin(math.pi / 4)
+    k = round(side / 1.0 / DT)  # the first corner
+    corner = sq[:, :2].diff(dim=0).norm(dim=-1)
+    assert corner[: k - 1].min() == pytest.approx(DT, abs=1e-9)
+    assert (sq[2 * k, :2] - sq[0, :2]).norm().item() == pytest.approx(2 * side / math.sqrt(2), abs=0.03)
+    assert sq[:, :2].abs().max() <= 2 * side + 1e-9
+
+
+def test_csv_separator_detection_edge_cases(tmp_path):
+    # no separator on the header line: read as one comma-separated column, reported as such
+    path = tmp_path / "one.csv"
+    path.write_text("txyz\n0\n1\n")
+    with pytest.raises(ConfigError) as info:
+        load_csv_reference(path)
+    assert str(info.value) == (
+        "traj.path: one.csv is missing column(s) t, x, y, z; required: t, x, y, z "
+        "(header read as ['txyz'] with separator ',')"
+    )
+    # a comma wins over a ';' inside a column name
+    both = tmp_path / "both.csv"
+    both.write_text("t,x,y,z,note;s\n0,0,0,0,a\n1,1,0,0,b\n")
+    assert load_csv_reference(both)[1].tolist() == [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]]
+
+
+def test_csv_loop_period_is_the_last_time(tmp_path):
+    fam = CsvReference(str(write_csv(tmp_path / "ref.csv", CSV_ROWS)), loop=True)
+    table = fam.sample(1, T64, gen())
+    assert torch.allclose(table[0, 175], table[0, 75])  # 3.5 s = 1.5 s + one 2 s period
+    assert not torch.allclose(table[0, 175], table[0, 25])
+
+
+def test_polygon_keeps_moving_to_the_end_of_the_table():
+    """Enough vertex visits for the fastest drone on the shortest sides: no drone holds still
+    before the table ends."""
+    fam = Polygon(points_min=3, points_max=6, speed_min_mps=1.6, speed_max_mps=1.6)
+    t = torch.arange(1001, dtype=torch.float64) * DT  # 20 s
+    table = fam.sample(300, t, gen(6))
+    speed_end = table[:, -3:].diff(dim=1).norm(dim=-1) / DT
+    assert speed_end.min() > 1.5
+    star = Polygon(
+        points_min=5,
+        points_max=5,
+        step=2,
+        radius_m=0.7,
+        through_origin=False,
+        lead_in_s=1.0,
+        speed_min_mps=1.0,
+        speed_max_mps=1.0,
+        random_rotation=False,
+    )
+    end = star.sample(1, t, gen())[0, -3:].diff(dim=0).norm(dim=-1) / DT
+    assert end.min() > 0.99
+
+
+def test_star_visits_vertices_counterclockwise_every_second_one():
+    """{5/2}: after the first vertex (phase 90°) the next is 2 × 72° = 144° further counterclockwise."""
+    star = Polygon(
+        points_min=5,
+        points_max=5,
+        step=2,
+        radius_m=0.7,
+        through_origin=False,
+        lead_in_s=1.0,
+        speed_min_mps=1.0,
+        speed_max_mps=1.0,
+        random_rotation=False,
+    )
+    table = star.sample(1, T64, gen())[0]
+    side = 2 * 0.7 * math.sin(2 * math.pi / 5)
+    k = 50 + round(side / DT)  # 1 s lead-in, then one side at 1 m/s
+    angle = math.radians(90 + 144)
+    expect = torch.tensor([0.7 * math.cos(angle), 0.7 * math.sin(angle)], dtype=torch.float64)
+    assert torch.allclose(table[k, :2], expect, atol=0.02)
+
+
+def test_polygon_step_must_be_coprime_with_every_count():
+    with pytest.raises(ValueError, match="traj.step: must be >= 1 and coprime"):
+        Polygon(points_min=3, points_max=4, step=2)  # a {4/2} is not a polygon
+    Polygon(points_min=5, points_max=5, step=2)

@@ -3,6 +3,8 @@ import math
 import torch
 
 from datt.sim.frames import (
+    BODY_Z_QUADRATIC_FORM,
+    ROTMAT_QUADRATIC_FORM,
     quat_body_z,
     quat_body_z_bilinear,
     quat_exp_rotvec,
@@ -39,6 +41,11 @@ def test_bilinear_forms_equal_the_rotation_matrix_for_unit_quaternions():
     assert torch.allclose(quat_to_rotmat_bilinear(q), quat_to_rotmat(q), atol=1e-12)
     assert torch.allclose(quat_body_z_bilinear(q), quat_body_z(q), atol=1e-12)
     assert torch.allclose(quat_body_z_bilinear(q.float()), quat_body_z(q.float()), atol=1e-6)
+    assert torch.allclose(quat_to_rotmat_bilinear(q.float()), quat_to_rotmat(q.float()), atol=1e-6)
+    # a caller's own form (kept across a control loop) is the one used
+    form = ROTMAT_QUADRATIC_FORM.to(q)
+    assert torch.allclose(quat_to_rotmat_bilinear(q, 2 * form), 2 * quat_to_rotmat(q), atol=1e-12)
+    assert torch.allclose(quat_body_z_bilinear(q, 2 * BODY_Z_QUADRATIC_FORM.to(q)), 2 * quat_body_z(q), atol=1e-12)
 
 
 def test_euler_yaw_round_trip_and_composition():

@@ -173,3 +173,24 @@ def test_height_after_a_thrust_step_matches_the_actuator_model():
     for k in range(1, 11):
         quad.step(cmd(1, G + 2.0, dtype=quad.dtype))
         assert quad.state.pos_m[0, 2].item() == pytest.approx(0.5 * 2.0 * (k * dt) ** 2, abs=1e-12), k
+
+
+@pytest.mark.parametrize("steps", [0, 1, 3])
+def test_commands_in_flight_are_the_last_ones_sent_oldest_first(steps):
+    from datt.sim.quadrotor import CommandLatency
+
+    fill = torch.zeros(4)
+    latency = CommandLatency(steps, fill, n=2)
+    assert latency.in_flight().shape == (steps, 2, 4)
+    sent = [torch.full((2, 4), float(k + 1)) for k in range(5)]
+    applied = [latency.push(cmd) for cmd in sent]
+    # after 5 pushes the queue wrapped (head != 0 for 3 slots): still the last `steps`, oldest first
+    flight = latency.in_flight()
+    assert flight.shape == (steps, 2, 4)
+    assert [row[0, 0].item() for row in flight] == [float(k) for k in range(6 - steps, 6)]
+    # what comes out is what went in `steps` pushes earlier (zeros before that)
+    expect = [0.0] * steps + [float(k + 1) for k in range(5 - steps)]
+    assert [a[0, 0].item() for a in applied] == expect
+    for _ in range(2):  # and at head == 0 as well
+        latency.push(torch.full((2, 4), 9.0))
+    assert latency.in_flight().shape == (steps, 2, 4)

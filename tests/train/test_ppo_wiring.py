@@ -124,7 +124,25 @@ def test_init_from_copies_weights_and_checks_the_shape(tmp_path):
     with pytest.raises(ConfigError) as info:
         Trainer(tiny_cfg(f"train.init_from={ckpt}", "horizon=5"), tmp_path / "c", CsvLogger(tmp_path))
     assert str(info.value) == "train.init_from: checkpoint has horizon=10, config has 5"
-    with pytest.raises(ConfigError, match=r"^train.init_from: policy shape differs from policy config \("):
+    with pytest.raises(ConfigError, match=r"^train.init_from: policy shape differs from policy config \(Error\(s\) in"):
         Trainer(tiny_cfg(f"train.init_from={ckpt}", "policy.hidden=[32,32]"), tmp_path / "d", CsvLogger(tmp_path))
     with pytest.raises(ConfigError, match=r"^train.init_from: file '.*nope.pt' not found$"):
         Trainer(tiny_cfg(f"train.init_from={tmp_path / 'nope.pt'}"), tmp_path / "e", CsvLogger(tmp_path))
+
+
+@pytest.mark.parametrize("schedule", ["linear", "constant"])
+def test_learning_rate_schedule(tmp_path, schedule):
+    """linear: lr (1 − (1 − f) frames / total), down to f · lr at the end; constant: lr."""
+    trainer = Trainer(
+        tiny_cfg(f"algo.lr_schedule={schedule}", "algo.lr=0.002", "algo.lr_final_frac=0.25", "train.total_steps=4000"),
+        tmp_path,
+        CsvLogger(tmp_path),
+    )
+    seen = []
+    for frames in (0, 1000, 4000, 8000):
+        trainer.frames = frames
+        seen.append(trainer._lr())
+    if schedule == "constant":
+        assert seen == [0.002] * 4
+    else:
+        assert seen == pytest.approx([0.002, 0.002 * (1 - 0.75 * 0.25), 0.0005, 0.0005])

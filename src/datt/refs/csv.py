@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import io
 from pathlib import Path
 
 import torch
@@ -15,15 +16,11 @@ REQUIRED_COLUMNS = ("t", "x", "y", "z")
 
 
 def _resolve(path: str | Path) -> Path:
-    p = Path(path).expanduser()
-    if not p.is_absolute():
-        try:  # under Hydra, relative paths mean relative to where the user ran the command
-            from hydra.utils import to_absolute_path
+    """Relative paths mean relative to where the user ran the command (Hydra's original working
+    directory inside a job, else the working directory)."""
+    from hydra.utils import to_absolute_path
 
-            p = Path(to_absolute_path(str(p)))
-        except ValueError:  # Hydra not initialised: plain cwd
-            p = p.resolve()
-    return p
+    return Path(to_absolute_path(str(Path(path).expanduser())))
 
 
 def load_csv_reference(path: str | Path, key: str = "traj.path") -> tuple[Tensor, Tensor]:
@@ -35,29 +32,29 @@ def load_csv_reference(path: str | Path, key: str = "traj.path") -> tuple[Tensor
     p = _resolve(path)
     if not p.is_file():
         raise ConfigError(f"{key}: file {str(p)!r} not found")
-    try:
-        first = p.open(encoding="utf-8-sig").readline()
-    except UnicodeDecodeError:
-        raise ConfigError(f"{key}: {p.name} is not UTF-8 text; save it as UTF-8 CSV") from None
+    try:  # the whole file at once: a bad byte anywhere is this one line, not a traceback mid-parse
+        text = p.read_text(encoding="utf-8-sig")
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"{key}: {p.name} is not UTF-8 text (byte {exc.start}); save it as UTF-8 CSV") from None
     # Spreadsheets in many locales write ';' (decimal comma) or tabs; a BOM is dropped by utf-8-sig.
+    first = text.split("\n", 1)[0]
     delimiter = next((d for d in (",", ";", "\t") if d in first), ",")
-    with p.open(newline="", encoding="utf-8-sig") as f:
-        reader = csv.DictReader(f, delimiter=delimiter)
-        header = [h.strip() for h in (reader.fieldnames or [])]
-        missing = [c for c in REQUIRED_COLUMNS if c not in header]
-        if missing:
-            raise ConfigError(
-                f"{key}: {p.name} is missing column(s) {', '.join(missing)}; required: {', '.join(REQUIRED_COLUMNS)} "
-                f"(header read as {header} with separator {delimiter!r})"
-            )
-        rows = []
-        for line_no, row in enumerate(reader, start=2):
-            row = {k.strip(): v for k, v in row.items() if k is not None}
-            try:
-                rows.append([float(row[c]) for c in REQUIRED_COLUMNS])
-            except (TypeError, ValueError):
-                hint = " (decimal commas? use '.' for decimals)" if delimiter == ";" else ""
-                raise ConfigError(f"{key}: {p.name} line {line_no}: non-numeric value in t,x,y,z{hint}") from None
+    reader = csv.DictReader(io.StringIO(text, newline=""), delimiter=delimiter)
+    header = [h.strip() for h in (reader.fieldnames or [])]
+    missing = [c for c in REQUIRED_COLUMNS if c not in header]
+    if missing:
+        raise ConfigError(
+            f"{key}: {p.name} is missing column(s) {', '.join(missing)}; required: {', '.join(REQUIRED_COLUMNS)} "
+            f"(header read as {header} with separator {delimiter!r})"
+        )
+    rows = []
+    for line_no, row in enumerate(reader, start=2):
+        row = {k.strip(): v for k, v in row.items() if k is not None}
+        try:
+            rows.append([float(row[c]) for c in REQUIRED_COLUMNS])
+        except (TypeError, ValueError):
+            hint = " (decimal commas? use '.' for decimals)" if delimiter == ";" else ""
+            raise ConfigError(f"{key}: {p.name} line {line_no}: non-numeric value in t,x,y,z{hint}") from None
     if len(rows) < 2:
         raise ConfigError(f"{key}: {p.name} needs at least 2 data rows, got {len(rows)}")
     data = torch.tensor(rows, dtype=torch.float64)
