@@ -4,6 +4,8 @@ Run from the repository root after ``mutmut run`` (see docs/mutation.md):
 
     python tools/mutation_report.py            # prints the table and rewrites docs/mutation.md's table
     python tools/mutation_report.py --survivors  # also lists every surviving mutant's diff
+    python tools/mutation_report.py --results a.txt b.txt  # saved `mutmut results --all true`
+                                                           # outputs instead, later files win
 
 Mutants listed in ``docs/mutation-equivalent.txt`` (``<mutant name>  # reason``) are equivalent:
 no test can tell them from the original, so the score leaves them out.
@@ -25,13 +27,26 @@ EQUIVALENT = ROOT / "docs" / "mutation-equivalent.txt"
 BEGIN, END = "<!-- mutation-table:begin -->", "<!-- mutation-table:end -->"
 
 
-def results() -> dict[str, str]:
-    out = subprocess.run(["mutmut", "results", "--all", "true"], capture_output=True, text=True, cwd=ROOT, check=True)
+def parse(text: str) -> dict[str, str]:
     found = {}
-    for line in out.stdout.splitlines():
+    for line in text.splitlines():
         name, sep, status = line.strip().rpartition(": ")
         if sep and "__mutmut_" in name:
             found[name] = status
+    return found
+
+
+def results(files: list[Path] | None = None) -> dict[str, str]:
+    """Mutant -> status, from ``mutmut results --all true`` or from saved outputs of it (a later
+    file's verdict replaces an earlier one's unless it says "not checked")."""
+    if not files:
+        cmd = ["mutmut", "results", "--all", "true"]
+        return parse(subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, check=True).stdout)
+    found: dict[str, str] = {}
+    for path in files:
+        for name, status in parse(Path(path).read_text()).items():
+            if status != "not checked" or name not in found:
+                found[name] = status
     return found
 
 
@@ -55,8 +70,8 @@ def table(found: dict[str, str], equiv: dict[str, str]) -> list[str]:
     for name, status in found.items():
         per[module_of(name)]["equivalent" if name in equiv and status == "survived" else status] += 1
     rows = [
-        "| module | mutants | killed | survived | equivalent | no tests | timeout | score |",
-        "|---|---|---|---|---|---|---|---|",
+        "| module | mutants | checked | killed | survived | equivalent | no tests | timeout | score of checked |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
     total = Counter()
     for module in sorted(per):
@@ -69,19 +84,21 @@ def table(found: dict[str, str], equiv: dict[str, str]) -> list[str]:
 
 def _row(name: str, c: Counter) -> str:
     n = sum(c.values())
-    scored = n - c["equivalent"]
-    score = 100.0 * c["killed"] / scored if scored else 100.0
+    checked = n - c["not checked"]
+    scored = checked - c["equivalent"]
+    score = f"{100.0 * c['killed'] / scored:.1f} %" if scored else "—"
     return (
-        f"| {name} | {n} | {c['killed']} | {c['survived']} | {c['equivalent']} | {c['no tests']} | "
-        f"{c['timeout']} | {score:.1f} % |"
+        f"| {name} | {n} | {checked} | {c['killed']} | {c['survived']} | {c['equivalent']} | {c['no tests']} | "
+        f"{c['timeout']} | {score} |"
     )
 
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--survivors", action="store_true", help="print each surviving mutant's diff")
+    parser.add_argument("--results", nargs="+", type=Path, help="saved `mutmut results --all true` outputs")
     args = parser.parse_args()
-    found = results()
+    found = results(args.results)
     if not found:
         print("no mutmut results: run `mutmut run` first (docs/mutation.md)", file=sys.stderr)
         return 2

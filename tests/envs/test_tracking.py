@@ -375,3 +375,18 @@ def test_set_state_keeps_the_envs_precision(make_tracking_env):
     assert s.pos_m.dtype == torch.float64
     assert s.pos_m.tolist() == [[0.1, 0.2, 0.3]] and s.vel_mps.tolist() == [[0.4, 0.5, 0.6]]
     assert s.quat.tolist() == [[0.1, 0.7, 0.7, 0.1]]
+
+
+def test_set_seed_makes_resets_reproducible(make_tracking_env):
+    a, b = make_tracking_env(["traj=zigzag"], n=4), make_tracking_env(["traj=zigzag"], n=4)
+    a.set_seed(7)
+    b.set_seed(7)
+    assert torch.equal(a.reset()["state"], b.reset()["state"]) and torch.equal(a.ref_table, b.ref_table)
+    b.set_seed(8)
+    b.reset()
+    assert not torch.equal(a.ref_table, b.ref_table)
+    a._set_seed(None)  # None means seed 0
+    b._set_seed(0)
+    a.reset()
+    b.reset()
+    assert torch.equal(a.ref_table, b.ref_table)

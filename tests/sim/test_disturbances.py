@@ -229,3 +229,35 @@ def test_plate_in_wind_sees_the_air_relative_velocity():
     assert torch.allclose(model.update(quad.state), 0.5 * w.abs() * w)
     quad.state.vel_mps = wind.w_mean.clone()
     assert model.update(quad.state).abs().max() < 1e-12
+
+
+def test_wind_modes_are_drawn_per_drone_and_gusts_exactly():
+    wind = Wind(num_modes=2, gust_std_mps=0.5, gust_tau_s=0.5, gust_vertical_ratio=0.3)
+    model, quad = bound(wind, 3, seed=4)
+    assert not torch.allclose(model.mode_k[0], model.mode_k[1])  # each drone its own field
+    assert not torch.allclose(model.mode_dir[0], model.mode_dir[1])
+    # one gust step, recomputed in float64 from the same generator state
+    state = model.generator.get_state()
+    before = model.gust.clone()
+    model.update(quad.state)
+    gen = torch.Generator().manual_seed(0)
+    gen.set_state(state)
+    a = math.exp(-0.02 / 0.5)
+    noise = torch.randn(3, 3, generator=gen, dtype=torch.float64) * (0.5 * math.sqrt(1 - a * a))
+    expect = before * a + noise * torch.tensor([1.0, 1.0, 0.3], dtype=torch.float64)
+    assert torch.allclose(model.gust, expect, rtol=1e-14, atol=1e-15)
+
+
+def test_plate_drag_in_the_sims_precision_and_from_the_given_generator():
+    plate = DragPlate(mass_ratio=0.0, drag_coef_body_per_m=(0.6, 0.0, 0.2))  # a zero coefficient is allowed
+    model, quad = bound(plate, 1)
+    quad.state.thrust_mps2.zero_()
+    quad.state.vel_mps = torch.tensor([[1.0, 0.0, 0.0]], dtype=torch.float64)
+    assert model.update(quad.state)[0, 0].item() == -0.6  # exactly, in float64
+
+    def windy(global_seed):
+        torch.manual_seed(global_seed)
+        m, _ = bound(DragPlate(wind=Wind()), 4, seed=3)
+        return m.wind.w_mean.clone()
+
+    assert torch.equal(windy(1), windy(2))  # the plate passes its generator to the wind
