@@ -335,7 +335,7 @@ def test_control_input_is_the_state_reference_and_commands(make_tracking_env):
     hover_rollout(env, 3)
     ci = env.control_input()
     s = env.sim.state
-    assert ci.batch_size == torch.Size([3])
+    assert ci.batch_size == torch.Size([3]) and ci.device == env.device
     for key, value in (
         ("pos_m", s.pos_m),
         ("vel_mps", s.vel_mps),

@@ -525,3 +525,23 @@ def test_polygon_step_must_be_coprime_with_every_count():
     with pytest.raises(ValueError, match="traj.step: must be >= 1 and coprime"):
         Polygon(points_min=3, points_max=4, step=2)  # a {4/2} is not a polygon
     Polygon(points_min=5, points_max=5, step=2)
+
+
+def test_polygon_point_counts_cover_their_range_and_sides_are_exact():
+    """At 1 m/s a {p} polygon of radius r closes after p · 2 r sin(π/p) seconds: every count
+    3..6 occurs, and a square's first corner is reached at exactly its side length."""
+    r = 0.5
+    period = {p: p * 2 * r * math.sin(math.pi / p) for p in range(3, 7)}
+    fam = Polygon(speed_min_mps=1.0, speed_max_mps=1.0)
+    t = torch.tensor([0.0, *period.values()], dtype=torch.float64)
+    table = fam.sample(400, t, gen(8))
+    closed = table[:, 1:, :2].norm(dim=-1) < 1e-9  # [n, 4]: back at the origin at that period
+    assert closed.sum(1).max() == 1 and closed.all(0).logical_not().all()
+    assert closed.any(0).all()  # every vertex count was drawn
+    square = Polygon(points_min=4, points_max=4, speed_min_mps=1.0, speed_max_mps=1.0, random_rotation=False)
+    side = 2 * r * math.sin(math.pi / 4)
+    corner = square.sample(1, torch.tensor([side], dtype=torch.float64), gen())[0, 0, :2]
+    expect = torch.tensor(
+        [r * math.cos(math.pi / 2 + math.pi / 2) - 0.0, r * math.sin(math.pi) - r], dtype=torch.float64
+    )
+    assert torch.allclose(corner, expect, rtol=0, atol=1e-12)

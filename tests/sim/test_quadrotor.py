@@ -191,6 +191,6 @@ def test_commands_in_flight_are_the_last_ones_sent_oldest_first(steps):
     # what comes out is what went in `steps` pushes earlier (zeros before that)
     expect = [0.0] * steps + [float(k + 1) for k in range(5 - steps)]
     assert [a[0, 0].item() for a in applied] == expect
-    for _ in range(2):  # and at head == 0 as well
-        latency.push(torch.full((2, 4), 9.0))
-    assert latency.in_flight().shape == (steps, 2, 4)
+    for k in range(6, 9):  # the head passes every slot: the order holds at each
+        latency.push(torch.full((2, 4), float(k)))
+        assert [row[0, 0].item() for row in latency.in_flight()] == [float(j) for j in range(k + 1 - steps, k + 1)]
