@@ -9,10 +9,10 @@ Run from the repository root after ``mutmut run`` (see docs/mutation.md):
 
 Mutants listed in ``docs/mutation-equivalent.txt`` (``<mutant name>  # reason``) are equivalent:
 no test can tell them from the original, so the score leaves them out. Mutants listed in
-``docs/mutation-by-hand.txt`` (``<mutant name>  # test``) survived under mutmut only because the
-test that kills them reads the function's signature instead of calling it (mutmut runs a test
-for a mutant only if the test calls the mutated function); they were applied to a copy of the
-tree by hand and fail that test, so they count as killed.
+``docs/mutation-by-hand.txt`` (``<mutant name>  # test``) survived under mutmut but fail the named
+test when applied to a copy of the tree by hand (the test reads the function's signature instead
+of calling it, which mutmut cannot map, or was written after the recorded run); they count as
+killed.
 Score = killed / (all - equivalent), per module; the goal is >= 90 % in each.
 """
 

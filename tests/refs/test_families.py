@@ -545,3 +545,19 @@ def test_polygon_point_counts_cover_their_range_and_sides_are_exact():
         [r * math.cos(math.pi / 2 + math.pi / 2) - 0.0, r * math.sin(math.pi) - r], dtype=torch.float64
     )
     assert torch.allclose(corner, expect, rtol=0, atol=1e-12)
+
+
+def test_chained_poly_starts_and_ends_without_acceleration_and_moves_to_the_end():
+    fam = ChainedPoly()
+    like = torch.zeros((), dtype=torch.float64)
+    knot_t, coeffs = fam.sample_pieces(64, 10.0, gen(11), like)
+    # a(0) of the first piece and a(h) of the last one: p'' = 2 c2 + 6 c3 h + 12 c4 h² + 20 c5 h³
+    assert coeffs[:, 0, 2].abs().max() < 1e-9
+    h = (knot_t[:, -1] - knot_t[:, -2])[:, None]
+    c = coeffs[:, -1]
+    acc_end = 2 * c[:, 2] + 6 * c[:, 3] * h + 12 * c[:, 4] * h**2 + 20 * c[:, 5] * h**3
+    assert acc_end.abs().max() < 1e-6
+    table = fam.sample(64, T_GRID, gen(11))
+    assert table.dtype == torch.float32
+    speed_late = (table[:, -100:].diff(dim=1).norm(dim=-1) / DT).mean(1)  # the last 2 s
+    assert (speed_late > 0.05).float().mean() > 0.9
