@@ -415,10 +415,12 @@ def test_08_crazyflie_without_a_radio(tmp_path, monkeypatch, capsys):
 
 
 def test_08_killed_flight_exits_non_zero(tmp_path, monkeypatch, capsys):
+    """A 2° tilt limit KILLs the flight as soon as it banks (on a loaded machine another KILL
+    reason may come first: any KILL must exit 4 with one line)."""
     pytest.importorskip("cflib")
     args = [*FLIGHT, f"deploy.uri=udp://127.0.0.1:{next(_port)}", "deploy.safety.max_tilt_deg=2", "hydra.run.dir=f"]
     code, lines, _ = run_cli("deploy", args, tmp_path, monkeypatch, capsys)
-    one_line((code, lines), "error: flight killed: tilt", 4)
+    one_line((code, lines), "error: flight killed: ", 4)
     assert (tmp_path / "f" / "flight.csv").is_file()
 
 
