@@ -13,6 +13,18 @@ from datt.refs.poly import eval_pieces
 DT = 0.02
 T_GRID = torch.arange(528, dtype=torch.float32) * DT  # 500 steps + lookahead, as the env uses
 T64 = torch.arange(528, dtype=torch.float64) * DT
+# the authors' evaluation star as conf/traj/star.yaml sets it
+STAR = dict(
+    points_min=5,
+    points_max=5,
+    step=2,
+    radius_m=0.7,
+    through_origin=False,
+    lead_in_s=1.0,
+    speed_min_mps=1.0,
+    speed_max_mps=1.0,
+    random_rotation=False,
+)
 
 
 def gen(seed=0):
@@ -103,17 +115,7 @@ def test_chained_poly_nodes_at_origin_and_c3_continuous():
 
 
 def test_star_geometry_speed_and_lead_in():
-    star = Polygon(
-        points_min=5,
-        points_max=5,
-        step=2,
-        radius_m=0.7,
-        speed_min_mps=1.0,
-        speed_max_mps=1.0,
-        through_origin=False,
-        lead_in_s=1.0,
-        random_rotation=False,
-    )
+    star = Polygon(**STAR)
     table = star.sample(2, T64, gen())
     assert torch.equal(table[0], table[1])  # deterministic
     assert table[0, 0].abs().max() == 0
@@ -485,34 +487,14 @@ def test_polygon_keeps_moving_to_the_end_of_the_table():
     table = fam.sample(300, t, gen(6))
     speed_end = table[:, -3:].diff(dim=1).norm(dim=-1) / DT
     assert speed_end.min() > 1.5
-    star = Polygon(
-        points_min=5,
-        points_max=5,
-        step=2,
-        radius_m=0.7,
-        through_origin=False,
-        lead_in_s=1.0,
-        speed_min_mps=1.0,
-        speed_max_mps=1.0,
-        random_rotation=False,
-    )
+    star = Polygon(**STAR)
     end = star.sample(1, t, gen())[0, -3:].diff(dim=0).norm(dim=-1) / DT
     assert end.min() > 0.99
 
 
 def test_star_visits_vertices_counterclockwise_every_second_one():
     """{5/2}: after the first vertex (phase 90°) the next is 2 × 72° = 144° further counterclockwise."""
-    star = Polygon(
-        points_min=5,
-        points_max=5,
-        step=2,
-        radius_m=0.7,
-        through_origin=False,
-        lead_in_s=1.0,
-        speed_min_mps=1.0,
-        speed_max_mps=1.0,
-        random_rotation=False,
-    )
+    star = Polygon(**STAR)
     table = star.sample(1, T64, gen())[0]
     side = 2 * 0.7 * math.sin(2 * math.pi / 5)
     k = 50 + round(side / DT)  # 1 s lead-in, then one side at 1 m/s
