@@ -154,3 +154,33 @@ def test_compiled_kernel_only_for_large_batches_and_same_estimates():
         state = SimpleNamespace(vel_mps=vel[k], quat=quat)
         torch.testing.assert_close(big.update(state, cmd[k]), eager.update(state, cmd[k]))
     assert big.d_hat.abs().max() > 0.1
+
+
+def test_reset_restarts_the_estimator_at_the_measured_state():
+    """A reset drone's predictor starts at its measured velocity and attitude (or at rest and
+    level without a state); σ̂, d̂ and the thrust estimate restart; other drones keep theirs."""
+    from datt.sim.frames import quat_from_euler
+    from datt.sim.quadrotor import QuadState
+
+    est = L1Adaptation(a_s=-0.5, cutoff_tau_s=0.2)
+    est.bind(3, 0.02, 9.81, "cpu", torch.float64)
+    for name in ("v_hat", "sigma_hat", "d_hat", "prev_vel"):
+        getattr(est, name).fill_(0.7)
+    est.prev_quat[:] = torch.tensor([0.0, 1.0, 0.0, 0.0], dtype=torch.float64)
+    est.thrust_est.fill_(3.0)
+    est.thrust_queue.fill_(3.0)
+    vel = torch.tensor([[1.0, 2.0, 3.0]] * 3, dtype=torch.float64)
+    quat = quat_from_euler(*(torch.full((3,), a, dtype=torch.float64) for a in (0.1, 0.2, 0.3)))
+    z = torch.zeros(3, 3, dtype=torch.float64)
+    state = QuadState(pos_m=z, vel_mps=vel, quat=quat, rate_radps=z, thrust_mps2=torch.zeros(3, dtype=torch.float64))
+    est.reset(torch.tensor([0]), None, state)
+    est.reset(torch.tensor([1]))
+    assert est.v_hat[0].tolist() == [1.0, 2.0, 3.0] and est.prev_vel[0].tolist() == [1.0, 2.0, 3.0]
+    assert torch.equal(est.prev_quat[0], quat[0])
+    assert est.v_hat[1].tolist() == [0.0, 0.0, 0.0] and est.prev_vel[1].tolist() == [0.0, 0.0, 0.0]
+    assert est.prev_quat[1].tolist() == [1.0, 0.0, 0.0, 0.0] and est.prev_quat.dtype == torch.float64
+    for i in (0, 1):
+        assert est.sigma_hat[i].abs().max() == 0 and est.d_hat[i].abs().max() == 0
+        assert est.thrust_est[i] == 9.81 and (est.thrust_queue[:, i] == 9.81).all()
+    assert est.v_hat[2].tolist() == [0.7] * 3 and est.d_hat[2].tolist() == [0.7] * 3  # untouched
+    assert est.prev_quat[2].tolist() == [0.0, 1.0, 0.0, 0.0] and est.thrust_est[2] == 3.0

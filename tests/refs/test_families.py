@@ -543,3 +543,21 @@ def test_chained_poly_starts_and_ends_without_acceleration_and_moves_to_the_end(
     assert table.dtype == torch.float32
     speed_late = (table[:, -100:].diff(dim=1).norm(dim=-1) / DT).mean(1)  # the last 2 s
     assert (speed_late > 0.05).float().mean() > 0.9
+
+
+def test_seeded_draws_with_its_own_seed_only():
+    from datt.refs.composite import Seeded
+
+    fam = Seeded(Zigzag(), seed=3)
+    a, b = fam.sample(4, T64, gen(1)), fam.sample(4, T64, gen(2))
+    assert torch.equal(a, b) and torch.equal(a, Zigzag().sample(4, T64, gen(3)))
+
+
+def test_fixed_caches_per_time_grid():
+    fam = Fixed(Zigzag(), seed=4)
+    short = fam.sample(2, T64, gen())
+    other_end = T64.clone()
+    other_end[-1] += 5.0  # same length, a different last time
+    assert torch.equal(fam.sample(3, T64, gen(9))[0], short[0])
+    far = fam.sample(2, other_end, gen())
+    assert far.shape == short.shape and not torch.equal(far, short)  # drawn for that grid, not the cached one
