@@ -7,15 +7,13 @@ composed config as YAML text, RNG states, curriculum phase, best metric.
 
 from __future__ import annotations
 
-import os
-import tempfile
 from pathlib import Path
 from typing import Any
 
 import torch
 
 from datt.errors import ConfigError
-from datt.runs import public_mode
+from datt.runs import atomic_write
 
 FORMAT = "datt-checkpoint-v1"
 
@@ -25,17 +23,8 @@ def save_checkpoint(path: str | Path, payload: dict[str, Any]) -> Path:
     a crash mid-write leaves the previous checkpoint intact."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            torch.save({"format": FORMAT, **payload}, f)
-            f.flush()
-            os.fsync(f.fileno())
-        public_mode(tmp)  # mkstemp's 0600 would hide the run's checkpoints from its group
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    with atomic_write(path, "wb") as f:
+        torch.save({"format": FORMAT, **payload}, f)
     return path
 
 

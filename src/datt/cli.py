@@ -21,18 +21,33 @@ from datt.errors import ConfigError, FlightAborted, TrainingDiverged, TrainingIn
 from datt.runs import read_failure, record_failure
 
 
+def _split_argv(argv: list[str]) -> tuple[list[str], list[str], bool]:
+    """A Hydra command line as (``--config-dir``/``-cd`` values, overrides, whether it uses any
+    other flag such as ``--cfg`` or ``--info``); ``-m``/``--multirun`` is dropped."""
+    dirs, overrides, other, skip = [], [], False, False
+    for i, arg in enumerate(argv):
+        if skip:
+            skip = False
+        elif arg in ("--config-dir", "-cd"):
+            dirs += argv[i + 1 : i + 2]
+            skip = True
+        elif arg.startswith("--config-dir="):
+            dirs.append(arg.split("=", 1)[1])
+        elif arg in ("-m", "--multirun"):
+            continue
+        elif arg.startswith("-"):
+            other = True
+        else:
+            overrides.append(arg)
+    return dirs, overrides, other
+
+
 def _argv_search_roots(argv: list[str]) -> list[Path]:
     """The config search path the command line asks for: ``--config-dir``/``-cd`` and
     ``hydra.searchpath=[...]`` before the package's own tree (as Hydra orders them)."""
-    roots: list[Path] = []
-    for i, arg in enumerate(argv):
-        value = None
-        if arg in ("--config-dir", "-cd") and i + 1 < len(argv):
-            value = argv[i + 1]
-        elif arg.startswith("--config-dir="):
-            value = arg.split("=", 1)[1]
-        if value:
-            roots.append(Path(value).expanduser().resolve())
+    dirs, overrides, _ = _split_argv(argv)
+    roots = [Path(d).expanduser().resolve() for d in dirs if d]
+    for arg in overrides:
         key = arg.lstrip("+")
         if key.startswith("hydra.searchpath="):
             for item in key.split("=", 1)[1].strip("[]").split(","):
@@ -59,27 +74,14 @@ def preflight(argv: list[str]) -> None:
 
 
 def _overrides_of(argv: list[str]) -> list[str] | None:
-    """The Hydra overrides of a command line, with ``--config-dir`` as a search-path override;
-    None when the line uses other Hydra flags (``--cfg``, ``--info`` ...: nothing to check)."""
-    overrides, dirs, skip = [], [], False
-    for i, arg in enumerate(argv):
-        if skip:
-            skip = False
-            continue
-        if arg in ("--config-dir", "-cd"):
-            if i + 1 < len(argv):
-                dirs.append(argv[i + 1])
-            skip = True
-        elif arg.startswith("--config-dir="):
-            dirs.append(arg.split("=", 1)[1])
-        elif arg in ("-m", "--multirun"):
-            continue
-        elif arg.startswith("-"):
-            return None
-        else:
-            overrides.append(arg)
+    """The Hydra overrides of a command line, with its whole search path (``--config-dir`` and
+    ``hydra.searchpath``) as one search-path override; None when the line uses other Hydra flags
+    (``--cfg``, ``--info`` ...: nothing to check)."""
+    dirs, overrides, other = _split_argv(argv)
+    if other:
+        return None
     if dirs:
-        paths = ",".join(f"file://{Path(d).expanduser().resolve()}" for d in dirs)
+        paths = ",".join(f"file://{root}" for root in _argv_search_roots(argv)[:-1])
         overrides = [o for o in overrides if not o.lstrip("+").startswith("hydra.searchpath=")]
         overrides.append(f"hydra.searchpath=[{paths}]")
     return overrides
@@ -176,16 +178,14 @@ def _job_failed(status: str, message: str, trace: str | None = None) -> None:
 
 
 def sweep_summary(sweep_dir: Path) -> dict[str, int]:
-    """Jobs of a sweep dir by state: done, diverged, errored, incomplete."""
+    """Jobs of a sweep dir by state, as ``tables.py`` reads them: done, diverged, errored,
+    incomplete."""
+    from datt.eval.tables import read_job
+
     counts = {"done": 0, "diverged": 0, "errored": 0, "incomplete": 0}
     for job in sorted(p.parent for p in sweep_dir.glob("*/.hydra")):
-        failure = read_failure(job)
-        if failure is not None:
-            counts["diverged" if failure["status"] == "diverged" else "errored"] += 1
-        elif (job / "metrics.json").is_file():
-            counts["done"] += 1
-        else:
-            counts["incomplete"] += 1
+        status = read_job(job).status
+        counts["done" if status == "finished" else status] += 1
     return counts
 
 

@@ -7,6 +7,7 @@ exits, so a killed run never leaves a stale lock); the file names the holder.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import os
@@ -15,8 +16,9 @@ import socket
 import tempfile
 import threading
 import time
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 from datt.errors import ConfigError
 
@@ -51,20 +53,31 @@ def finite_json(value: Any) -> Any:
     return value
 
 
-def write_json(path: str | Path, value: Any) -> Path:
-    """Strict JSON (NaN/inf -> null), written atomically (temp file + ``os.replace``)."""
+@contextlib.contextmanager
+def atomic_write(path: str | Path, mode: str = "w", **open_kwargs: Any) -> Iterator[IO]:
+    """Write ``path`` through a temp file in its directory, then ``os.replace``: a reader sees the
+    old file or the whole new one, and a crash mid-write leaves the old one. The new file gets the
+    mode a plain ``open`` would give it."""
     path = Path(path)
-    text = json.dumps(finite_json(value), indent=2, allow_nan=False) + "\n"
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:
-        with os.fdopen(fd, "w") as f:
-            f.write(text)
+        with os.fdopen(fd, mode, **open_kwargs) as f:
+            yield f
+            f.flush()
+            os.fsync(f.fileno())
         public_mode(tmp)
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
-    return path
+
+
+def write_json(path: str | Path, value: Any) -> Path:
+    """Strict JSON (NaN/inf -> null), written atomically."""
+    text = json.dumps(finite_json(value), indent=2, allow_nan=False) + "\n"
+    with atomic_write(path) as f:
+        f.write(text)
+    return Path(path)
 
 
 def record_failure(run_dir: str | Path, status: str, message: str, **extra: Any) -> Path:
@@ -145,16 +158,33 @@ def is_locked(run_dir: str | Path) -> bool:
     return False
 
 
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+
+@contextlib.contextmanager
+def stop_signals(handler) -> Iterator[None]:
+    """SIGINT and SIGTERM go to ``handler`` (a function or ``signal.SIG_IGN``) inside the block;
+    the previous handlers come back after it. Signals can only be set from the main thread:
+    elsewhere this does nothing."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = {sig: signal.signal(sig, handler) for sig in STOP_SIGNALS}
+    try:
+        yield
+    finally:
+        for sig, old in previous.items():
+            signal.signal(sig, old)
+
+
 class StopRequest:
     """While active (``with StopRequest() as stop``), SIGINT and SIGTERM only set ``stop.signal``
     (``"SIGINT"``/``"SIGTERM"``), so a loop can finish its step and save before it stops; a second
     signal raises ``KeyboardInterrupt`` at once. Outside the main thread it does nothing."""
 
-    SIGNALS = (signal.SIGINT, signal.SIGTERM)
-
     def __init__(self) -> None:
         self.signal: str | None = None
-        self._previous: dict = {}
+        self._handlers = contextlib.ExitStack()
 
     def _handle(self, signum: int, frame: object) -> None:
         if self.signal is not None:
@@ -162,12 +192,8 @@ class StopRequest:
         self.signal = signal.Signals(signum).name
 
     def __enter__(self) -> StopRequest:
-        if threading.current_thread() is threading.main_thread():
-            for sig in self.SIGNALS:
-                self._previous[sig] = signal.signal(sig, self._handle)
+        self._handlers.enter_context(stop_signals(self._handle))
         return self
 
     def __exit__(self, *exc: object) -> None:
-        for sig, handler in self._previous.items():
-            signal.signal(sig, handler)
-        self._previous = {}
+        self._handlers.close()

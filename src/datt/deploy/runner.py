@@ -17,7 +17,6 @@ row per tick), ``events.json`` (phases, safety decisions, timing), and track plo
 
 from __future__ import annotations
 
-import contextlib
 import csv
 import json
 import math
@@ -33,40 +32,13 @@ import torch
 from datt.deploy.safety import KILL, LAND, OK, SafetyParams, check, tilt_deg
 from datt.deploy.thrust import ThrustMap
 from datt.refs.base import RefFamily
+from datt.runs import stop_signals
 
 
-@contextlib.contextmanager
-def _signals_interrupt():
-    """SIGINT and SIGTERM raise ``KeyboardInterrupt`` inside (main thread only), even where the
-    process inherited them ignored (started in the background): any stop request during a
-    flight KILLs it and writes the log."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-
-    def interrupt(signum, frame):
-        raise KeyboardInterrupt("Ctrl-C" if signum == signal.SIGINT else signal.Signals(signum).name)
-
-    previous = {sig: signal.signal(sig, interrupt) for sig in (signal.SIGINT, signal.SIGTERM)}
-    try:
-        yield
-    finally:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
-
-
-@contextlib.contextmanager
-def _signals_ignored():
-    """SIGINT/SIGTERM ignored inside (main thread only): cleanup that must finish."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    previous = {sig: signal.signal(sig, signal.SIG_IGN) for sig in (signal.SIGINT, signal.SIGTERM)}
-    try:
-        yield
-    finally:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
+def _raise_interrupt(signum: int, frame: object) -> None:
+    """Any stop request during a flight (SIGINT, SIGTERM; also where the process inherited them
+    ignored, started in the background) KILLs it and writes the log."""
+    raise KeyboardInterrupt("Ctrl-C" if signum == signal.SIGINT else signal.Signals(signum).name)
 
 
 class Ramp(RefFamily):
@@ -205,29 +177,27 @@ class FlightRunner:
         """CONNECT -> PREFLIGHT -> ``build(start)`` -> ARM -> ``airborne(origin, built)`` -> DISARM;
         the flight log is written whatever happens. Models are built (and the policy traced)
         before the motors spin, so nothing stalls the control loop mid-flight."""
-        stop_signals = _signals_interrupt()
         try:
-            stop_signals.__enter__()
-            self._set_phase("CONNECT")
-            self.link.connect()
-            if self.mocap is not None:
-                self.mocap.start()
-            self._set_phase("PREFLIGHT")
-            start = self._preflight()
-            origin = self._origin()
-            built = build(start - origin)
-            self._set_phase("ARM")
-            self.link.arm(True)
-            self.link.send_rates(0.0, 0.0, 0.0, 0)  # unlocks the firmware's thrust lock
-            time.sleep(0.05)
-            airborne(origin, built)
+            with stop_signals(_raise_interrupt):
+                self._set_phase("CONNECT")
+                self.link.connect()
+                if self.mocap is not None:
+                    self.mocap.start()
+                self._set_phase("PREFLIGHT")
+                start = self._preflight()
+                origin = self._origin()
+                built = build(start - origin)
+                self._set_phase("ARM")
+                self.link.arm(True)
+                self.link.send_rates(0.0, 0.0, 0.0, 0)  # unlocks the firmware's thrust lock
+                time.sleep(0.05)
+                airborne(origin, built)
         except _Abort:
             pass
         except KeyboardInterrupt as exc:
             self._kill(f"operator interrupt ({exc.args[0] if exc.args else 'Ctrl-C'})")
         finally:
-            stop_signals.__exit__(None, None, None)
-            with _signals_ignored():  # a second Ctrl-C must not cut the disarm or the log short
+            with stop_signals(signal.SIG_IGN):  # a second Ctrl-C must not cut the disarm or the log short
                 self._set_phase("DISARM")
                 try:
                     self.link.send_rates(0.0, 0.0, 0.0, 0)

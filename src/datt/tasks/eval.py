@@ -8,7 +8,7 @@ from pathlib import Path
 
 from omegaconf import DictConfig, OmegaConf
 
-from datt.configuration import instantiate_option, structured
+from datt.configuration import structured
 from datt.control.factory import build_controller
 from datt.eval.conditions import evaluate_conditions, measure_inference, print_metrics, write_metrics_csv
 from datt.eval.schema import EvalParams
@@ -24,7 +24,6 @@ def bank_of_given_traj(cfg: DictConfig, count: int) -> DictConfig:
     name = keys.get("traj")
     if name is None or any(k.startswith(("bank", "eval.bank")) for k in keys):  # a bank given too: it wins
         return cfg
-    instantiate_option(cfg, "traj")  # a bad file or value: one line naming traj.<key>, before any flight
     cfg = OmegaConf.create(OmegaConf.to_container(cfg, resolve=True))
     single = "CsvReference" in str(cfg.traj.get("_target_", ""))
     cfg.eval.bank = {name: [{"traj": cfg.traj, "seed": int(cfg.seed), "count": 1 if single else count}]}

@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from datt.errors import ConfigError, one_line
+from datt.runs import atomic_write
 
 
 class Logger:
@@ -47,12 +48,10 @@ class CsvLogger(Logger):
         fields: list[str] = []
         for row in self.rows:
             fields += [k for k in row if k not in fields]
-        tmp = self.path.with_suffix(".csv.tmp")
-        with tmp.open("w", newline="") as f:
+        with atomic_write(self.path, "w", newline="") as f:
             writer = csv.DictWriter(f, fieldnames=fields)
             writer.writeheader()
             writer.writerows(self.rows)
-        os.replace(tmp, self.path)
 
 
 class WandbLogger(Logger):
