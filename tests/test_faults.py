@@ -45,6 +45,7 @@ def run_cli(entry, args, cwd, monkeypatch, capsys):
     monkeypatch.chdir(cwd)
     monkeypatch.setattr(sys, "argv", [f"{entry}.py", *args])
     capsys.readouterr()
+    handlers = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # a library's warning is not the error line under test
@@ -52,7 +53,9 @@ def run_cli(entry, args, cwd, monkeypatch, capsys):
         code = 0
     except SystemExit as exc:
         code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
-    finally:  # leave no Hydra job state behind for the next test
+    finally:  # leave no Hydra job state (nor the exiting command's ignored signals) behind
+        for sig, handler in handlers.items():
+            signal.signal(sig, handler)
         HydraConfig.instance().cfg = None
         GlobalHydra.instance().clear()
     out = capsys.readouterr()
@@ -213,21 +216,38 @@ def _read_until(proc, text, timeout_s):
     raise AssertionError(f"{text!r} not seen: {''.join(seen)[-2000:]}")
 
 
+def _wait_for_file(path, timeout_s):
+    deadline = time.monotonic() + timeout_s
+    while not path.exists():
+        assert time.monotonic() < deadline, f"{path} not written"
+        time.sleep(0.01)
+
+
 @pytest.mark.parametrize(
-    "signals, reason",
-    [((signal.SIGINT, signal.SIGINT), "Ctrl-C"), ((signal.SIGTERM,), "SIGTERM")],
-    ids=["ctrl_c_twice", "sigterm"],
+    "signals, second_after, reason",
+    [
+        ((signal.SIGINT, signal.SIGINT), "0.3 s", "Ctrl-C"),
+        ((signal.SIGINT, signal.SIGINT), "log", "Ctrl-C"),
+        ((signal.SIGTERM,), None, "SIGTERM"),
+    ],
+    ids=["ctrl_c_twice", "ctrl_c_again_after_the_log", "sigterm"],
 )
-def test_04_interrupted_flight_keeps_its_log(tmp_path, signals, reason):
-    """Two Ctrl-C 0.3 s apart during TRACK (the second used to cut the log short), or a SIGTERM."""
+def test_04_interrupted_flight_keeps_its_log(tmp_path, signals, second_after, reason):
+    """Two Ctrl-C 0.3 s apart during TRACK (the second used to cut the log short), a second one
+    once the log is written (it used to land after the cleanup's ignore block: exit by SIGINT
+    with a traceback instead of 4), or a SIGTERM."""
     pytest.importorskip("cflib")
     port = next(_port)
     cmd = [sys.executable, str(ROOT / "deploy.py"), *FLIGHT, f"deploy.uri=udp://127.0.0.1:{port}", "hydra.run.dir=."]
     proc = _popen(cmd, tmp_path)
     _read_until(proc, "phase: TRACK", 120)
-    for sig in signals:
-        proc.send_signal(sig)
-        time.sleep(0.3)
+    proc.send_signal(signals[0])
+    if len(signals) > 1:
+        if second_after == "log":
+            _wait_for_file(tmp_path / "flight.csv", 60)
+        else:
+            time.sleep(0.3)
+        proc.send_signal(signals[1])
     proc.wait(timeout=60)
     events = json.loads((tmp_path / "events.json").read_text())
     assert events["outcome"] == f"killed: operator interrupt ({reason})"

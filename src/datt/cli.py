@@ -18,7 +18,7 @@ from omegaconf import DictConfig
 
 from datt.configuration import CONF_PACKAGE, available_options, conf_dir, config_groups, root_from_uri
 from datt.errors import ConfigError, FlightAborted, TrainingDiverged, TrainingInterrupted, one_line
-from datt.runs import read_failure, record_failure
+from datt.runs import ignore_stop_signals, read_failure, record_failure
 
 
 def _split_argv(argv: list[str]) -> tuple[list[str], list[str], bool]:
@@ -228,11 +228,14 @@ def hydra_main(config_name: str, task: Callable[[DictConfig], object]) -> Callab
             _job_failed("errored", str(exc))
         except FlightAborted as exc:
             if not multirun:
+                ignore_stop_signals()  # the flight is over and logged; only the exit is left
                 _fail(f"flight {exc}", 4)
             _job_failed("errored", f"flight {exc}")
         except TrainingInterrupted as exc:
+            ignore_stop_signals()
             _fail(f"interrupted by {exc}", 130)  # the user stops the whole sweep too
         except KeyboardInterrupt:
+            ignore_stop_signals()
             _fail("interrupted", 130)
         except TrainingDiverged as exc:
             if not multirun:

@@ -177,6 +177,15 @@ def stop_signals(handler) -> Iterator[None]:
             signal.signal(sig, old)
 
 
+def ignore_stop_signals() -> None:
+    """SIGINT and SIGTERM are ignored from now until the process exits (for a command on its way
+    out after a stop: a late second Ctrl-C must not turn its exit status into a traceback).
+    Outside the main thread it does nothing."""
+    if threading.current_thread() is threading.main_thread():
+        for sig in STOP_SIGNALS:
+            signal.signal(sig, signal.SIG_IGN)
+
+
 class StopRequest:
     """While active (``with StopRequest() as stop``), SIGINT and SIGTERM only set ``stop.signal``
     (``"SIGINT"``/``"SIGTERM"``), so a loop can finish its step and save before it stops; a second

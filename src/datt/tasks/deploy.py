@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import json
+import signal
 from pathlib import Path
 from urllib.parse import urlparse
 
@@ -19,6 +20,7 @@ from datt.deploy.schema import DeployParams, deploy_params
 from datt.deploy.thrust import ThrustMap, ThrustParams
 from datt.envs.factory import make_env
 from datt.errors import ConfigError, FlightAborted
+from datt.runs import stop_signals
 from datt.tasks.common import console, hydra_run_dir, set_threads
 
 
@@ -65,48 +67,52 @@ def run_deploy(cfg: DictConfig, run_dir: Path | None = None, estop=None, server_
     def make_flight_env(family):
         return make_env(model_cfg, num_envs=1, seed=int(cfg.seed), traj=family)
 
-    server = _start_server(cfg, params, thrust) if params.server is not None else None
-    try:
-        source = _mocap_source(params, server)
-        link = CrazyflieLink(params.uri, params.log_period_ms, params.connect_timeout_s, params.io_timeout_s)
-        track_family = instantiate_option(cfg, "traj")
-        runner = FlightRunner(
-            link,
-            source,
-            make_flight_env,
-            controller,
-            PidController,
-            track_family,
-            flight,
-            safety,
-            ThrustMap(thrust),
-            run_dir,
-            estop=estop,
-            console=console,
-        )
-        if server_hook is not None:
-            server_hook(server, runner)
+    # Stop signals are ignored around the flight: the runner takes them over from CONNECT to the end
+    # of the flight (a Ctrl-C KILLs it); before and after, a late or second one must not cut the
+    # server's shutdown or the log short.
+    with stop_signals(signal.SIG_IGN):
+        server = _start_server(cfg, params, thrust) if params.server is not None else None
         try:
-            summary = runner.fly() if params.mode == "fly" else runner.calibrate(params.calibrate_hover_s)
-        except LinkError as exc:
-            raise ConfigError(str(exc)) from None
-    finally:
-        if server is not None:
-            server.stop()
-    summary["controller"] = labels
-    (run_dir / "events.json").write_text(json.dumps(summary, indent=2, default=str) + "\n")
-    if params.mode == "calibrate":
+            source = _mocap_source(params, server)
+            link = CrazyflieLink(params.uri, params.log_period_ms, params.connect_timeout_s, params.io_timeout_s)
+            track_family = instantiate_option(cfg, "traj")
+            runner = FlightRunner(
+                link,
+                source,
+                make_flight_env,
+                controller,
+                PidController,
+                track_family,
+                flight,
+                safety,
+                ThrustMap(thrust),
+                run_dir,
+                estop=estop,
+                console=console,
+            )
+            if server_hook is not None:
+                server_hook(server, runner)
+            try:
+                summary = runner.fly() if params.mode == "fly" else runner.calibrate(params.calibrate_hover_s)
+            except LinkError as exc:
+                raise ConfigError(str(exc)) from None
+        finally:
+            if server is not None:
+                server.stop()
+        summary["controller"] = labels
+        (run_dir / "events.json").write_text(json.dumps(summary, indent=2, default=str) + "\n")
+        if params.mode == "calibrate":
+            console.print(
+                f"calibration: {summary['outcome']}; hover command {summary['hover_command']} "
+                "(set deploy.thrust.hover_command)"
+            )
+        err = summary["track_error_m"]
+        jitter = summary["jitter_ms"]
         console.print(
-            f"calibration: {summary['outcome']}; hover command {summary['hover_command']} "
-            "(set deploy.thrust.hover_command)"
+            f"flight: {summary['outcome']}; tracking error {err if err is None else f'{err:.3f} m'} over "
+            f"{summary['track_steps']} steps; tick jitter median {jitter['median']:.2f} ms, p99 {jitter['p99']:.2f} ms; "
+            f"{summary['late_ticks']} late ticks; log in {run_dir}"
         )
-    err = summary["track_error_m"]
-    jitter = summary["jitter_ms"]
-    console.print(
-        f"flight: {summary['outcome']}; tracking error {err if err is None else f'{err:.3f} m'} over "
-        f"{summary['track_steps']} steps; tick jitter median {jitter['median']:.2f} ms, p99 {jitter['p99']:.2f} ms; "
-        f"{summary['late_ticks']} late ticks; log in {run_dir}"
-    )
     return summary
 
 
