@@ -34,7 +34,7 @@ def test_eval_py_on_checkpoint_writes_metrics(tmp_path, tiny_policy_checkpoint):
     assert (tmp_path / "tracks_datt_brownian_l1_seed_0.png").exists()
     assert (tmp_path / "axes_datt_brownian_l1_seed_0.png").exists()
     assert (tmp_path / "trace_seed1.pt").exists()
-    assert "zigzag error (m)" in proc.stdout
+    assert "tracking error (m)" in proc.stdout and "zigzag_fast" in proc.stdout
     timing = metrics["inference_ms"]
     assert timing["batch"] == 1 and timing["steps"] == 200 and 0 < timing["median_ms"] <= timing["p95_ms"]
     assert (tmp_path / "metrics.csv").read_text().startswith("condition,group,mean_m,std_m,crashes,episodes")
@@ -44,10 +44,14 @@ def test_eval_py_on_checkpoint_writes_metrics(tmp_path, tiny_policy_checkpoint):
     "args, message",
     [
         (["checkpoint=missing.pt"], "error: checkpoint: file"),
-        (["adaptation=magic"], "error: adaptation: unknown option 'magic'; allowed: l1, none, privileged, rma"),
+        (
+            ["adaptation=magic"],
+            "error: adaptation: unknown option 'magic'; allowed: l1, l1_paper, none, privileged, rma",
+        ),
         (
             ["controller=lqr"],
-            "error: controller: unknown option 'lqr'; allowed: datt, datt_l1, datt_rma, l1_mppi, l1_pid, mppi, pid",
+            "error: controller: unknown option 'lqr'; allowed: "
+            "datt, datt_l1, datt_l1_paper, datt_rma, l1_mppi, l1_pid, mppi, pid",
         ),
     ],
 )

@@ -72,14 +72,14 @@ def test_estimator_is_stable_for_configured_a_s():
     assert est.a_s < 0  # Hurwitz A_s = a_s I: eigenvalues a_s
     rho = torch.linalg.eigvals(est.error_dynamics()[0]).abs().max()
     assert rho < 1.0
-    # the authors' filtered-feedback loop is stable but barely damped
-    authors = L1Adaptation(a_s=-0.01, cutoff_tau_s=2.0, predictor_uses_filtered=True)
-    authors.bind(1, 0.02, 9.81, "cpu", torch.float64)
-    rho_authors = torch.linalg.eigvals(authors.error_dynamics()[0]).abs().max()
-    assert rho < rho_authors < 1.0 and rho_authors > 0.99
+    # the filtered-feedback loop (eq. 7a read literally) is stable but barely damped
+    literal = L1Adaptation(a_s=-0.01, cutoff_tau_s=2.0, predictor_uses_filtered=True)
+    literal.bind(1, 0.02, 9.81, "cpu", torch.float64)
+    rho_literal = torch.linalg.eigvals(literal.error_dynamics()[0]).abs().max()
+    assert rho < rho_literal < 1.0 and rho_literal > 0.99
 
 
-@pytest.mark.parametrize("filtered", [False, True], ids=["sigma_feedback", "authors_filtered_feedback"])
+@pytest.mark.parametrize("filtered", [False, True], ids=["sigma_feedback", "filtered_feedback"])
 def test_error_dynamics_matrix_predicts_the_simulated_response(filtered):
     est = L1Adaptation(a_s=-0.5, cutoff_tau_s=0.2, predictor_uses_filtered=filtered)
     est.bind(1, 0.02, 9.81, "cpu", torch.float64)
@@ -184,3 +184,37 @@ def test_reset_restarts_the_estimator_at_the_measured_state():
         assert est.thrust_est[i] == 9.81 and (est.thrust_queue[:, i] == 9.81).all()
     assert est.v_hat[2].tolist() == [0.7] * 3 and est.d_hat[2].tolist() == [0.7] * 3  # untouched
     assert est.prev_quat[2].tolist() == [0.0, 1.0, 0.0, 0.0] and est.thrust_est[2] == 3.0
+
+
+def _one_update(actuator_model, thrust_cmd_mps2=12.0):
+    """One update from rest, level, with measured velocity 0 after the step."""
+    from types import SimpleNamespace
+
+    est = L1Adaptation(a_s=-0.01, cutoff_tau_s=0.1, actuator_model=actuator_model, k_thrust=0.4, latency_steps=1)
+    est.bind(1, 0.02, 9.81, "cpu", torch.float64)
+    est.reset(torch.tensor([0]))
+    state = SimpleNamespace(
+        vel_mps=torch.zeros(1, 3, dtype=torch.float64), quat=torch.tensor([[1.0, 0.0, 0.0, 0.0]], dtype=torch.float64)
+    )
+    est.update(state, torch.tensor([[thrust_cmd_mps2, 0.0, 0.0, 0.0]], dtype=torch.float64))
+    return est
+
+
+def test_raw_command_mode_predicts_with_the_command_sent_at_the_start_of_the_step():
+    """``actuator_model=false`` (the authors'): v̂_z after one step = dt (T_cmd − g); the nominal
+    model (latency 1) still has hover thrust acting, so v̂ stays 0."""
+    raw = _one_update(actuator_model=False)
+    assert raw.v_hat[0, 2].item() == pytest.approx(0.02 * (12.0 - 9.81), rel=1e-12)
+    assert raw.sigma_hat[0, 2].item() == pytest.approx(raw.law_gain * raw.v_hat[0, 2].item(), rel=1e-12)
+    modelled = _one_update(actuator_model=True)
+    assert modelled.v_hat.abs().max().item() < 1e-12
+
+
+def test_l1_paper_is_the_authors_estimator():
+    """α = 0.99 per 20 ms step, a_s = −0.01, raw estimate fed back, raw commands."""
+    from datt.configuration import compose, instantiate_option
+
+    est = instantiate_option(compose("sim", ["adaptation=l1_paper"]), "adaptation")
+    est.bind(1, 0.02, 9.81, "cpu", torch.float64)
+    assert est.alpha == pytest.approx(0.99, abs=1e-6)
+    assert (est.a_s, est.predictor_uses_filtered, est.actuator_model) == (-0.01, False, False)

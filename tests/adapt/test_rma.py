@@ -112,3 +112,58 @@ def test_adapter_written_before_the_acceleration_input_still_loads(tmp_path):
     assert net.accel_dt_s is None and net.conv[0].in_channels == FEATURES
     history = torch.randn(3, 50, FEATURES)
     assert torch.equal(net(history), old(history))
+
+
+def test_authors_inputs_are_the_body_frame_base_observation_and_the_command():
+    """``rma.inputs=authors`` (their train_rma.py): R^T p, R^T v, q, then the command with g
+    taken off the thrust; its acceleration channel differentiates the body-frame velocity."""
+    from types import SimpleNamespace
+
+    from datt.adapt.rma import step_features
+    from datt.sim.frames import quat_from_euler, quat_rotate_inverse
+
+    quat = quat_from_euler(torch.tensor([0.2, -0.1]), torch.tensor([0.3, 0.0]), torch.tensor([1.0, -2.0]))
+    state = SimpleNamespace(
+        pos_m=torch.tensor([[1.0, 2.0, 0.5], [-0.3, 0.1, 0.0]]),
+        vel_mps=torch.tensor([[0.5, -1.0, 0.2], [1.0, 0.0, 0.0]]),
+        quat=quat,
+        rate_radps=torch.ones(2, 3),
+    )
+    cmd = torch.tensor([[12.0, 0.1, -0.2, 0.3], [9.81, 0.0, 0.0, 0.0]])
+    got = step_features(state, cmd, 9.81, "authors")
+    torch.testing.assert_close(got[:, 0:3], quat_rotate_inverse(quat, state.pos_m))
+    torch.testing.assert_close(got[:, 3:6], quat_rotate_inverse(quat, state.vel_mps))
+    torch.testing.assert_close(got[:, 6:10], quat)
+    torch.testing.assert_close(got[:, 10:], cmd - torch.tensor([9.81, 0.0, 0.0, 0.0]))
+    project = step_features(state, cmd, 9.81)
+    torch.testing.assert_close(project[:, :3], state.vel_mps)  # the default layout is unchanged
+    torch.testing.assert_close(project[:, 7:10], state.rate_radps)
+    net = RmaNet(50, accel_dt_s=0.02, inputs="authors")
+    seen = {}
+    net.conv[0].register_forward_pre_hook(lambda mod, args: seen.update(x=args[0]))
+    history = torch.zeros(1, 50, FEATURES)
+    history[:, :, 3:6] = torch.arange(50.0)[:, None] * 0.02 * torch.tensor([1.0, -2.0, 3.0])
+    net(history)
+    torch.testing.assert_close(
+        seen["x"][0, FEATURES:, 1:], (torch.tensor([1.0, -2.0, 3.0]) * ACCEL_SCALE)[:, None].expand(3, 49)
+    )
+
+
+def test_rma_inputs_layout_is_saved_with_the_adapter(tmp_path, tiny_policy_checkpoint):
+    cfg = compose(
+        "train",
+        [
+            "stage=rma",
+            f"base_checkpoint={tiny_policy_checkpoint}",
+            "rma.iterations=2",
+            "rma.num_envs=8",
+            "rma.inputs=authors",
+            "rma.accel_input=false",
+        ],
+    )
+    train_rma(cfg, tmp_path)
+    net = load_rma(tmp_path / "rma.pt")
+    assert net.inputs == "authors" and net.accel_dt_s is None
+    bad = compose("train", ["stage=rma", f"base_checkpoint={tiny_policy_checkpoint}", "rma.inputs=world"])
+    with pytest.raises(ConfigError, match=r"^rma.inputs: unknown value 'world'; allowed: project, authors$"):
+        train_rma(bad, tmp_path)

@@ -79,6 +79,9 @@ def test_observation_layout_body_frame(make_tracking_env):
 
 
 def test_ablations_change_exactly_their_inputs(make_tracking_env):
+    """As the authors' trajectory_fbff.py: no body frame = world-frame p, v and feedback error,
+    and the raw future reference positions as the feedforward input; no feedback = the absolute
+    position leaves the state (zeroed), the feedback error stays."""
     base, world, nofb = (
         make_tracking_env(o, n=4) for o in ([], ["env.obs.body_frame=false"], ["env.obs.feedback=false"])
     )
@@ -91,11 +94,13 @@ def test_ablations_change_exactly_their_inputs(make_tracking_env):
     s = world.sim.state
     refs = direct_refs(world)
     assert torch.allclose(ow["state"][:, :3], s.pos_m) and torch.allclose(ow["state"][:, 3:6], s.vel_mps)
-    assert torch.allclose(ow["ref"], s.pos_m[:, None] - refs)
+    assert torch.allclose(ow["state"][:, 10:13], s.pos_m - refs[:, 0])  # world-frame feedback error
+    assert torch.allclose(ow["ref"], refs)  # where the reference goes: positions, not errors
+    assert not torch.allclose(ow["ref"], s.pos_m[:, None] - refs)
     assert torch.equal(ow["state"][:, 6:10], ob["state"][:, 6:10])  # quaternion untouched
-    assert not torch.allclose(ow["ref"], ob["ref"])
-    assert torch.equal(on["state"][:, 10:], torch.zeros(4, 3))
-    assert torch.equal(on["state"][:, :10], ob["state"][:, :10]) and torch.equal(on["ref"], ob["ref"])
+    assert torch.equal(on["state"][:, :3], torch.zeros(4, 3))
+    assert not torch.equal(ob["state"][:, :3], torch.zeros(4, 3))
+    assert torch.equal(on["state"][:, 3:], ob["state"][:, 3:]) and torch.equal(on["ref"], ob["ref"])
     assert torch.equal(on["d_hat"], ob["d_hat"])
 
 

@@ -23,6 +23,7 @@ def test_shipped_policy_evaluates_to_its_recorded_numbers(tmp_path, monkeypatch)
     cfg = compose("eval", ["controller=datt", "checkpoint=checkpoints/datt_h10.pt"])
     controller, merged, _ = build_controller(cfg)
     res = evaluate(merged, lambda env: controller, "none", "none", seed=0)
-    for group in ("zigzag", "smooth", "star"):
+    assert set(res["groups"]) == set(clean) == {"zigzag", "zigzag_fast", "smooth", "star"}
+    for group in clean:
         assert res["groups"][group]["crashes"] == 0
         assert res["groups"][group]["mean_m"] == pytest.approx(clean[group]["mean_m"], abs=2e-4), group

@@ -23,6 +23,7 @@ STAR = dict(
     lead_in_s=1.0,
     speed_min_mps=1.0,
     speed_max_mps=1.0,
+    phase_deg=0.0,
     random_rotation=False,
 )
 
@@ -31,15 +32,15 @@ def gen(seed=0):
     return torch.Generator().manual_seed(seed)
 
 
-@pytest.mark.parametrize("alternate", [False, True])
-def test_zigzag_knots_bounds_and_piecewise_linear(alternate):
-    fam = Zigzag(alternate_sign=alternate)
+@pytest.mark.parametrize("waypoints", ["iid", "alternating"])
+def test_zigzag_knots_bounds_and_piecewise_linear(waypoints):
+    fam = Zigzag(seg_min_s=0.5, seg_max_s=1.5, waypoints=waypoints)
     knot_t, knot_p = fam.sample_knots(64, float(T64[-1]), gen(), T64)
     seg = knot_t.diff(dim=1)
     assert seg.min() >= 0.5 and seg.max() <= 1.5
     assert knot_t[:, -1].min() >= T64[-1]  # covers the whole table
     assert knot_p[:, 0].abs().max() == 0 and knot_p.abs().max() <= 1.0
-    if alternate:
+    if waypoints == "alternating":
         signs = torch.sign(knot_p[:, 1:, 0])
         assert (signs[:, 1:] * signs[:, :-1] <= 0).all()
     table = fam.sample(64, T64, gen())
@@ -53,10 +54,22 @@ def test_zigzag_knots_bounds_and_piecewise_linear(alternate):
     assert d2[near_knot].abs().max() > 1e-3  # and it really turns at knots
 
 
-def test_zigzag_mean_speed_is_infeasible_scale():
-    table = Zigzag().sample(256, T_GRID, gen())
-    speed = (table.diff(dim=1).norm(dim=-1) / DT).mean()
-    assert 0.7 < speed < 1.5
+def _mean_speed_mps(name, count=1000):
+    """Time average of ‖ṗ‖ over the 10 s episode, over ``count`` draws of ``conf/traj/<name>``."""
+    from datt.configuration import compose, instantiate_option
+
+    family = instantiate_option(compose("train", [f"traj={name}"]), "traj")
+    table = family.sample(count, T64[:501], gen(3))
+    return (table.diff(dim=1).norm(dim=-1) / DT).mean().item()
+
+
+@pytest.mark.parametrize(
+    "name, speed_mps",
+    # the docstrings' figures: the authors' generator, the paper's stated ≈ 2 m/s, the paper's text
+    [("zigzag", 1.32), ("zigzag_fast", 2.0), ("zigzag_iid", 1.0), ("star", 0.99)],
+)
+def test_reference_family_mean_speed(name, speed_mps):
+    assert _mean_speed_mps(name) == pytest.approx(speed_mps, rel=0.03)
 
 
 def test_poly_degree_five_through_origin():
@@ -121,7 +134,7 @@ def test_star_geometry_speed_and_lead_in():
     assert table[0, 0].abs().max() == 0
     first_vertex = table[0, 50]  # after the 1 s lead-in
     assert first_vertex[:2].norm().item() == pytest.approx(0.7, abs=1e-9)
-    assert first_vertex[0].item() == pytest.approx(0.0, abs=1e-9)  # phase 90°: on +y
+    assert first_vertex[1].item() == pytest.approx(0.0, abs=1e-9)  # the authors' star: first vertex on +x
     speed = table[0, 51:].diff(dim=0).norm(dim=-1) / DT
     assert speed.max().item() == pytest.approx(1.0, abs=1e-6)
     assert speed.median().item() == pytest.approx(1.0, abs=1e-6)
@@ -385,20 +398,32 @@ def test_piecewise_linear_by_hand():
 
 
 def test_zigzag_waypoint_laws():
-    """Independent: each waypoint coordinate U(−r, r). Alternating: |x| U(0, r), signs alternate
-    from a random first sign (both occur), per axis."""
+    """Independent: each waypoint coordinate U(−r, r). Alternating (the authors'): waypoint k's
+    coordinates U(0, r) for even k, U(−r, 0) for odd k, the first positive, per axis."""
     r = 0.8
-    _, plain = Zigzag(range_m=r).sample_knots(4000, 10.0, gen(5), T64)
+    _, plain = Zigzag(range_m=r, waypoints="iid").sample_knots(4000, 10.0, gen(5), T64)
     wp = plain[:, 1:]
     assert wp.abs().max() <= r and wp.min() < -0.79 and wp.max() > 0.79 and wp.mean().abs() < 0.01
     assert (wp[:, :-1] * wp[:, 1:] > 0).double().mean() == pytest.approx(0.5, abs=0.02)  # signs independent
-    _, alt = Zigzag(range_m=r, alternate_sign=True).sample_knots(4000, 10.0, gen(5), T64)
+    _, alt = Zigzag(range_m=r).sample_knots(4000, 10.0, gen(5), T64)
     wp = alt[:, 1:]
     assert wp.abs().max() <= r and wp.abs().mean() == pytest.approx(r / 2, abs=0.01)
-    assert (wp[:, :-1] * wp[:, 1:] <= 0).all()
-    first_positive = (wp[:, 0] > 0).double().mean(0)
-    assert torch.allclose(first_positive, torch.full((2,), 0.5, dtype=torch.float64), atol=0.03)
-    assert ((wp[:, 0, 0] > 0) != (wp[:, 0, 1] > 0)).any()  # x and y pick their first sign independently
+    assert (wp[:, 0::2] >= 0).all() and (wp[:, 1::2] <= 0).all()
+    assert wp[:, 0::2].min() < 0.01 and wp[:, 0::2].max() > 0.79  # the whole of U(0, r)
+    assert wp[:, 1::2].max() > -0.01 and wp[:, 1::2].min() < -0.79
+
+
+def test_zigzag_defaults_are_the_authors_generator():
+    """The constructor's defaults and ``traj=zigzag``: alternating, 0.6-1.5 s, ±1 m."""
+    from datt.configuration import compose, instantiate_option
+
+    for fam in (Zigzag(), instantiate_option(compose("train", ["traj=zigzag"]), "traj")):
+        assert (fam.waypoints, fam.seg_min_s, fam.seg_max_s, fam.range_m) == ("alternating", 0.6, 1.5, 1.0)
+
+
+def test_zigzag_unknown_waypoint_law_names_the_allowed_ones():
+    with pytest.raises(ValueError, match=r"^traj.waypoints: unknown value 'uniform'; allowed: alternating, iid$"):
+        Zigzag(waypoints="uniform")
 
 
 @pytest.mark.parametrize(
@@ -493,12 +518,13 @@ def test_polygon_keeps_moving_to_the_end_of_the_table():
 
 
 def test_star_visits_vertices_counterclockwise_every_second_one():
-    """{5/2}: after the first vertex (phase 90°) the next is 2 × 72° = 144° further counterclockwise."""
+    """{5/2}: after the first vertex (0.7, 0) the next is 2 × 72° = 144° further counterclockwise
+    (the authors' star: vertices 0, 2, 4, 1, 3 at angles 0°, 72°, ... as refs/pointed_star.py)."""
     star = Polygon(**STAR)
     table = star.sample(1, T64, gen())[0]
     side = 2 * 0.7 * math.sin(2 * math.pi / 5)
     k = 50 + round(side / DT)  # 1 s lead-in, then one side at 1 m/s
-    angle = math.radians(90 + 144)
+    angle = math.radians(144)
     expect = torch.tensor([0.7 * math.cos(angle), 0.7 * math.sin(angle)], dtype=torch.float64)
     assert torch.allclose(table[k, :2], expect, atol=0.02)
 

@@ -218,3 +218,78 @@ def test_non_finite_batch_names_what_and_where(tmp_path, key):
     batch.get(key if len(key) > 1 else key[0]).view(-1)[0] = float("nan")
     with pytest.raises(TrainingDiverged, match=f"; last good checkpoint: {tmp_path / 'last.pt'}$"):
         trainer.update(batch)
+
+
+def test_update_reports_the_mean_over_every_minibatch_of_every_epoch(tmp_path):
+    """Two epochs of four minibatches at a negligible lr: the reported losses are the mean of the
+    eight minibatch losses (same permutations, replayed from the same seed)."""
+    trainer = Trainer(
+        tiny_cfg("algo.epochs=2", "algo.minibatch_size=128", "algo.lr=1e-12", "algo.reward_scale=1.0"),
+        tmp_path,
+        CsvLogger(tmp_path),
+    )
+    batch = _rollout_batch(trainer)  # 64 envs × 8 steps = 512 frames: 4 minibatches of 128
+    torch.manual_seed(7)
+    stats = trainer.update(batch.clone())
+    data = batch.clone()
+    with torch.no_grad():
+        trainer.gae(data)
+    data = data.reshape(-1).select(*trainer._loss_keys, strict=False)
+    torch.manual_seed(7)
+    objective, critic, grad = [], [], []
+    for _ in range(2):
+        for idx in torch.randperm(data.shape[0]).split(128):
+            losses = trainer.loss(data[idx])
+            objective.append(losses["loss_objective"].item())
+            critic.append(losses["loss_critic"].item())
+            trainer.optim.zero_grad()
+            (losses["loss_objective"] + losses["loss_critic"]).backward()
+            grad.append(torch.nn.utils.clip_grad_norm_(trainer.actor.parameters(), float("inf")).item())
+    assert len(objective) == 2 * 4
+    assert stats["loss_objective"] == pytest.approx(sum(objective) / 8, rel=1e-4, abs=1e-6)
+    assert stats["loss_critic"] == pytest.approx(sum(critic) / 8, rel=1e-4)
+    assert stats["grad_norm"] == pytest.approx(sum(grad) / 8, rel=1e-4)
+    assert stats["loss_critic"] != pytest.approx(critic[-1], rel=1e-3)  # not the last minibatch's
+    assert stats["grad_norm"] != pytest.approx(grad[-1], rel=1e-3)
+
+
+@pytest.mark.parametrize(
+    "kind, distance",
+    [
+        ("l2", lambda d: d**2),
+        ("l1", lambda d: d.abs()),
+        ("smooth_l1", lambda d: torch.where(d.abs() < 1, 0.5 * d**2, d.abs() - 0.5)),
+    ],
+)
+def test_critic_loss_is_the_configured_distance_times_its_coefficient(tmp_path, kind, distance):
+    trainer = Trainer(
+        tiny_cfg(f"algo.loss_critic_type={kind}", "algo.critic_coeff=0.7", "algo.reward_scale=1.0"),
+        tmp_path,
+        CsvLogger(tmp_path),
+    )
+    batch = _rollout_batch(trainer)
+    with torch.no_grad():
+        trainer.gae(batch)
+        data = batch.reshape(-1)
+        value = trainer.critic(data.clone())["state_value"]
+        expect = 0.7 * distance(data["value_target"] - value).mean()
+        got = trainer.loss(data.select(*trainer._loss_keys, strict=False))["loss_critic"]
+    assert (data["value_target"] - value).abs().max() > 1.0  # both branches of smooth_l1 are in play
+    torch.testing.assert_close(got, expect, rtol=1e-5, atol=1e-6)
+
+
+def test_clip_epsilon_bounds_the_ratio_in_the_objective(tmp_path):
+    """With every sample's old log-probability lowered by 1 (ratio e ≈ 2.72) and positive
+    advantages, the clipped objective is −(1 + ε)·A: the configured ε, not the default."""
+    trainer = Trainer(
+        tiny_cfg("algo.clip_epsilon=0.3", "algo.normalize_advantage=false"), tmp_path, CsvLogger(tmp_path)
+    )
+    batch = _rollout_batch(trainer)
+    with torch.no_grad():
+        trainer.gae(batch)
+        data = batch.reshape(-1).select(*trainer._loss_keys, strict=False)
+        log_prob_key = trainer.loss.tensor_keys.sample_log_prob
+        data[log_prob_key] = data[log_prob_key] - 1.0
+        data["advantage"] = torch.ones_like(data["advantage"])
+        got = trainer.loss(data)["loss_objective"]
+    torch.testing.assert_close(got, torch.tensor(-1.3), rtol=1e-5, atol=1e-5)

@@ -207,6 +207,6 @@ def test_train_py_end_to_end_writes_run_dir(tmp_path):
     metrics = json.loads((tmp_path / "metrics.json").read_text())
     assert metrics["frames"] == 2048
     groups = metrics["conditions"]["clean"]["groups"]
-    assert set(groups) == {"zigzag", "smooth", "star"} and groups["zigzag"]["episodes"] == 10
+    assert set(groups) == {"zigzag", "zigzag_fast", "smooth", "star"} and groups["zigzag"]["episodes"] == 10
     hover = metrics["hover_reference"]["groups"]["zigzag"]
     assert hover["crashes"] == 0 and 0.4 < hover["mean_m"] < 0.8  # distance of the zigzags from the origin

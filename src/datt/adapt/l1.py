@@ -8,20 +8,24 @@ Per axis (world frame, unit mass), every control step k -> k+1::
 
 Choices (config values, ``conf/adaptation/l1.yaml``):
 
-* The predictor is driven by the *unfiltered* estimate σ̂ (the standard L1 architecture). Feeding
-  back the filtered d̂, as eq. 7a can be read and the authors' code did, turns predictor + filter
-  into a lightly damped second-order loop: for a 2 s filter a constant disturbance is
-  overshot by ~85 % (measured in simulation). ``predictor_uses_filtered=true`` restores it.
+* The predictor is driven by the *unfiltered* estimate σ̂ (the standard L1 architecture, and
+  what the authors' code did: ``learning/adaptation_module.py`` feeds its raw ``d_hat_t`` back).
+  Feeding back the filtered d̂, as the paper's eq. 7a can be read, turns predictor + filter into
+  a lightly damped second-order loop: for a 2 s filter a constant disturbance is overshot by
+  ~85 % (measured in simulation). ``predictor_uses_filtered=true`` gives that reading.
 * ``T_k`` is the thrust acting during the step. The estimator only knows the commands it sent, so
   by default it runs them through the nominal actuator model (``latency_steps`` then the
-  first-order delay ``k_thrust``), exactly as the simulator does; ``actuator_model=false`` uses
-  the raw previous command (authors' code), which shows up as a spurious disturbance whenever
-  thrust changes quickly.
+  first-order delay ``k_thrust``), exactly as the simulator does; ``actuator_model=false`` takes
+  the raw command sent at the start of the step, as the authors did (their ``f_t`` is the thrust
+  of the action from the previous control call), which ignores the latency and the delay and
+  shows up as a spurious disturbance whenever thrust changes quickly.
 * ``A_s = a_s I`` with ``a_s < 0`` (authors: −0.01 /s). The law makes the predictor error vanish
   in one step, so the estimate follows d with a one-step delay and then the filter's first-order
   lag: within 5 % of a constant disturbance after three filter time constants.
 * Cutoff: ``cutoff_tau_s`` is the filter time constant; see ``benchmarks/l1.py`` for the
-  tracking error of d̂ against τ (the default is the best one found there).
+  tracking error of d̂ against τ (the default is the best one found there). The authors'
+  α = 0.99 per 20 ms step is τ = −dt / ln α ≈ 1.99 s: ``adaptation=l1_paper`` is their
+  estimator (that filter, raw commands, σ̂ feedback).
 """
 
 from __future__ import annotations

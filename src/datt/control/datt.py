@@ -113,7 +113,10 @@ class _ObservePolicy(nn.Module):
         vecs = vecs.transpose(0, 1)  # [N, 2+H, 3]
         if self.body_frame:  # row vectors: v^T R = (R^T v)^T
             vecs = torch.bmm(vecs, quat_to_rotmat_bilinear(quat))  # the form is a constant of the frozen graph
-        e_now = vecs[:, 2] if self.feedback else torch.zeros_like(vecs[:, 2])
-        state = torch.cat((vecs[:, 0], vecs[:, 1], quat, e_now, cmds), dim=-1)
-        loc = self.net(state, vecs[:, 2:], d_hat)
+            feedforward = vecs[:, 2:]
+        else:  # raw future reference positions, as build_observation
+            feedforward = future.transpose(0, 1)
+        p = vecs[:, 0] if self.feedback else torch.zeros_like(vecs[:, 0])
+        state = torch.cat((p, vecs[:, 1], quat, vecs[:, 2], cmds), dim=-1)
+        loc = self.net(state, feedforward, d_hat)
         return self.action_center + self.action_half * torch.tanh(loc)

@@ -8,8 +8,11 @@ Keys and shapes (body frame unless ``ObsParams.body_frame`` is False):
   reference, as the authors; i = 0 repeats the feedback term, matching the paper's h_t)
 * ``d_hat [N, 3]``: disturbance input, world frame
 
-Ablations change only what is written here: ``body_frame=False`` drops the rotations (the
-quaternion stays), ``feedback=False`` zeroes the feedback entries of ``state``.
+Ablations change only what is written here, as the authors defined them
+(``learning/tasks/trajectory_fbff.py``): ``body_frame=False`` drops the rotations (the quaternion
+stays) and ``ref`` holds the raw future reference positions p_d(t + iΔ) (world) instead of
+errors; ``feedback=False`` zeroes the absolute position R^T p in ``state`` (the authors' layout
+``[R^T (p − p_d(t)), R^T v, q]``: the feedback error takes the position's place), same width.
 """
 
 from __future__ import annotations
@@ -42,11 +45,14 @@ def build_observation(
         # One batched rotation for every vector of the drone: [2 + H, N, 3].
         vecs = quat_rotate_inverse(quat.unsqueeze(0), torch.cat((torch.stack((pos_m, vel_mps)), err), 0))
         p_b, v_b, err = vecs[0], vecs[1], vecs[2:]
-    else:
+        feedforward = err
+    else:  # the authors' no-body-frame input: where the reference goes, not how far off the drone is
         p_b, v_b = pos_m, vel_mps
-    e_now = err[0] if feedback else torch.zeros_like(err[0])
-    state = torch.cat((p_b, v_b, quat, e_now), dim=-1)
-    return state, err.transpose(0, 1).contiguous()
+        feedforward = ref_future_m
+    if not feedback:
+        p_b = torch.zeros_like(p_b)
+    state = torch.cat((p_b, v_b, quat, err[0]), dim=-1)
+    return state, feedforward.transpose(0, 1).contiguous()
 
 
 def observe_and_cost(

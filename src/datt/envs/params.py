@@ -31,9 +31,11 @@ class RewardParams:
 class ObsParams:
     """How observations are built (ablations live here, never in network code).
 
-    ``body_frame``: rotate p, v, feedback and feedforward terms by R^T (False = paper's "no body
-    frame" ablation, world-frame inputs). ``feedback``: include R^T (p − p_d(t)) in ``state``
-    (False zeroes those three entries, keeping shapes). ``pos_noise_std_m``: Gaussian noise on
+    ``body_frame``: rotate p, v, feedback and feedforward terms by R^T (False = the paper's "no
+    body frame" ablation as the authors ran it: world-frame p, v and feedback error, and the raw
+    future reference positions as the feedforward input). ``feedback``: the authors' "fb_term"
+    (False = their "no feedback" ablation: the absolute position leaves ``state``, zeroed to
+    keep shapes, and the feedback error R^T (p − p_d(t)) stays in its place). ``pos_noise_std_m``: Gaussian noise on
     the measured position used by the observation (authors' main configs: 0.005).
     ``action_history``: append the last k commands sent (each scaled to [-1, 1] by the action
     bounds, oldest first) to ``state``; 0 = the paper's inputs. Not in the paper: with a one-step

@@ -21,11 +21,11 @@ from datt.eval.timing import step_times_ms, summarize_ms
 
 def print_metrics(console: Console, title: str, conditions: dict) -> None:
     """One row per condition, one column per bank group (mean ± std, crashes)."""
-    table = Table(title=title)
+    table = Table(title=f"{title}: tracking error (m)")
     table.add_column("condition")
     groups = list(next(iter(conditions.values()))["groups"])
     for g in groups:
-        table.add_column(f"{g} error (m)", justify="right")
+        table.add_column(g, justify="right")
     for cond, res in conditions.items():
         table.add_row(cond, *(format_error(res["groups"][g]) for g in groups))
     console.print(table)

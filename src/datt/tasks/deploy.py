@@ -110,7 +110,8 @@ def run_deploy(cfg: DictConfig, run_dir: Path | None = None, estop=None, server_
         jitter = summary["jitter_ms"]
         console.print(
             f"flight: {summary['outcome']}; tracking error {err if err is None else f'{err:.3f} m'} over "
-            f"{summary['track_steps']} steps; tick jitter median {jitter['median']:.2f} ms, p99 {jitter['p99']:.2f} ms; "
+            f"{summary['track_steps']} steps; tick jitter median {jitter['median']:.2f} ms, "
+            f"p99 {jitter['p99']:.2f} ms; "
             f"{summary['late_ticks']} late ticks; log in {run_dir}"
         )
     return summary

@@ -276,7 +276,7 @@ class Trainer:
         )
         every = max(1, self.train_params.checkpoint_every)
         progress = Progress(
-            TextColumn("[bold]train"),
+            TextColumn("[bold]{task.description}"),
             BarColumn(),
             TextColumn("{task.completed:,.0f}/{task.total:,.0f} steps"),
             TextColumn("{task.fields[rate]:,.0f} steps/s"),
@@ -294,6 +294,7 @@ class Trainer:
             task = progress.add_task(
                 "train", total=self.total_frames, completed=self.frames, rate=0.0, err=0.0, ret=0.0
             )
+            progress.refresh()  # the bar at once (the first batch takes seconds on a CPU)
             t_iter = t_last = time.perf_counter()
             for batch in collector:
                 ret_per_step = batch["next", "reward"].mean().item()  # before update() scales it
@@ -338,8 +339,6 @@ class Trainer:
                         f"{stop.signal}: checkpoint at {self.frames:,} of {self.total_frames:,} frames in "
                         f"{self.run_dir / 'last.pt'}; resume with resume={self.run_dir}"
                     )
-                if self.frames >= self.total_frames:
-                    break
         collector.shutdown()
         self.save("last.pt")
         if self.phase != "main" or not (self.run_dir / "best.pt").exists():

@@ -38,7 +38,7 @@ def train_rma(cfg: DictConfig, run_dir: Path, console=None) -> dict:
     env_cfg = with_options(train_cfg, disturbance=OmegaConf.to_container(cfg.disturbance))
     env_cfg.env.compile = False
     env = make_env(env_cfg, num_envs=int(rma.num_envs), seed=int(cfg.seed), traj=instantiate_option(cfg, "traj"))
-    net = RmaNet(int(rma.history_len), accel_dt_s=env.dt_s if bool(rma.accel_input) else None)
+    net = RmaNet(int(rma.history_len), accel_dt_s=env.dt_s if bool(rma.accel_input) else None, inputs=rma.inputs)
     adapter = RmaAdaptation(net=net)
     env.adaptation = adapter
     adapter.bind(env.n, env.dt_s, env.params.quad.gravity_mps2, env.device, env.dtype)
@@ -80,6 +80,7 @@ def train_rma(cfg: DictConfig, run_dir: Path, console=None) -> dict:
         "rma": net.state_dict(),
         "history_len": int(rma.history_len),
         "accel_dt_s": net.accel_dt_s,
+        "inputs": net.inputs,
         "base_checkpoint": str(cfg.base_checkpoint),
         "frames": int(base["frames"]),
         "config_yaml": OmegaConf.to_yaml(cfg, resolve=True),

@@ -79,6 +79,7 @@ class RmaParams:
     lr_final_frac: float = MISSING  # linear decay of the lr to lr x this (1.0 = constant)
     history_len: int = MISSING
     accel_input: bool = MISSING
+    inputs: str = MISSING  # project | authors (datt.adapt.rma)
     log_every: int = MISSING
 
     def validate(self) -> None:
@@ -87,6 +88,11 @@ class RmaParams:
         _need(self.lr > 0, "rma.lr", f"must be > 0, got {self.lr}")
         _need(0 < self.lr_final_frac <= 1, "rma.lr_final_frac", f"must be in (0, 1], got {self.lr_final_frac}")
         _need(self.log_every >= 1, "rma.log_every", f"must be >= 1, got {self.log_every}")
+        _need(  # the layouts of datt.adapt.rma.INPUT_LAYOUTS (not imported here: no torch in the schema)
+            self.inputs in ("project", "authors"),
+            "rma.inputs",
+            f"unknown value {self.inputs!r}; allowed: project, authors",
+        )
 
 
 def run_params(cfg: DictConfig) -> RunParams:

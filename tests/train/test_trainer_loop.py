@@ -1,0 +1,200 @@
+"""The training loop's bookkeeping: how many batches it collects, what each metrics row holds,
+which checkpoints it writes when, the progress bar, and a stop request."""
+
+import os
+import re
+import signal
+
+import pytest
+import torch
+from rich.console import Console
+
+from datt.checkpoint import load_checkpoint
+from datt.errors import TrainingInterrupted
+from datt.train.loggers import CsvLogger
+from datt.train.ppo import Trainer
+
+from .test_training import tiny_cfg
+
+BATCH = 64 * 16  # tiny_cfg: 64 envs × 16 rollout steps
+
+
+class SpyTrainer(Trainer):
+    """Keeps a copy of every collected batch as it came from the collector (``update`` scales
+    the rewards in place)."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.batches = []
+
+    def update(self, batch):
+        self.batches.append(batch.clone())
+        return super().update(batch)
+
+
+class CheckpointSpy(CsvLogger):
+    """Records, as each row is logged, the iteration held by ``last.pt`` and ``best.pt`` (None
+    when absent)."""
+
+    def __init__(self, run_dir):
+        super().__init__(run_dir)
+        self.run_dir = run_dir
+        self.seen = []
+
+    def _iteration(self, name):
+        path = self.run_dir / name
+        return load_checkpoint(path)["iteration"] if path.exists() else None
+
+    def log(self, metrics, step):
+        super().log(metrics, step)
+        self.seen.append((metrics["iteration"], self._iteration("last.pt"), self._iteration("best.pt")))
+
+
+def _trainer(tmp_path, *extra, cls=Trainer, logger=None, console=None):
+    cfg = tiny_cfg("train.eval_at_end=false", *extra)
+    return cls(cfg, tmp_path, logger or CsvLogger(tmp_path), console=console)
+
+
+def _recording_console():
+    return Console(record=True, width=200, force_terminal=True, color_system=None)
+
+
+@pytest.mark.parametrize("frames_done, batches", [(0, 3), (BATCH, 2), (3 * BATCH - 1, 1)])
+def test_collects_exactly_the_batches_that_reach_the_total(tmp_path, frames_done, batches):
+    """Batches of 1,024 frames up to (at least) the total, counted from where the run stands."""
+    trainer = _trainer(tmp_path, f"train.total_steps={3 * BATCH}", "curriculum.fixed_ref_steps=0")
+    trainer.frames = frames_done
+    history = trainer.train()
+    assert len(history) == batches
+    assert [row["frames"] for row in history] == [frames_done + BATCH * (i + 1) for i in range(batches)]
+    assert [row["iteration"] for row in history] == list(range(1, batches + 1))
+    assert load_checkpoint(tmp_path / "last.pt")["frames"] == frames_done + BATCH * batches
+
+
+def test_a_complete_run_trains_nothing_and_writes_nothing(tmp_path):
+    console = _recording_console()
+    trainer = _trainer(tmp_path, f"train.total_steps={2 * BATCH}", console=console)
+    trainer.frames = 2 * BATCH
+    before = {name: param.clone() for name, param in trainer.actor.named_parameters()}
+    assert trainer.train() == []
+    assert "run already complete (2048 frames)" in console.export_text()
+    assert not (tmp_path / "last.pt").exists() and not (tmp_path / "best.pt").exists()
+    assert all(torch.equal(param, before[name]) for name, param in trainer.actor.named_parameters())
+
+
+def test_each_row_describes_its_batch(tmp_path):
+    """Tracking error, reward and crash rate of the batch as collected; the return estimate is
+    the mean reward per step × the episode's steps; the phase is the one the batch was trained in."""
+    trainer = _trainer(
+        tmp_path,
+        f"train.total_steps={3 * BATCH}",
+        f"curriculum.fixed_ref_steps={BATCH}",
+        "algo.reward_scale=0.5",
+        "env.episode_steps=8",  # episodes that end within a batch: by truncation, and
+        "env.max_tracking_error_m=0.3",  # by a crash for some drones
+        cls=SpyTrainer,
+    )
+    history = trainer.train()
+    assert [row["phase"] for row in history] == ["fixed", "main", "main"]
+    for row, batch in zip(history, trainer.batches, strict=True):
+        reward = batch["next", "reward"].mean().item()  # unscaled: before update() scaled it
+        done = batch["next", "done"].sum().item()
+        crashed = batch["next", "terminated"].sum().item()
+        assert row["tracking_error_m"] == pytest.approx(batch["next", "tracking_error_m"].mean().item())
+        assert row["reward_per_step"] == pytest.approx(reward)
+        assert row["episode_return_est"] == pytest.approx(reward * trainer.env.params.episode_steps)
+        assert row["crash_rate"] == pytest.approx(crashed / max(done, 1))
+        assert row["steps_per_s"] > 0
+        assert {"loss_objective", "loss_critic", "grad_norm", "lr"} <= row.keys()
+    crash_rates = [row["crash_rate"] for row in history]
+    assert all(0.0 < rate < 1.0 for rate in crash_rates), crash_rates  # both kinds of episode end
+
+
+def test_checkpoints_every_n_iterations_and_the_best_of_the_main_phase(tmp_path):
+    """``last.pt`` every ``checkpoint_every`` iterations and at the end; ``best.pt`` whenever the
+    training error of a main-phase batch beats the best so far (never in the fixed phase)."""
+    logger = CheckpointSpy(tmp_path)
+    trainer = _trainer(
+        tmp_path,
+        f"train.total_steps={5 * BATCH}",
+        f"curriculum.fixed_ref_steps={BATCH}",
+        "train.checkpoint_every=2",
+        logger=logger,
+    )
+    history = trainer.train()
+    # the row of iteration k is logged before k's checkpoints are written
+    assert [last for _, last, _ in logger.seen] == [None, None, 2, 2, 4]
+    assert load_checkpoint(tmp_path / "last.pt")["iteration"] == 5
+    main = [row for row in history if row["phase"] == "main"]
+    best_row = min(main, key=lambda row: row["tracking_error_m"])
+    best = load_checkpoint(tmp_path / "best.pt")
+    assert best["iteration"] == best_row["iteration"] and best["frames"] == best_row["frames"]
+    assert best["best_error_m"] == pytest.approx(best_row["tracking_error_m"])
+    improved, best_so_far, expect = [], float("inf"), []
+    for row in history:
+        if row["phase"] == "main" and row["tracking_error_m"] < best_so_far:
+            best_so_far = row["tracking_error_m"]
+            improved.append(row["iteration"])
+        expect.append(improved[-1] if improved else None)
+    # best.pt as seen by the next row's log: the latest improvement before it
+    assert [best_it for _, _, best_it in logger.seen[1:]] == expect[:-1]
+
+
+def test_a_run_that_never_leaves_the_fixed_phase_still_has_a_best(tmp_path):
+    trainer = _trainer(tmp_path, f"train.total_steps={2 * BATCH}", f"curriculum.fixed_ref_steps={10 * BATCH}")
+    history = trainer.train()
+    assert [row["phase"] for row in history] == ["fixed", "fixed"]
+    best = load_checkpoint(tmp_path / "best.pt")
+    assert best["iteration"] == 2 and best["phase"] == "fixed"
+
+
+def test_progress_bar_shows_steps_rate_error_and_return(tmp_path):
+    console = _recording_console()
+    trainer = _trainer(
+        tmp_path,
+        f"train.total_steps={3 * BATCH}",
+        "train.progress=true",
+        "curriculum.fixed_ref_steps=0",
+        console=console,
+    )
+    trainer.frames = BATCH  # a resumed run: the bar starts where the run stands
+    history = trainer.train()
+    renders = [line for line in re.split(r"(?=train ━)", console.export_text()) if line.startswith("train ")]
+    first, last = renders[0], renders[-1]
+    assert re.search(r"1,024/3,072 steps 0 steps/s err 0\.000 m ret 0\.00", first), first
+    last_row = history[-1]
+    expect = (
+        rf"3,072/3,072 steps [\d,]+ steps/s err {last_row['tracking_error_m']:.3f} m "
+        rf"ret {re.escape(format(last_row['episode_return_est'], '.2f'))}"
+    )
+    assert re.search(expect, last), last
+
+
+def test_no_progress_bar_when_switched_off(tmp_path):
+    console = _recording_console()
+    trainer = _trainer(tmp_path, f"train.total_steps={BATCH}", "train.progress=false", console=console)
+    trainer.train()
+    assert "steps/s" not in console.export_text()
+
+
+def test_a_stop_signal_saves_and_stops_after_the_batch(tmp_path):
+    """SIGTERM during iteration 2: the batch is finished, ``last.pt`` written (though
+    checkpoint_every is 100), and the run stops with the resume command; the handlers are restored."""
+
+    class SignalAt2(CsvLogger):
+        def log(self, metrics, step):
+            super().log(metrics, step)
+            if metrics["iteration"] == 2:
+                os.kill(os.getpid(), signal.SIGTERM)
+
+    handler = signal.getsignal(signal.SIGTERM)
+    trainer = _trainer(
+        tmp_path, f"train.total_steps={5 * BATCH}", "train.checkpoint_every=100", logger=SignalAt2(tmp_path)
+    )
+    with pytest.raises(TrainingInterrupted) as info:
+        trainer.train()
+    assert str(info.value) == (
+        f"SIGTERM: checkpoint at 2,048 of 5,120 frames in {tmp_path / 'last.pt'}; resume with resume={tmp_path}"
+    )
+    assert load_checkpoint(tmp_path / "last.pt")["iteration"] == 2
+    assert signal.getsignal(signal.SIGTERM) is handler

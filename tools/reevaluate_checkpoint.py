@@ -1,0 +1,50 @@
+"""Re-run a training run's end-of-run evaluation on the current evaluation bank.
+
+    python tools/reevaluate_checkpoint.py src/datt/checkpoints/datt_h10.pt src/datt/checkpoints/datt_h10_metrics.json
+
+Loads the policy and its training config from the checkpoint, replaces the bank with today's
+``conf/bank/default.yaml``, flies the run's ``eval.conditions`` and the hovering reference
+exactly as ``python train.py`` does at the end of a run (seed ``eval.seed``), and writes them
+into the metrics file: its training facts (frames, wall time, steps/s, horizon, seed) are kept,
+``conditions`` and ``hover_reference`` replaced. For a checkpoint whose recorded numbers came
+from an older bank.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import tempfile
+from pathlib import Path
+
+from omegaconf import OmegaConf
+
+from datt.configuration import compose
+from datt.eval.conditions import evaluate_conditions
+from datt.policies.loading import load_actor
+from datt.runs import write_json
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("checkpoint", type=Path)
+    parser.add_argument("metrics", type=Path, help="the run's metrics.json (rewritten)")
+    args = parser.parse_args()
+    actor, train_cfg, _ = load_actor(args.checkpoint)
+    cfg = train_cfg.copy()
+    OmegaConf.update(cfg, "eval.bank", compose("train").eval.bank, merge=False)  # today's bank, whole
+    metrics = json.loads(args.metrics.read_text()) if args.metrics.exists() else {}
+    seed = int(cfg.eval.seed)
+    clean = {"disturbance": "none", "adaptation": "none"}
+    with tempfile.TemporaryDirectory() as tmp:
+        metrics["conditions"] = evaluate_conditions(cfg, actor, cfg.eval.conditions, Path(tmp), False, "", seed=seed)
+        hover = evaluate_conditions(cfg, None, {"hover": clean}, Path(tmp), False, "hover", seed=seed)["hover"]
+    metrics["hover_reference"] = hover
+    write_json(args.metrics, metrics)
+    for name, cond in {**metrics["conditions"], "hover": hover}.items():
+        cells = ", ".join(f"{g} {v['mean_m']:.4f} ± {v['std_m']:.4f} m" for g, v in cond["groups"].items())
+        print(f"{name}: {cells}")
+
+
+if __name__ == "__main__":
+    main()
