@@ -9,6 +9,13 @@ from datt.errors import ConfigError
 from datt.train.rma import train_rma
 
 
+def tiny_rma_cfg(checkpoint, *extra):
+    """``stage=rma`` for ``checkpoint``: two iterations on eight drones."""
+    return compose(
+        "train", ["stage=rma", f"base_checkpoint={checkpoint}", "rma.iterations=2", "rma.num_envs=8", *extra]
+    )
+
+
 def test_network_shapes_and_paper_structure():
     net = RmaNet(50)
     convs = [m for m in net.conv if isinstance(m, torch.nn.Conv1d)]
@@ -89,16 +96,7 @@ def test_policy_checkpoint_is_not_an_rma_checkpoint(tiny_policy_checkpoint):
 
 
 def test_bad_rma_lr_final_frac_is_one_line(tmp_path, tiny_policy_checkpoint):
-    cfg = compose(
-        "train",
-        [
-            "stage=rma",
-            f"base_checkpoint={tiny_policy_checkpoint}",
-            "rma.iterations=2",
-            "rma.num_envs=8",
-            "rma.lr_final_frac=0",
-        ],
-    )
+    cfg = tiny_rma_cfg(tiny_policy_checkpoint, "rma.lr_final_frac=0")
     with pytest.raises(ConfigError, match=r"^rma.lr_final_frac: must be in \(0, 1\], got 0.0$"):
         train_rma(cfg, tmp_path)
 
@@ -150,18 +148,7 @@ def test_authors_inputs_are_the_body_frame_base_observation_and_the_command():
 
 
 def test_rma_inputs_layout_is_saved_with_the_adapter(tmp_path, tiny_policy_checkpoint):
-    cfg = compose(
-        "train",
-        [
-            "stage=rma",
-            f"base_checkpoint={tiny_policy_checkpoint}",
-            "rma.iterations=2",
-            "rma.num_envs=8",
-            "rma.inputs=authors",
-            "rma.accel_input=false",
-        ],
-    )
-    train_rma(cfg, tmp_path)
+    train_rma(tiny_rma_cfg(tiny_policy_checkpoint, "rma.inputs=authors", "rma.accel_input=false"), tmp_path)
     net = load_rma(tmp_path / "rma.pt")
     assert net.inputs == "authors" and net.accel_dt_s is None
     bad = compose("train", ["stage=rma", f"base_checkpoint={tiny_policy_checkpoint}", "rma.inputs=world"])

@@ -66,7 +66,16 @@ def _mean_speed_mps(name, count=1000):
 @pytest.mark.parametrize(
     "name, speed_mps",
     # the docstrings' figures: the authors' generator, the paper's stated ≈ 2 m/s, the paper's text
-    [("zigzag", 1.32), ("zigzag_fast", 2.0), ("zigzag_iid", 1.0), ("star", 0.99)],
+    [
+        ("zigzag", 1.32),
+        ("zigzag_fast", 2.0),
+        ("zigzag_iid", 1.0),
+        ("star", 0.99),
+        ("poly", 0.41),
+        ("chained_poly", 0.72),
+        ("polygon", 1.23),
+        ("mixed", 0.82),
+    ],
 )
 def test_reference_family_mean_speed(name, speed_mps):
     assert _mean_speed_mps(name) == pytest.approx(speed_mps, rel=0.03)

@@ -50,7 +50,7 @@ class PolicyParams:
     # rate noise integrates into an attitude random walk (0.15 x 20 rad/s tips drones over
     # within ~1 s, so every early episode crashes); 0.05 ≈ 1 rad/s, the SB3 default std.
     # A single number applies to all four.
-    init_std: Any = field(default_factory=lambda: [0.1, 0.05, 0.05, 0.1])
+    init_std: Any = field(default_factory=lambda: [0.15, 0.15, 0.15, 0.15])
     # Fixed gain on the tracking-error inputs (feedback and feedforward, metres) before the net.
     # Tracking errors are O(0.01-0.1 m) while the other inputs are O(1): unscaled, a 2 cm error
     # moves the first layer by ~1e-3, and PPO (Adam steps of ~lr per weight) takes a long time to

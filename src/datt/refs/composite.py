@@ -44,7 +44,8 @@ class Fixed(Seeded):
 
 class Mixed(RefFamily):
     """Each drone's family drawn independently with probabilities ∝ ``weights`` (uniform when
-    omitted). ``families``: name -> family (Hydra instantiates the nested configs)."""
+    omitted). ``families``: name -> family (Hydra instantiates the nested configs). Mean speed of
+    ``traj=mixed`` (authors' zigzag, poly, chained_poly; 1000 draws): ≈ 0.82 m/s."""
 
     def __init__(self, families: Mapping[str, RefFamily], weights: Mapping[str, float] | None = None) -> None:
         if not families:

