@@ -51,11 +51,12 @@ def test_datt_fast_path_equals_torchrl_deterministic_action(tiny_policy_checkpoi
     from datt.control import DattController
     from datt.policies.loading import load_actor
 
-    actor, _, _ = load_actor(tiny_policy_checkpoint)
+    actor, train_cfg, _ = load_actor(tiny_policy_checkpoint)
+    width = 13 + 4 * int(train_cfg.env.obs.action_history)  # the training default adds two commands
     g = torch.Generator().manual_seed(0)
     td = TensorDict(
         {
-            "state": torch.randn(6, 13, generator=g),
+            "state": torch.randn(6, width, generator=g),
             "ref": torch.randn(6, 10, 3, generator=g),
             "d_hat": 3 * torch.randn(6, 3, generator=g),
         },

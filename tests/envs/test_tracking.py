@@ -253,7 +253,8 @@ def test_disturbance_moves_the_drone(make_tracking_env):
     [
         (
             ["traj=spiral"],
-            "traj: unknown option 'spiral'; allowed: chained_poly, csv, fixed, mixed, poly, polygon, star, zigzag",
+            "traj: unknown option 'spiral'; allowed: chained_poly, csv, fixed, mixed, poly, polygon, star, train_mix, "
+            "zigzag, zigzag_fast, zigzag_iid",
         ),
         (
             ["disturbance=storm"],

@@ -75,6 +75,7 @@ def _mean_speed_mps(name, count=1000):
         ("chained_poly", 0.72),
         ("polygon", 1.23),
         ("mixed", 0.82),
+        ("train_mix", 1.08),
     ],
 )
 def test_reference_family_mean_speed(name, speed_mps):

@@ -198,3 +198,40 @@ def test_a_stop_signal_saves_and_stops_after_the_batch(tmp_path):
     )
     assert load_checkpoint(tmp_path / "last.pt")["iteration"] == 2
     assert signal.getsignal(signal.SIGTERM) is handler
+
+
+def test_budget_scales_the_total_and_the_fixed_phase(tmp_path):
+    trainer = _trainer(tmp_path, "budget=0.5", "train.total_steps=4096", "curriculum.fixed_ref_steps=2048")
+    assert (trainer.total_frames, trainer.fixed_ref_steps) == (2048, 1024)
+    from datt.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=r"^train.total_steps: must be >= 1, got 0$"):
+        _trainer(tmp_path, "budget=0.0001", "train.total_steps=4096")
+
+
+def test_the_env_flies_the_main_family_once_the_fixed_phase_is_over(tmp_path):
+    trainer = _trainer(tmp_path, f"train.total_steps={2 * BATCH}", f"curriculum.fixed_ref_steps={BATCH}")
+    assert trainer.phase == "fixed" and trainer.env.traj is trainer.fixed_traj
+    trainer.train()
+    assert trainer.phase == "main" and trainer.env.traj is trainer.main_traj
+    trainer.frames = 0  # e.g. a checkpoint from before the switch: back to the fixed reference
+    trainer._update_phase()
+    assert trainer.phase == "fixed" and trainer.env.traj is trainer.fixed_traj
+    no_curriculum = _trainer(tmp_path, "curriculum.fixed_ref_steps=0")
+    assert no_curriculum.phase == "main" and no_curriculum.fixed_traj is None
+
+
+@pytest.mark.parametrize("stagger", [True, False])
+def test_first_episodes_are_staggered_only_when_configured(tmp_path, stagger):
+    """With staggering, some drones' first episode ends early (truncated, not crashed); without,
+    none ends before ``episode_steps``."""
+    trainer = _trainer(tmp_path, f"train.stagger_episodes={str(stagger).lower()}", "env.episode_steps=40")
+    env = trainer.env
+    td = env.reset()
+    ended = torch.zeros(env.n, dtype=torch.bool)
+    for _ in range(39):
+        td["action"] = env.hover_action
+        out = env.step(td)
+        ended |= out["next", "truncated"].squeeze(-1)
+        td = out["next"]
+    assert bool(ended.any()) is stagger
