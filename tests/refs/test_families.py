@@ -234,7 +234,11 @@ def test_csv_missing_file(tmp_path):
         CsvReference(str(tmp_path / "nope.csv"))
 
 
-@pytest.mark.parametrize("family", [Zigzag, Poly, ChainedPoly, Polygon])
+@pytest.mark.parametrize(
+    "family",
+    [Zigzag, lambda: Zigzag(waypoints="iid"), Poly, ChainedPoly, Polygon],
+    ids=["zigzag", "zigzag_iid", "poly", "chained_poly", "polygon"],
+)
 def test_seeded_reproducibility(family):
     fam = family()
     assert torch.equal(fam.sample(4, T_GRID, gen(1)), fam.sample(4, T_GRID, gen(1)))
