@@ -20,7 +20,7 @@ from pathlib import Path
 from omegaconf import OmegaConf
 
 from datt.configuration import compose
-from datt.eval.conditions import evaluate_conditions
+from datt.eval.conditions import evaluate_end_of_run
 from datt.policies.loading import load_actor
 from datt.runs import write_json
 
@@ -34,11 +34,8 @@ def main() -> None:
     cfg = train_cfg.copy()
     OmegaConf.update(cfg, "eval.bank", compose("train").eval.bank, merge=False)  # today's bank, whole
     metrics = json.loads(args.metrics.read_text()) if args.metrics.exists() else {}
-    seed = int(cfg.eval.seed)
-    clean = {"disturbance": "none", "adaptation": "none"}
     with tempfile.TemporaryDirectory() as tmp:
-        metrics["conditions"] = evaluate_conditions(cfg, actor, cfg.eval.conditions, Path(tmp), False, "", seed=seed)
-        hover = evaluate_conditions(cfg, None, {"hover": clean}, Path(tmp), False, "hover", seed=seed)["hover"]
+        metrics["conditions"], hover = evaluate_end_of_run(cfg, actor, Path(tmp), False, "", int(cfg.eval.seed))
     metrics["hover_reference"] = hover
     write_json(args.metrics, metrics)
     for name, cond in {**metrics["conditions"], "hover": hover}.items():

@@ -71,6 +71,15 @@ def evaluate_conditions(
     return results
 
 
+def evaluate_end_of_run(cfg: DictConfig, policy, run_dir: Path, plots: bool, tag: str, seed: int) -> tuple[dict, dict]:
+    """A training run's own evaluation: ``cfg.eval.conditions`` with ``policy``, and a hovering
+    drone on the same bank as the reference point. Returns ``(conditions, hover)``."""
+    conditions = evaluate_conditions(cfg, policy, cfg.eval.conditions, run_dir, plots, tag=tag, seed=seed)
+    clean = {"disturbance": "none", "adaptation": "none"}
+    hover = evaluate_conditions(cfg, None, {"hover": clean}, run_dir, False, "hover", seed=seed)["hover"]
+    return conditions, hover
+
+
 def measure_inference(cfg: DictConfig, controller, timing) -> dict | None:
     """Median/p95 ms per control step at batch 1 (see :mod:`datt.eval.timing`); ``timing`` is
     the ``eval.timing`` node (``steps: 0`` skips)."""

@@ -11,7 +11,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from datt.configuration import config_groups, search_roots, structured
 from datt.errors import TrainingDiverged
-from datt.eval.conditions import evaluate_conditions, print_metrics
+from datt.eval.conditions import evaluate_end_of_run, print_metrics
 from datt.eval.plots import plot_learning_curve
 from datt.eval.schema import EndOfRunEvalParams
 from datt.runs import RunLock, finite_json, record_failure, write_json
@@ -130,12 +130,9 @@ def _train_locked(cfg: DictConfig, run_dir: Path, resumed: bool) -> dict:
     if history and end_eval.plots:
         plot_learning_curve(trainer.history, run_dir / "learning_curve.png")
     if train.eval_at_end:
-        seed = end_eval.seed
-        metrics["conditions"] = evaluate_conditions(
-            cfg, trainer.actor, cfg.eval.conditions, run_dir, end_eval.plots, tag=run_dir.name, seed=seed
+        metrics["conditions"], hover = evaluate_end_of_run(
+            cfg, trainer.actor, run_dir, end_eval.plots, run_dir.name, end_eval.seed
         )
-        clean = {"disturbance": "none", "adaptation": "none"}
-        hover = evaluate_conditions(cfg, None, {"hover": clean}, run_dir, False, "hover", seed=seed)["hover"]
         metrics["hover_reference"] = hover
         print_metrics(console, f"evaluation ({run_dir.name})", {**metrics["conditions"], "hover (reference)": hover})
     write_json(run_dir / "metrics.json", metrics)
