@@ -17,6 +17,7 @@ from datt.checkpoint import load_checkpoint
 from datt.errors import ConfigError
 from datt.paths import original_cwd, resolve_path
 from datt.runs import is_locked
+from datt.tasks.phases import is_phased, phased_parent
 from datt.tasks.common import command_overrides
 
 # Dotted keys (or prefixes ending in ".") an override may change on resume.
@@ -35,20 +36,27 @@ RESUMABLE_GROUPS = ("logger", "bank@eval.bank")
 
 def resume_dir(resume) -> Path | None:
     """The run dir ``resume=`` names: ``true`` = the newest run with a ``last.pt`` under outputs/
-    that no other process holds."""
+    that no other process holds. A phase of a phased run (:mod:`datt.tasks.phases`) stands for its
+    whole run."""
     if resume in (False, None, "false", "False"):
         return None
     if resume in (True, "true", "True"):
         candidates = sorted((original_cwd() / "outputs").glob("**/last.pt"), key=lambda p: p.stat().st_mtime)
-        free = [c.parent for c in candidates if not is_locked(c.parent)]
+        runs = [phased_parent(c.parent) or c.parent for c in candidates]
+        free = [r for r in runs if not is_locked(r)]
         if not free:
             held = " (the newest is in use by another process)" if candidates else ""
             raise ConfigError(f"resume: no run with a last.pt under outputs/{held}; pass resume=<run dir>")
         return free[-1]
     path = resolve_path(resume)
-    if not (path / "last.pt").is_file():
+    path = phased_parent(path) or path
+    if not (path / "last.pt").is_file() and not _phased_run(path):
         raise ConfigError(f"resume: {str(path)!r} has no last.pt")
     return path
+
+
+def _phased_run(path: Path) -> bool:
+    return (path / "config.yaml").is_file() and is_phased(OmegaConf.load(path / "config.yaml"))
 
 
 def _resumable(key: str) -> bool:
@@ -120,6 +128,13 @@ def resume_config(cfg: DictConfig, run_dir: Path, groups: set[str]) -> DictConfi
 
 
 def finished_frames(run_dir: Path, total_frames: int) -> int | None:
-    """The frames of ``run_dir``'s last checkpoint if they already reach ``total_frames``."""
+    """The frames of ``run_dir``'s last checkpoint if they already reach ``total_frames`` (a phased
+    run: the frames of all its phases once its last phase is done)."""
+    if _phased_run(run_dir):
+        metrics = run_dir / "metrics.json"
+        if not metrics.is_file() or not (run_dir / "last.pt").is_file():
+            return None
+        frames = int(OmegaConf.load(metrics).get("frames") or 0)
+        return frames if frames >= total_frames else None
     frames = int(load_checkpoint(run_dir / "last.pt", key="resume")["frames"])
     return frames if frames >= total_frames else None

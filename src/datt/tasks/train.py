@@ -16,6 +16,7 @@ from datt.eval.plots import plot_learning_curve
 from datt.eval.schema import EndOfRunEvalParams
 from datt.runs import RunLock, finite_json, record_failure, write_json
 from datt.tasks.common import console, hydra_run_dir, set_threads
+from datt.tasks.phases import is_phased, phase_plan, run_phases
 from datt.tasks.resume import finished_frames, resume_config, resume_dir
 from datt.train.loggers import CsvLogger, MultiLogger, WandbLogger
 from datt.train.ppo import Trainer
@@ -47,6 +48,8 @@ def run_train(cfg: DictConfig, run_dir: Path | None = None) -> dict:
     run = run_params(cfg)
     train = structured(TrainParams, cfg.train, "train")
     check_ablation(cfg)
+    if is_phased(cfg):
+        phase_plan(cfg)  # a bad schedule is refused before anything is written
     set_threads(train.threads)
     if run.stage == "rma":
         from datt.tasks.rma import run_rma
@@ -67,6 +70,8 @@ def run_train(cfg: DictConfig, run_dir: Path | None = None) -> dict:
         run_dir = resumed
     run_dir = run_dir or hydra_run_dir()
     with RunLock(run_dir):
+        if is_phased(cfg):
+            return run_phases(cfg, run_dir, _train_locked)
         return _train_locked(cfg, run_dir, resumed is not None)
 
 

@@ -51,6 +51,7 @@ class TrainParams:
     stagger_episodes: bool = MISSING
     progress: bool = MISSING
     threads: int | None = MISSING  # null = torch default (cores / parallel jobs under joblib)
+    phases: Any = MISSING  # null | [{name, steps, set: {dotted key: value}}] (datt.tasks.phases)
 
     def validate(self) -> None:
         _need(self.total_steps >= 1, "train.total_steps", f"must be >= 1, got {self.total_steps}")

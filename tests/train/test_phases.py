@@ -1,0 +1,141 @@
+"""A schedule in phases from one command (``train.phases``, ``experiment=shipped``): what each
+phase trains with, that phase k starts from phase k-1's weights, resume, and every bad schedule's
+error."""
+
+import json
+
+import pytest
+import torch
+from omegaconf import OmegaConf
+
+from datt.checkpoint import load_checkpoint
+from datt.errors import ConfigError
+from datt.tasks.phases import phase_config, phase_plan
+from datt.tasks.resume import resume_dir
+from datt.tasks.train import run_train
+
+from .test_training import tiny_cfg
+
+TWO_PHASES = [
+    {"name": "a", "steps": 1024, "set": {"algo.lr": 2.0e-3}},
+    {"name": "b", "steps": 1024, "set": {"env.reward.vel": 0.0, "traj.weights": {"zigzag": 1, "poly": 0, "chained_poly": 0}}},
+]
+
+
+def phased_cfg(phases=TWO_PHASES, total=2048, *extra):
+    cfg = tiny_cfg(
+        f"train.total_steps={total}",
+        "curriculum.fixed_ref_steps=512",
+        "train.eval_at_end=false",
+        "eval.plots=false",
+        *extra,
+    )
+    OmegaConf.update(cfg, "train.phases", phases, merge=False)
+    return cfg
+
+
+def test_shipped_experiment_is_the_five_phase_schedule():
+    from datt.configuration import compose
+
+    cfg = compose("train", ["experiment=shipped"])
+    plan = phase_plan(cfg)
+    assert [name for name, _, _ in plan] == [
+        "phase1_mix",
+        "phase2_zigzag5",
+        "phase3_zigzag6",
+        "phase4_wide",
+        "phase5_no_vel",
+    ]
+    assert sum(steps for _, steps, _ in plan) == 64_000_000
+    first, last = phase_config(cfg, 0, plan, None), phase_config(cfg, 4, plan, "p4/last.pt")
+    assert first.curriculum.fixed_ref_steps == 2_500_000 and first.train.init_from is None
+    assert dict(first.traj.weights) == {"zigzag": 2, "poly": 1, "chained_poly": 1}
+    assert (first.algo.lr, first.algo.lr_final_frac, first.algo.num_envs) == (1e-3, 0.1, 1024)
+    assert last.curriculum.fixed_ref_steps == 0 and last.train.init_from == "p4/last.pt"
+    assert (last.algo.lr, last.algo.num_envs, last.algo.minibatch_size, last.env.reward.vel) == (1e-4, 2048, 4096, 0.0)
+    assert dict(last.traj.weights) == {"zigzag": 6, "poly": 1, "chained_poly": 1}
+    assert last.train.phases is None and last.train.total_steps == 10_000_000
+    # the evaluation runs once, after the last phase
+    assert not first.train.eval_at_end and last.train.eval_at_end
+
+
+def test_phases_chain_weights_and_the_run_is_the_last_phase(tmp_path):
+    metrics = run_train(phased_cfg(), run_dir=tmp_path)
+    one, two = tmp_path / "phase1_a", tmp_path / "phase2_b"
+    cfg_one, cfg_two = OmegaConf.load(one / "config.yaml"), OmegaConf.load(two / "config.yaml")
+    assert cfg_one.algo.lr == 2e-3 and cfg_one.train.init_from is None and cfg_one.curriculum.fixed_ref_steps == 512
+    assert cfg_one.env.reward.vel == 0.1
+    assert cfg_two.algo.lr == 1e-3 and cfg_two.env.reward.vel == 0.0 and cfg_two.curriculum.fixed_ref_steps == 0
+    assert cfg_two.train.init_from == str(one / "last.pt")
+    assert dict(cfg_two.traj.weights) == {"zigzag": 1, "poly": 0, "chained_poly": 0}
+    run_ckpt, last_ckpt = load_checkpoint(tmp_path / "last.pt"), load_checkpoint(two / "last.pt")
+    assert all(torch.equal(run_ckpt["actor"][k], v) for k, v in last_ckpt["actor"].items())
+    assert metrics["frames"] == 2048 and [p["phase"] for p in metrics["phases"]] == ["phase1_a", "phase2_b"]
+    assert json.loads((tmp_path / "metrics.json").read_text())["frames"] == 2048
+
+
+def test_phase_two_starts_from_phase_one(tmp_path, monkeypatch):
+    """The weights phase 2 starts from are phase 1's last ones (not a fresh policy)."""
+    from datt.train import ppo
+
+    loaded = []
+    original = ppo.Trainer.init_weights
+
+    def spy(self, path):
+        original(self, path)
+        loaded.append((path, {k: v.clone() for k, v in self.actor.state_dict().items()}))
+
+    monkeypatch.setattr(ppo.Trainer, "init_weights", spy)
+    run_train(phased_cfg(), run_dir=tmp_path)
+    assert len(loaded) == 1 and loaded[0][0] == str(tmp_path / "phase1_a" / "last.pt")
+    one = load_checkpoint(tmp_path / "phase1_a" / "last.pt")["actor"]
+    assert all(torch.equal(loaded[0][1][k], v) for k, v in one.items())
+
+
+def test_resume_keeps_finished_phases_and_runs_the_rest(tmp_path):
+    run_train(phased_cfg(), run_dir=tmp_path)
+    one = tmp_path / "phase1_a"
+    kept = {p.name: p.stat().st_mtime_ns for p in one.iterdir()}
+    for name in ("metrics.json", "last.pt"):
+        (tmp_path / name).unlink()
+    for p in (tmp_path / "phase2_b").iterdir():
+        if p.is_file():
+            p.unlink()
+    # a phase dir (what resume=true finds newest) stands for its whole run
+    assert resume_dir(str(one)) == tmp_path and resume_dir(str(tmp_path)) == tmp_path
+    metrics = run_train(phased_cfg(TWO_PHASES, 2048, f"resume={tmp_path}"))
+    assert {p.name: p.stat().st_mtime_ns for p in one.iterdir()} == kept
+    assert (tmp_path / "phase2_b" / "last.pt").is_file() and metrics["frames"] == 2048
+    # finished: nothing is written
+    before = (tmp_path / "last.pt").stat().st_mtime_ns
+    run_train(phased_cfg(TWO_PHASES, 2048, f"resume={tmp_path}"))
+    assert (tmp_path / "last.pt").stat().st_mtime_ns == before
+
+
+@pytest.mark.parametrize(
+    "phases, total, message",
+    [
+        (TWO_PHASES, 4096, "train.phases: the phases add up to 2,048 steps but train.total_steps is 4,096; "),
+        ([{"name": "a", "steps": 2048, "set": {"algo.lrr": 1.0}}], 2048, "train.phases[0].set: unknown config key 'algo.lrr'"),
+        ([{"name": "a", "steps": 2048, "set": {"seed": 3}}], 2048, "train.phases[0].set: seed cannot change between phases"),
+        ([{"name": "a", "steps": 2048, "set": {"train.init_from": "x.pt"}}], 2048, "train.phases[0].set: train.init_from cannot"),
+        ([{"name": "a b", "steps": 2048}], 2048, "train.phases[0].name: 'a b' must be unique"),
+        ([{"name": "a", "steps": 1024}, {"name": "a", "steps": 1024}], 2048, "train.phases[1].name: 'a' must be unique"),
+        ([{"name": "a", "steps": 0}], 2048, "train.phases[0].steps: must be an integer >= 1, got 0"),
+        ([{"name": "a", "steps": 2048, "lr": 1}], 2048, "train.phases[0]: must be a mapping with keys name, steps and set"),
+        ([], 2048, "train.phases: empty list; use null"),
+    ],
+)
+def test_bad_schedules_are_refused_before_anything_is_written(tmp_path, phases, total, message):
+    with pytest.raises(ConfigError) as info:
+        run_train(phased_cfg(phases, total), run_dir=tmp_path / "run")
+    assert str(info.value).startswith(message)
+    assert not (tmp_path / "run").exists()
+
+
+def test_a_bad_schedule_on_the_command_line_is_one_line(tmp_path, monkeypatch, capsys):
+    from ..test_faults import TINY, one_line, run_cli
+
+    result = run_cli("train", [*TINY, "experiment=shipped", "train.total_steps=1000"], tmp_path, monkeypatch, capsys)
+    one_line(result, "error: train.phases: the phases add up to 64,000,000 steps but train.total_steps is 1,000; ")
+    assert not (tmp_path / "outputs").exists() or not list((tmp_path / "outputs").rglob("*.pt"))
