@@ -1,7 +1,10 @@
 """The radio link to a Crazyflie through cflib (the only module that imports cflib).
 
 ``CrazyflieLink(uri)``: connect (with a timeout), put the firmware in rate mode
-(``flightmode.stabModeRoll/Pitch = 0``), log the onboard estimate (position, velocity,
+(``flightmode.stabModeRoll/Pitch = 0``) and select the Kalman estimator (``stabilizer.estimator =
+2``: the default complementary estimator drops external positions, so x and y would stay 0), each
+read back from the vehicle; without an external position stream (``external_position=False``) a
+positioning deck must be present. Then log the onboard estimate (position, velocity,
 quaternion, battery) in two blocks within the firmware's 26-byte block limit at ``log_period_ms``
 (10 ms = 100 Hz by default), and send external positions, rate setpoints, arm/disarm and the
 emergency stop. The latest state is kept with its arrival time so the safety layer can tell a
@@ -27,6 +30,12 @@ from dataclasses import dataclass
 
 class LinkError(RuntimeError):
     pass
+
+
+KALMAN_ESTIMATOR = 2  # stabilizer.estimator: 0 any (complementary unless a deck needs Kalman), 1 complementary, 2 Kalman
+# Decks that give the Kalman filter a position (or flow + height) of its own (firmware deck drivers'
+# requiredEstimator = kalman); without one and without mocap, x and y are unobserved.
+POSITIONING_DECKS = ("deck.bcLighthouse4", "deck.bcDWM1000", "deck.bcLoco", "deck.bcFlow", "deck.bcFlow2")
 
 
 def _cflib():
@@ -119,7 +128,10 @@ class CrazyflieLink:
         self.cf = None
 
     # -- connection ------------------------------------------------------------------------
-    def connect(self) -> CrazyflieLink:
+    def connect(self, external_position: bool = True) -> CrazyflieLink:
+        """Open the link, set and read back rate mode and the Kalman estimator, start the logs.
+        ``external_position``: mocap positions will be streamed; if not, a positioning deck is
+        required (:data:`POSITIONING_DECKS`)."""
         crtp, Crazyflie, LogConfig = _cflib()
         import logging
 
@@ -142,8 +154,11 @@ class CrazyflieLink:
             raise LinkError(
                 f"connect: {self.uri}: {_connect_failure(error[0] if error else None, self.connect_timeout_s)}"
             )
-        self.cf.param.set_value("flightmode.stabModeRoll", 0)
-        self.cf.param.set_value("flightmode.stabModePitch", 0)
+        try:
+            self._configure(external_position)
+        except LinkError:
+            self.close()
+            raise
         for name, variables, store in (("state_a", BLOCK_A, "_a"), ("state_b", BLOCK_B, "_b")):
             lc = LogConfig(name=name, period_in_ms=self.log_period_ms)
             for v in variables:
@@ -152,6 +167,51 @@ class CrazyflieLink:
             lc.data_received_cb.add_callback(self._make_cb(store))
             lc.start()
         return self
+
+    def _configure(self, external_position: bool) -> None:
+        if not external_position:
+            decks = [d for d in POSITIONING_DECKS if self._in_toc(d) and self.read_param(d) == 1]
+            if not decks:
+                raise LinkError(
+                    "deploy.mocap.source: none, and the vehicle has no positioning deck (Lighthouse, Loco, Flow): "
+                    "its estimator would not know x and y; set deploy.mocap.source=motioncapture"
+                )
+        for name, value in (
+            ("flightmode.stabModeRoll", 0),
+            ("flightmode.stabModePitch", 0),
+            ("stabilizer.estimator", KALMAN_ESTIMATOR),
+        ):
+            self.set_param_checked(name, value)
+
+    def _in_toc(self, name: str) -> bool:
+        return self.cf.param.toc.get_element_by_complete_name(name) is not None
+
+    def read_param(self, name: str) -> float:
+        """The value the vehicle holds now (asked for over the link, not cflib's cache)."""
+        group, short = name.split(".")
+        got, seen = threading.Event(), []
+
+        def cb(_name, value):
+            seen.append(value)
+            got.set()
+
+        self.cf.param.add_update_callback(group=group, name=short, cb=cb)
+        try:
+            self.cf.param.request_param_update(name)
+            if not got.wait(self._io.timeout_s * 4):
+                raise LinkError(f"connect: no answer reading {name} from the vehicle")
+        finally:
+            self.cf.param.remove_update_callback(group, short, cb)
+        return float(seen[-1])
+
+    def set_param_checked(self, name: str, value: float) -> None:
+        """Set ``name`` and read it back; a vehicle that keeps another value is refused."""
+        if not self._in_toc(name):
+            raise LinkError(f"connect: the vehicle has no parameter {name} (firmware too old?)")
+        self.cf.param.set_value(name, value)
+        got = self.read_param(name)
+        if got != float(value):
+            raise LinkError(f"connect: {name} reads back {got:g} after setting {value}")
 
     def _make_cb(self, store: str):
         def cb(timestamp, data, logconf):
@@ -204,6 +264,12 @@ class CrazyflieLink:
 
     def send_extpos(self, pos_m) -> None:
         self._send("extpos", self.cf.extpos.send_extpos, float(pos_m[0]), float(pos_m[1]), float(pos_m[2]))
+
+    def send_extpose(self, pos_m, quat_wxyz) -> None:
+        """Mocap position and attitude (the Kalman filter then knows the yaw in the mocap frame;
+        with positions alone onboard yaw stays relative to the heading at start-up)."""
+        w, x, y, z = (float(v) for v in quat_wxyz)
+        self._send("extpose", self.cf.extpos.send_extpose, float(pos_m[0]), float(pos_m[1]), float(pos_m[2]), x, y, z, w)
 
     def arm(self, on: bool = True) -> None:
         self._send("arm", self.cf.supervisor.send_arming_request, bool(on))

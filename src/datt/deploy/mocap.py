@@ -1,6 +1,7 @@
 """Position sources for the external-position (mocap) stream sent to the vehicle.
 
-``read() -> (pos_m (x, y, z), t_s) | None`` with ``t_s`` on ``time.monotonic()``:
+``read() -> (pos_m (x, y, z), quat (w, x, y, z) | None, t_s) | None`` with ``t_s`` on
+``time.monotonic()`` (the arrival of the frame; a new frame has a new ``t_s``):
 
 * ``none``: no external position; the onboard estimate is used as is.
 * ``motioncapture``: the ``motioncapture`` library (Vicon, OptiTrack, Qualisys, ...; optional,
@@ -64,8 +65,9 @@ class SimulatedMocap(MocapSource):
             now = time.monotonic()
             cut = self.dropout_after_s is not None and now - self._t0 > self.dropout_after_s
             if not cut and self.rng.random() >= self.dropout_prob:
-                self._buffer.append((tuple(self.server.true_state()["pos_m"]), now))
-            while self._buffer and now - self._buffer[0][1] >= self.latency_s:
+                true = self.server.true_state()
+                self._buffer.append((tuple(true["pos_m"]), tuple(true["quat"]), now))
+            while self._buffer and now - self._buffer[0][-1] >= self.latency_s:
                 self._latest = self._buffer.popleft()
             time.sleep(self.period_s)
 
@@ -100,8 +102,9 @@ class MotionCaptureMocap(MocapSource):
             self.mc.waitForNextFrame()
             for name, obj in self.mc.rigidBodies.items():
                 if name == self.body:
-                    p = obj.position
-                    self._latest = ((float(p[0]), float(p[1]), float(p[2])), time.monotonic())
+                    p, q = obj.position, getattr(obj, "rotation", None)
+                    quat = None if q is None else (float(q.w), float(q.x), float(q.y), float(q.z))
+                    self._latest = ((float(p[0]), float(p[1]), float(p[2])), quat, time.monotonic())
 
     def read(self):
         return self._latest

@@ -135,6 +135,7 @@ class FlightRunner:
         self.phase = "CONNECT"
         self.t0 = time.monotonic()
         self.outcome = "incomplete"
+        self._mocap_sent_t: float | None = None  # time stamp of the last mocap sample forwarded
         self._excitation = None  # calibration: extra thrust (m/s²) as a function of the tick index
 
     # -- helpers ---------------------------------------------------------------------------
@@ -151,15 +152,27 @@ class FlightRunner:
     def _origin(self) -> np.ndarray:
         return np.array([self.p.origin_m[0], self.p.origin_m[1], self.p.takeoff_height_m])
 
+    def _has_mocap(self) -> bool:
+        return self.mocap is not None and self.mocap.name != "none"
+
     def _mocap_age(self) -> float | None:
-        if self.mocap is None or self.mocap.name == "none":
+        """Forward the mocap sample to the vehicle if it is new and not older than
+        ``safety.max_mocap_age_s`` (the Kalman filter takes every packet as a fresh measurement:
+        resending an old sample would pin the estimate where the vehicle was); return its age."""
+        if not self._has_mocap():
             return None
         sample = self.mocap.read()
         if sample is None:
             return math.inf
-        pos, t = sample
-        self.link.send_extpos(pos)
-        return time.monotonic() - t
+        pos, quat, t = sample
+        age = time.monotonic() - t
+        if t != self._mocap_sent_t and age <= self.safety.max_mocap_age_s:
+            if quat is None:
+                self.link.send_extpos(pos)
+            else:
+                self.link.send_extpose(pos, quat)
+            self._mocap_sent_t = t
+        return age
 
     def _send(self, action) -> int:
         roll, pitch, yaw = self.thrust.rates_deg(float(action[1]), float(action[2]), float(action[3]))
@@ -180,7 +193,7 @@ class FlightRunner:
         try:
             with stop_signals(_raise_interrupt):
                 self._set_phase("CONNECT")
-                self.link.connect()
+                self.link.connect(external_position=self._has_mocap())
                 if self.mocap is not None:
                     self.mocap.start()
                 self._set_phase("PREFLIGHT")

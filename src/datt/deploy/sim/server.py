@@ -16,8 +16,17 @@ Firmware behaviour that matters for safety is emulated:
 * **battery**: ``pm.vbat`` falls linearly with motor-on time (``battery_drain_vps``); tests can
   set it (``server.battery_v``).
 
-The onboard estimate logged back is the true state, with the position replaced by the latest
-external position when one arrived within 0.2 s (as the Kalman filter would converge to it).
+The onboard estimate follows the firmware's estimators (``stabilizer.estimator``: 0 = any, which
+runs the complementary filter unless a positioning deck asks for the Kalman filter; 1 =
+complementary; 2 = Kalman):
+
+* **complementary**: attitude, height and vertical speed only; x, y, vx, vy stay 0 and external
+  positions are dropped (as ``estimator_complementary.c`` does);
+* **Kalman**: every external position (``extpos``) or pose (``extpose``) packet is a measurement
+  the estimate jumps to; between measurements it dead-reckons, with its error growing at
+  ``dead_reckoning_drift_mps`` (a real filter on the IMU alone drifts faster). Onboard yaw is
+  relative to the heading at start-up (``boot_yaw_deg`` from the mocap frame's x axis) until an
+  ``extpose`` gives the filter the mocap attitude.
 """
 
 from __future__ import annotations
@@ -54,12 +63,25 @@ LOG_VARS = [  # (group, name, type)
 PARAMS = [  # (group, name, type, default)
     ("flightmode", "stabModeRoll", "uint8_t", 1),
     ("flightmode", "stabModePitch", "uint8_t", 1),
-    ("stabilizer", "estimator", "uint8_t", 2),
+    ("stabilizer", "estimator", "uint8_t", 0),
     ("stabilizer", "controller", "uint8_t", 1),
     ("commander", "enHighLevel", "uint8_t", 0),
     ("locSrv", "extPosStdDev", "float", 0.01),
+    ("locSrv", "extQuatStdDev", "float", 4.5e-3),
+    ("deck", "bcLighthouse4", "uint8_t", 0),
+    ("deck", "bcDWM1000", "uint8_t", 0),
+    ("deck", "bcFlow2", "uint8_t", 0),
 ]
+COMPLEMENTARY, KALMAN = 1, 2
+EXT_POSE = 8  # localization generic channel message type (cflib Localization.EXT_POSE)
 WATCHDOG_LEVEL_S, WATCHDOG_OFF_S = 0.5, 2.0
+
+
+def _yaw_rotated(q: list[float], angle_rad: float) -> list[float]:
+    """``q`` (w, x, y, z) pre-multiplied by a rotation of ``angle_rad`` about the world z axis."""
+    c, s = math.cos(angle_rad / 2), math.sin(angle_rad / 2)
+    w, x, y, z = q
+    return [c * w - s * z, c * x - s * y, c * y + s * x, c * z + s * w]
 
 
 def _toc_crc(entries: list[tuple]) -> int:
@@ -75,6 +97,9 @@ class SimCrazyflieParams:
     battery_drain_vps: float = 0.002
     start_pos_m: tuple = (0.0, 0.0, 0.0)
     thrust: ThrustParams = field(default_factory=ThrustParams)
+    decks: tuple = ()  # deck param names present, e.g. ("bcLighthouse4",): 0 = any then picks Kalman
+    boot_yaw_deg: float = 0.0  # heading at start-up in the mocap frame (onboard yaw is relative to it)
+    dead_reckoning_drift_mps: float = 0.2  # Kalman estimate error growth without measurements (along x)
 
 
 class SimCrazyflie:
@@ -94,14 +119,20 @@ class SimCrazyflie:
             disturbance.reset(torch.arange(1), self.quad.state)
         self.battery_v = self.p.battery_v
         self.params = {f"{g}.{n}": v for g, n, _, v in PARAMS}
+        for deck in self.p.decks:
+            if f"deck.{deck}" not in self.params:
+                raise ConfigError(f"deploy.server.decks: unknown deck {deck!r}; allowed: bcLighthouse4, bcDWM1000, bcFlow2")
+            self.params[f"deck.{deck}"] = 1
+        self.read_only = {f"{g}.{n}" for g, n, _, _ in PARAMS if g == "deck"}
+        self.pos_error_m = [0.0, 0.0, 0.0]  # Kalman: estimate - true position (held between measurements)
+        self.yaw_aligned = False  # an extpose has told the Kalman filter the mocap yaw
+        self.extpos_rx: list[tuple[float, tuple]] = []  # (monotonic time, position) of every ext position/pose
         self.log_blocks: dict[int, dict] = {}
         self.armed = False
         self.thrust_locked = True
         self.emergency_stopped = False
         self.cmd = (0.0, 0.0, 0.0, 0)  # wx, wy, wz (rad/s), thrust command
         self.last_setpoint_t = -math.inf
-        self.extpos: tuple[float, float, float] | None = None
-        self.extpos_t = -math.inf
         self.client = None
         self.sim_time_s = 0.0
         self.events: list[tuple[float, str]] = []
@@ -195,15 +226,33 @@ class SimCrazyflie:
             s.quat[0] = torch.tensor([1.0, 0.0, 0.0, 0.0])
         if self.motors_on:
             self.battery_v -= self.p.battery_drain_vps * self.p.dt_s
+        if self.params["deck.bcLighthouse4"] or self.params["deck.bcDWM1000"]:
+            self.pos_error_m = [0.0, 0.0, 0.0]  # the deck measures the position itself
+        else:  # dead reckoning until the next external measurement
+            self.pos_error_m[0] += self.p.dead_reckoning_drift_mps * self.p.dt_s
         self.sim_time_s += self.p.dt_s
+
+    @property
+    def estimator(self) -> int:
+        """The estimator running: the requested one, or for 0 (any) Kalman if a positioning deck
+        is present, else complementary."""
+        requested = int(self.params["stabilizer.estimator"])
+        if requested in (COMPLEMENTARY, KALMAN):
+            return requested
+        return KALMAN if any(self.params[f"deck.{d}"] for d in ("bcLighthouse4", "bcDWM1000", "bcFlow2")) else COMPLEMENTARY
 
     def _estimate(self) -> list[float]:
         s = self.quad.state
-        pos = s.pos_m[0].tolist()
-        if self.extpos is not None and self.sim_time_s - self.extpos_t < 0.2:
-            pos = list(self.extpos)
-        q = s.quat[0].tolist()  # (w, x, y, z) -> firmware order qx, qy, qz, qw
-        return [*pos, *s.vel_mps[0].tolist(), q[1], q[2], q[3], q[0], self.battery_v, float(self.armed)]
+        pos, vel = s.pos_m[0].tolist(), s.vel_mps[0].tolist()
+        q = s.quat[0].tolist()  # (w, x, y, z)
+        if self.estimator == COMPLEMENTARY:
+            pos[0] = pos[1] = vel[0] = vel[1] = 0.0
+        else:
+            pos = [p + e for p, e in zip(pos, self.pos_error_m)]
+        if not self.yaw_aligned and self.p.boot_yaw_deg:
+            q = _yaw_rotated(q, -math.radians(self.p.boot_yaw_deg))
+        # firmware order qx, qy, qz, qw
+        return [*pos, *vel, q[1], q[2], q[3], q[0], self.battery_v, float(self.armed)]
 
     def _send_logs(self) -> None:
         if self.client is None:
@@ -325,7 +374,7 @@ class SimCrazyflie:
         group, name, ctype, _ = PARAMS[ident]
         fmt = crtp.PARAM_TYPES[ctype][1]
         key = f"{group}.{name}"
-        if ch == 2:  # write, echoed back as the firmware does
+        if ch == 2 and key not in self.read_only:  # write, echoed back as the firmware does
             self.params[key] = struct.unpack(fmt, data[2 : 2 + struct.calcsize(fmt)])[0]
             self._event(f"param {key} = {self.params[key]}")
         if ch in (1, 2):
@@ -359,8 +408,21 @@ class SimCrazyflie:
 
     def _on_localization(self, ch: int, data: bytes) -> None:
         if ch == 0 and len(data) >= 12:
-            self.extpos = struct.unpack("<fff", data[:12])
-            self.extpos_t = self.sim_time_s
+            self._measure(struct.unpack("<fff", data[:12]), None)
+        elif ch == 1 and len(data) >= 29 and data[0] == EXT_POSE:
+            x, y, z, qx, qy, qz, qw = struct.unpack("<fffffff", data[1:29])
+            self._measure((x, y, z), (qw, qx, qy, qz))
+
+    def _measure(self, pos_m: tuple, quat_wxyz: tuple | None) -> None:
+        """An external position (and attitude): the Kalman filter takes it; the complementary
+        filter drops it."""
+        self.extpos_rx.append((time.monotonic(), tuple(pos_m)))
+        if self.estimator != KALMAN:
+            return
+        true = self.quad.state.pos_m[0].tolist()
+        self.pos_error_m = [m - t for m, t in zip(pos_m, true)]
+        if quat_wxyz is not None:
+            self.yaw_aligned = True
 
     def _on_supervisor(self, ch: int, data: bytes) -> None:
         if ch != 1 or not data:

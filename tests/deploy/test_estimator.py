@@ -1,0 +1,133 @@
+"""The onboard estimator as the firmware runs it, and the runner that feeds it (issue 18): the
+complementary filter drops external positions, the Kalman filter is selected and read back at
+connect, mocap samples are sent once and never stale, and the mocap attitude aligns onboard yaw."""
+
+import itertools
+import math
+import struct
+
+import pytest
+
+pytest.importorskip("cflib")
+
+from datt.configuration import compose  # noqa: E402
+from datt.deploy import crtp  # noqa: E402
+from datt.deploy.sim import SimCrazyflie, SimCrazyflieParams  # noqa: E402
+from datt.errors import ConfigError  # noqa: E402
+from datt.tasks.deploy import run_deploy  # noqa: E402
+
+from . import SHORT_FLIGHT  # noqa: E402
+
+pytestmark = pytest.mark.flight
+_ports = itertools.count(19930)
+
+
+def estimate(server):
+    x, y, z, vx, vy, vz, qx, qy, qz, qw, *_ = server._estimate()
+    return (x, y, z), (qw, qx, qy, qz)
+
+
+def yaw_deg(q):
+    w, x, y, z = q
+    return math.degrees(math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z)))
+
+
+def hovering_server(**params):
+    server = SimCrazyflie(SimCrazyflieParams(port=next(_ports), start_pos_m=(0.4, -0.3, 0.0), **params))
+    return server
+
+
+def test_complementary_estimator_drops_external_positions():
+    server = hovering_server()  # estimator 0 (any) and no deck: the firmware runs the complementary filter
+    assert server.estimator == 1
+    server._on_localization(0, struct.pack("<fff", 0.5, -0.25, 0.0))
+    (x, y, z), _ = estimate(server)
+    assert (x, y) == (0.0, 0.0)  # not the true (0.4, -0.3), not the sent (0.5, -0.25)
+    server.params["stabilizer.estimator"] = 2
+    server._on_localization(0, struct.pack("<fff", 0.5, -0.25, 0.0))
+    (x, y, z), _ = estimate(server)
+    assert (x, y) == pytest.approx((0.5, -0.25))
+
+
+def test_kalman_estimate_drifts_without_measurements():
+    server = hovering_server(dead_reckoning_drift_mps=0.2)
+    server.params["stabilizer.estimator"] = 2
+    server._on_localization(0, struct.pack("<fff", 0.4, -0.3, 0.0))
+    for _ in range(50):  # 1 s without a measurement
+        server._physics_step()
+    (x, y, _), _ = estimate(server)
+    assert x == pytest.approx(0.4 + 0.2, abs=1e-6) and y == pytest.approx(-0.3, abs=1e-6)
+
+
+def test_a_positioning_deck_selects_kalman_and_measures_the_position():
+    server = hovering_server(decks=("bcLighthouse4",))
+    assert server.estimator == 2
+    for _ in range(50):
+        server._physics_step()
+    (x, y, _), _ = estimate(server)
+    assert (x, y) == pytest.approx((0.4, -0.3), abs=1e-6)
+    with pytest.raises(ConfigError, match=r"^deploy.server.decks: unknown deck 'bcRadar'; allowed: "):
+        hovering_server(decks=("bcRadar",))
+
+
+def test_extpose_aligns_onboard_yaw():
+    server = hovering_server(boot_yaw_deg=25.0)
+    server.params["stabilizer.estimator"] = 2
+    _, q = estimate(server)
+    assert yaw_deg(q) == pytest.approx(-25.0, abs=1e-4)  # true heading 0, onboard relative to boot
+    server._on_localization(0, struct.pack("<fff", 0.4, -0.3, 0.0))  # positions alone do not fix it
+    assert yaw_deg(estimate(server)[1]) == pytest.approx(-25.0, abs=1e-4)
+    server._on_localization(1, struct.pack("<Bfffffff", 8, 0.4, -0.3, 0.0, 0.0, 0.0, 0.0, 1.0))
+    assert yaw_deg(estimate(server)[1]) == pytest.approx(0.0, abs=1e-4)
+
+
+def test_extpose_golden_bytes_reach_the_simulated_filter():
+    from cflib.crazyflie.localization import Localization
+
+    from .test_protocol import Capture
+
+    cf = Capture()
+    Localization(cf).send_extpose([0.5, -1.0, 1.25], [0.0, 0.0, 0.2588190, 0.9659258])
+    port, ch, data = crtp.split(cf.sent[0])
+    assert (port, ch, data[0]) == (crtp.PORT_LOCALIZATION, 1, 8)
+    server = hovering_server(boot_yaw_deg=10.0)
+    server.params["stabilizer.estimator"] = 2
+    server._on_localization(ch, data)
+    (x, y, z), q = estimate(server)
+    assert (x, y) == pytest.approx((0.5, -1.0))  # z: the true height plus the measurement's offset
+    assert server.yaw_aligned and server.extpos_rx[-1][1] == pytest.approx((0.5, -1.0, 1.25))
+
+
+def _fly(tmp_path, *overrides):
+    cfg = compose("deploy", [f"deploy.uri=udp://127.0.0.1:{next(_ports)}", *SHORT_FLIGHT, *overrides])
+    seen = {}
+    summary = run_deploy(cfg, run_dir=tmp_path, server_hook=lambda s, r: seen.update(server=s, runner=r))
+    return summary, seen["server"], seen["runner"]
+
+
+def test_connect_selects_kalman_and_the_flight_uses_mocap_attitude(tmp_path):
+    summary, server, _ = _fly(tmp_path)
+    assert summary["outcome"] == "landed"
+    assert server.params["stabilizer.estimator"] == 2
+    assert server.params["flightmode.stabModeRoll"] == 0 and server.params["flightmode.stabModePitch"] == 0
+    assert server.yaw_aligned  # the default simulated vehicle booted 25 deg off the mocap x axis
+
+
+def test_stale_mocap_is_never_sent(tmp_path):
+    """After the mocap stream stops, the runner sends nothing more (it used to resend the last
+    sample every tick, pinning the Kalman estimate where the vehicle had been)."""
+    summary, server, runner = _fly(tmp_path, "deploy.mocap.dropout_after_s=3.5")
+    assert summary["outcome"].startswith("landed early: mocap stale"), summary["outcome"]
+    cut = runner.mocap._t0 + 3.5
+    latest_fresh = cut + runner.mocap.latency_s + runner.safety.max_mocap_age_s + 0.1
+    late = [t for t, _ in server.extpos_rx if t > latest_fresh]
+    assert server.extpos_rx and not late, f"{len(late)} stale samples sent"
+    sent = [p for _, p in server.extpos_rx]
+    assert len(sent) > 100
+
+
+def test_no_mocap_needs_a_positioning_deck(tmp_path):
+    with pytest.raises(ConfigError, match=r"^deploy.mocap.source: none, and the vehicle has no positioning deck"):
+        _fly(tmp_path, "deploy.mocap.source=none")
+    summary, server, _ = _fly(tmp_path / "lh", "deploy.mocap.source=none", "deploy.server.decks=[bcLighthouse4]")
+    assert summary["outcome"] == "landed" and server.estimator == 2
