@@ -169,10 +169,12 @@ def test_real_crazyflie_connects_and_logs():  # pragma: no cover - needs a Crazy
         link.close()
 
 
-def test_hover_calibration_finds_the_true_hover_command(tmp_path):
-    from datt.deploy.thrust import ThrustMap, ThrustParams
+def test_hover_calibration_finds_the_true_hover_command_and_slope(tmp_path):
+    from datt.deploy.sim.motors import FirmwareMotors, MotorParams
+    from datt.deploy.thrust import ThrustMap
 
-    # the vehicle is 6 % heavier than the configured mass: the nominal hover command is 4 % low
+    # the vehicle is 6 % heavier than configured and its motors 5 % weaker than the firmware's fit:
+    # the nominal hover command is ~11 % low and the slope ~11 % high
     cfg = compose(
         "deploy",
         [
@@ -180,12 +182,17 @@ def test_hover_calibration_finds_the_true_hover_command(tmp_path):
             *SHORT,
             "deploy.mode=calibrate",
             "deploy.server.mass_kg=0.036",
+            "deploy.server.thrust_gain=0.95",
             "deploy.calibrate_hover_s=3.0",
         ],
     )
     summary = run_deploy(cfg, run_dir=tmp_path)
-    true_hover = ThrustMap(ThrustParams(mass_kg=0.036)).hover_command
-    nominal = ThrustMap().hover_command
-    assert abs(nominal - true_hover) / true_hover > 0.03
+    vehicle = FirmwareMotors(MotorParams(mass_kg=0.036, thrust_gain=0.95))
+    true_slope = vehicle.thrust_mps2(40000, 4.1) / 40000
+    true_hover = 9.81 / true_slope
+    nominal = ThrustMap()
+    assert abs(nominal.hover_command - true_hover) / true_hover > 0.08
     assert summary["outcome"] == "landed"
-    assert abs(summary["hover_command"] - true_hover) / true_hover < 0.01
+    fit = summary["calibration"]
+    assert abs(fit["hover_command"] - true_hover) / true_hover < 0.01
+    assert abs(fit["slope_mps2_per_command"] - true_slope) / true_slope < 0.15

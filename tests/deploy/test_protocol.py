@@ -12,7 +12,7 @@ from cflib.crazyflie.localization import Localization  # noqa: E402
 from cflib.crazyflie.supervisor import Supervisor  # noqa: E402
 
 from datt.deploy import crtp  # noqa: E402
-from datt.deploy.thrust import ThrustMap, ThrustParams, fit_hover_command  # noqa: E402
+from datt.deploy.thrust import ThrustMap, ThrustParams, fit_hover  # noqa: E402
 
 
 class Capture:
@@ -72,7 +72,7 @@ def test_log_and_param_packets_golden_bytes():
 def test_thrust_map_round_trip_and_hover():
     tm = ThrustMap()
     assert tm.thrust_mps2(tm.command(9.81)) == pytest.approx(9.81, abs=0.01)
-    for a in (2.0, 9.81, 15.0):
+    for a in (2.0, 9.81, 12.5):
         assert tm.thrust_mps2(tm.command(a)) == pytest.approx(a, rel=2e-3)
     assert tm.command(0.0) == 0 and tm.command(float("nan")) == 0 and tm.command(-3.0) == 0
     # beyond what the motors can do (the policy allows g + 30 m/s²): clipped to max_command
@@ -91,15 +91,15 @@ def test_rate_conventions_round_trip_through_the_wire():
     _, _, data = crtp.split(cf.sent[0])
     r, p_wire, y, _ = struct.unpack("<fffH", data)
     assert ThrustMap.body_rates_from_wire(r, p_wire, y) == pytest.approx((wx, wy, wz), rel=1e-5)
-    assert tm.rates_deg(100.0, 0.0, 0.0)[0] == 720.0  # clipped to firmware limits
+    assert tm.rates_deg(100.0, 0.0, 0.0)[0] == 720.0  # clipped to deploy.thrust.max_rate_degps
 
 
 def test_hover_calibration_fit():
     cmds = [38000.0, 40000.0, 42000.0, 44000.0]
     acc = [0.002 * (c - 41000.0) for c in cmds]
-    assert fit_hover_command(cmds, acc) == pytest.approx(41000.0)
+    assert fit_hover(cmds, acc) == pytest.approx((41000.0, 0.002))
     with pytest.raises(ValueError):
-        fit_hover_command([40000.0, 40000.0], [0.0, 1.0])
+        fit_hover([40000.0, 40000.0], [0.0, 1.0])
 
 
 def test_tilt_is_the_angle_of_body_z_from_world_z():

@@ -1,5 +1,7 @@
-"""The thrust map against its definition (Bitcraze motor model f(c) = k2 c² + k1 c + k0 per motor,
-a = 4 s f(c) / m with s fixing the hover point) and the rate conventions, value by value."""
+"""The thrust map against its definition (the firmware's battery-compensated linear map: per motor
+F = c / 65535 * THRUST_MAX, so a = k c with k = 4 THRUST_MAX / (65535 m); calibrated: through the
+measured hover point with the measured slope), the simulated vehicle's own motors against the
+firmware's code, and the rate conventions, value by value."""
 
 import math
 
@@ -7,60 +9,55 @@ import pytest
 
 from datt.configuration import compose
 from datt.deploy.schema import deploy_params
-from datt.deploy.thrust import ThrustMap, ThrustParams, fit_hover_command
+from datt.deploy.sim.motors import VMOTOR2THRUST_21_PLUS, FirmwareMotors, MotorParams
+from datt.deploy.thrust import ThrustMap, ThrustParams, fit_hover
 from datt.errors import ConfigError
 
 P = ThrustParams()
+K = 4 * 0.12 / (65535 * 0.034)  # m/s² per command unit for the default 34 g vehicle, THRUST_MAX 0.12 N
 
 
-def test_force_is_the_bitcraze_quadratic():
+def test_uncalibrated_map_is_the_firmware_line_through_zero():
     tm = ThrustMap()
-    for c in (0.0, 10000.0, 40000.0, 65535.0):
-        assert tm.force_n(c) == P.k2 * c * c + P.k1 * c + P.k0
-    assert tm.force_n(0.0) == P.k0
+    assert tm.slope == pytest.approx(K, rel=1e-12) and tm.firmware_slope == tm.slope
+    assert tm.hover_command == pytest.approx(9.81 / K, rel=1e-12)  # 45,539 for 34 g
+    for c in (1, 10000, 45539, 60000):
+        assert tm.thrust_mps2(c) == pytest.approx(K * c, rel=1e-9)
+    assert tm.ceiling_mps2 == pytest.approx(K * 60000, rel=1e-9)
+    assert tm.ceiling_mps2 == pytest.approx(12.92, abs=0.01)
 
 
-def test_model_hover_point_without_calibration():
-    """Uncalibrated, s = 1 and the hover command is the root of 4 f(c) = m g."""
-    tm = ThrustMap()
-    assert tm.scale == pytest.approx(1.0, rel=1e-12)
-    assert 4 * tm.force_n(tm.hover_command) == pytest.approx(P.mass_kg * P.gravity_mps2, rel=1e-9)
-    assert 30000 < tm.hover_command < 50000
+def test_firmware_version_changes_the_slope():
+    old = ThrustMap(ThrustParams(thrust_max_n=0.1125))
+    assert old.slope == pytest.approx(K * 0.1125 / 0.12, rel=1e-12)
+    assert old.hover_command == pytest.approx(9.81 / old.slope, rel=1e-12)
 
 
-def test_calibrated_hover_scales_the_model():
-    tm = ThrustMap(ThrustParams(hover_command=42000.0))
-    assert tm.hover_command == 42000.0
-    assert tm.scale == pytest.approx(P.mass_kg * P.gravity_mps2 / (4 * tm.force_n(42000.0)))
-    assert tm.thrust_mps2(42000) == pytest.approx(P.gravity_mps2, rel=1e-12)
-    heavier = ThrustMap(ThrustParams(mass_kg=0.040, hover_command=42000.0))
-    assert heavier.thrust_mps2(42000) == pytest.approx(P.gravity_mps2, rel=1e-12)
-
-
-@pytest.mark.parametrize("a", [0.5, 2.0, 9.81, 14.0])
-def test_command_inverts_the_model(a):
-    """command(a) is the rounded root c of 4 s f(c) / m = a."""
+@pytest.mark.parametrize("a", [0.5, 2.0, 9.81, 12.0])
+def test_command_inverts_the_map(a):
     tm = ThrustMap()
     c = tm.command(a)
-    exact = (-P.k1 + math.sqrt(P.k1**2 - 4 * P.k2 * (P.k0 - P.mass_kg * a / (4 * tm.scale)))) / (2 * P.k2)
-    assert c == round(exact) and isinstance(c, int)
-    assert tm.thrust_mps2(c) == pytest.approx(4 * tm.scale * tm.force_n(float(c)) / P.mass_kg)
+    assert c == round(tm.hover_command + (a - 9.81) / K) and isinstance(c, int)
+    assert tm.thrust_mps2(c) == pytest.approx(a, abs=K)
 
 
-def test_commands_at_and_below_the_motor_floor():
+def test_calibrated_map_runs_through_the_measured_hover_point_with_the_measured_slope():
+    tm = ThrustMap(ThrustParams(hover_command=42000.0, slope_mps2_per_command=3.0e-4))
+    assert tm.command(9.81) == 42000
+    assert tm.command(9.81 + 3.0) == 42000 + 10000
+    assert tm.thrust_mps2(32000) == pytest.approx(9.81 - 3.0)
+    assert tm.thrust_mps2(5000) == 0.0  # below the line's zero: no negative thrust
+    # a calibrated hover command alone keeps the firmware slope
+    assert ThrustMap(ThrustParams(hover_command=42000.0)).slope == pytest.approx(K)
+
+
+def test_commands_out_of_range():
     tm = ThrustMap()
-    floor_a = 4 * tm.scale * P.k0 / P.mass_kg  # the thrust of command 0 (the model's k0)
-    assert tm.command(floor_a) == 0 and tm.command(floor_a * 0.5) == 0
-    assert tm.command(floor_a * 1.5) > 0
-    assert tm.thrust_mps2(0) == 0.0 and tm.thrust_mps2(-5) == 0.0
-    assert tm.thrust_mps2(1) > 0.0
-    assert tm.command(float("inf")) == 0  # non-finite: motors off, never full power
-
-
-def test_max_command_clips():
-    tm = ThrustMap(ThrustParams(max_command=50000))
-    assert tm.command(1000.0) == 50000
+    assert tm.command(0.0) == 0 and tm.command(-3.0) == 0
+    assert tm.command(float("nan")) == 0 and tm.command(float("inf")) == 0  # motors off, never full power
+    assert tm.command(25.0) == 60000 and tm.thrust_mps2(60000) < 25.0  # the policy may ask g + 30
     assert ThrustMap(ThrustParams(max_command=65535)).command(1000.0) == 65535
+    assert tm.thrust_mps2(0) == 0.0 and tm.thrust_mps2(-5) == 0.0
 
 
 def test_rates_and_limits():
@@ -76,16 +73,24 @@ def test_thrust_params_are_the_deploy_config_defaults():
 
     _, _, _, from_yaml = deploy_params(compose("deploy", []).deploy)
     assert asdict(from_yaml) == asdict(ThrustParams())
+    assert asdict(from_yaml) == asdict(deploy_params(compose("deploy", ["deploy=crazyflie"]).deploy)[3])
 
 
 @pytest.mark.parametrize(
     "kwargs, message",
     [
         ({"mass_kg": 0.0}, "deploy.thrust.mass_kg: must be > 0, got 0.0"),
+        ({"thrust_max_n": 0.0}, "deploy.thrust.thrust_max_n: must be > 0, got 0.0"),
         ({"max_command": 0}, "deploy.thrust.max_command: must be in (0, 65535], got 0"),
         ({"max_command": 65536}, "deploy.thrust.max_command: must be in (0, 65535], got 65536"),
         ({"hover_command": 0.0}, "deploy.thrust.hover_command: must be in (0, max_command), got 0.0"),
         ({"hover_command": 60000.0}, "deploy.thrust.hover_command: must be in (0, max_command), got 60000.0"),
+        ({"slope_mps2_per_command": -1.0}, "deploy.thrust.slope_mps2_per_command: must be > 0 or null, got -1.0"),
+        (
+            {"mass_kg": 0.05},
+            "deploy.thrust: a 50.0 g vehicle needs command 66969 to hover with thrust_max_n=0.12 N, "
+            "above max_command=60000",
+        ),
     ],
 )
 def test_thrust_params_validation(kwargs, message):
@@ -95,18 +100,52 @@ def test_thrust_params_validation(kwargs, message):
     ThrustParams(hover_command=59999.0).validate()
 
 
-def test_hover_fit_is_the_zero_of_the_least_squares_line():
+def test_hover_fit_is_the_least_squares_line():
     cmds = [38000.0, 40000.0, 42000.0, 45000.0]
     acc = [0.002 * (c - 41000.0) + e for c, e in zip(cmds, (0.01, -0.02, 0.015, -0.005))]
     n = len(cmds)
     mc, ma = sum(cmds) / n, sum(acc) / n
     slope = sum((c - mc) * (a - ma) for c, a in zip(cmds, acc)) / sum((c - mc) ** 2 for c in cmds)
-    assert fit_hover_command(cmds, acc) == pytest.approx(mc - ma / slope, rel=1e-12)
+    hover, fitted_slope = fit_hover(cmds, acc)
+    assert hover == pytest.approx(mc - ma / slope, rel=1e-12) and fitted_slope == pytest.approx(slope, rel=1e-12)
     message = "calibration needs at least two distinct commands with one acceleration each"
     for bad in (([40000.0], [0.0]), ([40000.0, 41000.0], [0.0]), ([40000.0, 40000.0], [0.0, 1.0])):
         with pytest.raises(ValueError, match=f"^{message}$"):
-            fit_hover_command(*bad)
+            fit_hover(*bad)
     with pytest.raises(ValueError, match="^calibration: acceleration does not increase with the command$"):
-        fit_hover_command([40000.0, 42000.0], [1.0, -1.0])
+        fit_hover([40000.0, 42000.0], [1.0, -1.0])
     with pytest.raises(ValueError, match="^calibration: acceleration does not increase"):
-        fit_hover_command([40000.0, 42000.0], [1.0, 1.0])
+        fit_hover([40000.0, 42000.0], [1.0, 1.0])
+
+
+# -- the simulated vehicle's motors (datt.deploy.sim.motors) against motors.c -------------------
+def test_simulated_motors_follow_the_firmware_line_with_a_full_battery():
+    m = FirmwareMotors(MotorParams(mass_kg=0.034))
+    for c in (10000, 30000, 45539, 60000, 65535):
+        assert m.motor_force_n(c, 4.1) == pytest.approx(c / 65535 * 0.12, rel=1e-12)
+        assert m.thrust_mps2(c, 4.1) == pytest.approx(K * c, rel=1e-9)
+
+
+def test_simulated_motors_stop_below_thrust_min_and_without_a_battery():
+    m = FirmwareMotors()
+    floor = math.ceil(0.012817578393224994 / 0.12 * 65535)  # the firmware's THRUST_MIN as a command
+    assert m.motor_force_n(floor - 1, 4.1) == 0.0 and m.motor_force_n(floor, 4.1) > 0.0
+    assert m.motor_force_n(40000, 1.9) == 0.0  # < 2 V: the firmware's sanity floor
+
+
+def test_a_low_battery_caps_the_force_at_the_cubic_fit():
+    m = FirmwareMotors()
+    p0, p1, p2, p3 = VMOTOR2THRUST_21_PLUS
+    at_3v = p0 + p1 * 3.0 + p2 * 9.0 + p3 * 27.0  # 0.1128 N < THRUST_MAX
+    assert m.motor_force_n(65535, 3.0) == pytest.approx(at_3v, rel=1e-12)
+    assert m.motor_force_n(30000, 3.0) == pytest.approx(30000 / 65535 * 0.12, rel=1e-12)  # within reach
+
+
+def test_simulated_motors_are_the_vehicles_not_the_controllers():
+    weak = FirmwareMotors(MotorParams(mass_kg=0.034, thrust_gain=0.9))
+    heavy = FirmwareMotors(MotorParams(mass_kg=0.0374))
+    c = ThrustMap().hover_command  # the controller's hover point for the nominal vehicle
+    assert weak.thrust_mps2(round(c), 4.1) == pytest.approx(0.9 * 9.81, rel=1e-4)
+    assert heavy.thrust_mps2(round(c), 4.1) == pytest.approx(9.81 / 1.1, rel=1e-4)
+    with pytest.raises(ConfigError, match=r"^deploy.server.thrust_gain: must be > 0, got 0.0$"):
+        FirmwareMotors(MotorParams(thrust_gain=0.0))

@@ -32,7 +32,8 @@ class LinkError(RuntimeError):
     pass
 
 
-KALMAN_ESTIMATOR = 2  # stabilizer.estimator: 0 any (complementary unless a deck needs Kalman), 1 complementary, 2 Kalman
+# stabilizer.estimator: 0 any (complementary unless a deck needs Kalman), 1 complementary, 2 Kalman
+KALMAN_ESTIMATOR = 2
 # Decks that give the Kalman filter a position (or flow + height) of its own (firmware deck drivers'
 # requiredEstimator = kalman); without one and without mocap, x and y are unobserved.
 POSITIONING_DECKS = ("deck.bcLighthouse4", "deck.bcDWM1000", "deck.bcLoco", "deck.bcFlow", "deck.bcFlow2")
@@ -184,7 +185,8 @@ class CrazyflieLink:
             self.set_param_checked(name, value)
 
     def _in_toc(self, name: str) -> bool:
-        return self.cf.param.toc.get_element_by_complete_name(name) is not None
+        group, short = name.split(".")
+        return short in self.cf.param.toc.toc.get(group, {})
 
     def read_param(self, name: str) -> float:
         """The value the vehicle holds now (asked for over the link, not cflib's cache)."""
@@ -269,7 +271,8 @@ class CrazyflieLink:
         """Mocap position and attitude (the Kalman filter then knows the yaw in the mocap frame;
         with positions alone onboard yaw stays relative to the heading at start-up)."""
         w, x, y, z = (float(v) for v in quat_wxyz)
-        self._send("extpose", self.cf.extpos.send_extpose, float(pos_m[0]), float(pos_m[1]), float(pos_m[2]), x, y, z, w)
+        px, py, pz = (float(v) for v in pos_m)
+        self._send("extpose", self.cf.extpos.send_extpose, px, py, pz, x, y, z, w)
 
     def arm(self, on: bool = True) -> None:
         self._send("arm", self.cf.supervisor.send_arming_request, bool(on))

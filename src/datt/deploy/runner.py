@@ -254,9 +254,10 @@ class FlightRunner:
         """Hover calibration flight: takeoff, then hold the hover point with the PID while a slow
         square wave of ±``excitation_mps2`` is added to its thrust; fit the command at which the
         vertical acceleration (from the logged velocity, ``lag_ticks`` after the command) is zero
-        (:func:`~datt.deploy.thrust.fit_hover_command`), then land. Returns the summary with
-        ``hover_command`` (set it as ``deploy.thrust.hover_command``)."""
-        from datt.deploy.thrust import fit_hover_command
+        and the slope of acceleration against command (:func:`~datt.deploy.thrust.fit_hover`), then
+        land. Returns the summary with ``calibration`` = ``{hover_command, slope_mps2_per_command}``
+        (set them as ``deploy.thrust.*``)."""
+        from datt.deploy.thrust import fit_hover
 
         fitted = {}
 
@@ -278,13 +279,14 @@ class FlightRunner:
                 rows = self.rows[first:]
                 acc = np.diff([r["vel"][2] for r in rows]) * self.p.rate_hz
                 cmds = [float(r["thrust_cmd"]) for r in rows[: len(acc) - lag_ticks]]
-                fitted["hover_command"] = fit_hover_command(cmds, list(acc[lag_ticks:]))
-                self._event("calibrated", f"hover command {fitted['hover_command']:.0f}")
+                hover, slope = fit_hover(cmds, list(acc[lag_ticks:]))
+                fitted.update(hover_command=hover, slope_mps2_per_command=slope)
+                self._event("calibrated", f"hover command {hover:.0f}, slope {slope:.3e} m/s² per unit")
             if result != KILL:
                 self._land(origin)
 
         summary = self._flight(build, airborne)
-        summary["hover_command"] = fitted.get("hover_command")
+        summary["calibration"] = fitted or None
         return summary
 
     def _preflight(self) -> np.ndarray:

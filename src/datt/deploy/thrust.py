@@ -1,24 +1,32 @@
 """Policy action -> Crazyflie setpoint: thrust in m/s² to the firmware's 16-bit command, body rates
-in rad/s to the legacy commander's deg/s, and back (the simulated firmware decodes with the same
-model, so the round trip is tested).
+in rad/s to the legacy commander's deg/s, and back.
 
-Thrust model (Bitcraze system identification of the Crazyflie 2.x motors, Förster 2015): one
-motor's force at command ``c`` in [0, 65535] is ``f(c) = k2 c² + k1 c + k0`` N. The vehicle's
-collective acceleration is ``a = 4 s f(c) / m`` where ``s`` corrects the model with a calibrated
-hover command ``c_h`` (``s = m g / (4 f(c_h))``: at ``c_h`` the vehicle hovers exactly). Inverting
-the quadratic gives ``c(a)``; commands are clipped to ``[0, max_command]``.
+Thrust map: the firmware (``motors.c`` with ``CONFIG_ENABLE_THRUST_BAT_COMPENSATED``, the default)
+turns the command ``c`` in [0, 65535] into a per-motor force ``c / 65535 * THRUST_MAX`` and finds
+the motor voltage for it from a cubic fit, compensating the battery voltage: thrust is *linear* in
+the command. ``THRUST_MAX`` depends on the firmware (``platform_defaults_cf2.h``): 0.12 N per motor
+since 2025-11 (commit b6127943), 0.1125 N before; 0.18 N (0.1625 before) with the thrust upgrade
+kit. So a vehicle of mass ``m`` gets ``a = k c`` with ``k = 4 THRUST_MAX / (65535 m)`` m/s² per
+command unit, hovers at ``g / k`` and tops out at ``k * max_command`` (34 g, 0.12 N, 60000: 12.9
+m/s²). A calibration flight (:func:`fit_hover`) measures the real vehicle's hover command and
+slope; the map then runs through the measured hover point with the measured slope:
+``c(a) = c_h + (a - g) / k``. Commands are clipped to ``[0, max_command]`` (the headroom above is
+left to the rate controller's mixing).
 
 Rate conventions (FLU body frame, as the simulator and the policy): the legacy RPYT packet in
 rate mode carries roll rate ``deg(ωx)``, pitch ``deg(ωy)`` (cflib negates it on the wire and the
 firmware's legacy pitch sign negates it back) and yaw ``−deg(ωz)`` (the firmware negates the
 legacy yaw). This follows the firmware sources (``crtp_commander_rpyt.c``, ``controller_pid.c``);
-check it on a vehicle with the ``hardware`` test before a real flight.
+check it on a vehicle with the ``hardware`` test before a real flight. The firmware does not
+limit rate setpoints; ``max_rate_degps`` is this project's limit on what it sends.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+
+UINT16_MAX = 65535
 
 
 @dataclass
@@ -27,10 +35,9 @@ class ThrustParams:
 
     mass_kg: float = 0.034
     gravity_mps2: float = 9.81
-    k2: float = 2.130295e-11
-    k1: float = 1.032633e-6
-    k0: float = 5.484560e-4
-    hover_command: float | None = None  # calibrated; None = the model's own hover point
+    thrust_max_n: float = 0.12  # the firmware's THRUST_MAX per motor (0.1125 before 2025-11; kit: 0.18 / 0.1625)
+    hover_command: float | None = None  # calibrated; None = the firmware map's own (g / k)
+    slope_mps2_per_command: float | None = None  # calibrated k; None = 4 THRUST_MAX / (65535 m)
     max_command: int = 60000
     max_rate_degps: list = field(default_factory=lambda: [720.0, 720.0, 400.0])
 
@@ -39,44 +46,51 @@ class ThrustParams:
 
         if not self.mass_kg > 0:
             raise ConfigError(f"deploy.thrust.mass_kg: must be > 0, got {self.mass_kg}")
-        if not 0 < self.max_command <= 65535:
+        if not self.thrust_max_n > 0:
+            raise ConfigError(f"deploy.thrust.thrust_max_n: must be > 0, got {self.thrust_max_n}")
+        if not 0 < self.max_command <= UINT16_MAX:
             raise ConfigError(f"deploy.thrust.max_command: must be in (0, 65535], got {self.max_command}")
         if self.hover_command is not None and not 0 < self.hover_command < self.max_command:
             raise ConfigError(f"deploy.thrust.hover_command: must be in (0, max_command), got {self.hover_command}")
+        if self.slope_mps2_per_command is not None and not self.slope_mps2_per_command > 0:
+            raise ConfigError(
+                f"deploy.thrust.slope_mps2_per_command: must be > 0 or null, got {self.slope_mps2_per_command}"
+            )
 
 
 class ThrustMap:
     def __init__(self, p: ThrustParams | None = None) -> None:
         self.p = p or ThrustParams()
         self.p.validate()
-        model_hover = self._model_command(self.p.mass_kg * self.p.gravity_mps2 / 4.0)
-        hover = self.p.hover_command if self.p.hover_command is not None else model_hover
-        self.scale = self.p.mass_kg * self.p.gravity_mps2 / (4.0 * self.force_n(hover))
-        self.hover_command = hover
+        self.firmware_slope = 4.0 * self.p.thrust_max_n / (UINT16_MAX * self.p.mass_kg)
+        self.slope = self.p.slope_mps2_per_command or self.firmware_slope
+        g = self.p.gravity_mps2
+        self.hover_command = self.p.hover_command if self.p.hover_command is not None else g / self.firmware_slope
+        if self.hover_command >= self.p.max_command:
+            from datt.errors import ConfigError
 
-    def force_n(self, command: float) -> float:
-        """Model force of one motor at ``command``."""
-        return self.p.k2 * command * command + self.p.k1 * command + self.p.k0
+            raise ConfigError(
+                f"deploy.thrust: a {self.p.mass_kg * 1000:.1f} g vehicle needs command {self.hover_command:.0f} to "
+                f"hover with thrust_max_n={self.p.thrust_max_n} N, above max_command={self.p.max_command}"
+            )
 
-    def _model_command(self, force_n: float) -> float:
-        k2, k1, k0 = self.p.k2, self.p.k1, self.p.k0
-        disc = k1 * k1 - 4 * k2 * (k0 - force_n)
-        return (-k1 + math.sqrt(max(disc, 0.0))) / (2 * k2)
+    @property
+    def ceiling_mps2(self) -> float:
+        """The most collective thrust the map will command (at ``max_command``)."""
+        return self.thrust_mps2(self.p.max_command)
 
     def command(self, thrust_mps2: float) -> int:
         """Firmware thrust command for a mass-normalised collective thrust (clipped)."""
         if not math.isfinite(thrust_mps2) or thrust_mps2 <= 0:
             return 0
-        force = self.p.mass_kg * thrust_mps2 / (4.0 * self.scale)
-        if force <= self.p.k0:
-            return 0
-        return int(min(max(round(self._model_command(force)), 0), self.p.max_command))
+        c = self.hover_command + (thrust_mps2 - self.p.gravity_mps2) / self.slope
+        return int(min(max(round(c), 0), self.p.max_command))
 
     def thrust_mps2(self, command: int) -> float:
-        """Inverse of :meth:`command` (the simulated firmware's motor model); 0 for command 0."""
+        """What the map expects ``command`` to give (0 for command 0)."""
         if command <= 0:
             return 0.0
-        return 4.0 * self.scale * self.force_n(float(command)) / self.p.mass_kg
+        return max(0.0, self.p.gravity_mps2 + self.slope * (float(command) - self.hover_command))
 
     def rates_deg(self, wx: float, wy: float, wz: float) -> tuple[float, float, float]:
         """(roll, pitch, yaw) arguments of cflib's ``send_setpoint`` for body rates in rad/s."""
@@ -90,9 +104,10 @@ class ThrustMap:
         return math.radians(roll), math.radians(-pitch_wire), math.radians(-yaw)
 
 
-def fit_hover_command(commands: list[float], vertical_acc_mps2: list[float]) -> float:
-    """Calibration: the command at which vertical acceleration is zero, from samples flown
-    around hover (least-squares line through (command, a_z); needs two distinct commands)."""
+def fit_hover(commands: list[float], vertical_acc_mps2: list[float]) -> tuple[float, float]:
+    """Calibration: (hover command, slope in m/s² per command unit) from samples flown around
+    hover: the least-squares line through (command, a_z); the hover command is its zero (needs
+    two distinct commands and an acceleration that rises with the command)."""
     n = len(commands)
     if n < 2 or len(vertical_acc_mps2) != n or len(set(commands)) < 2:
         raise ValueError("calibration needs at least two distinct commands with one acceleration each")
@@ -100,4 +115,4 @@ def fit_hover_command(commands: list[float], vertical_acc_mps2: list[float]) -> 
     slope = sum((c - mc) * (a - ma) for c, a in zip(commands, vertical_acc_mps2)) / sum((c - mc) ** 2 for c in commands)
     if slope <= 0:
         raise ValueError("calibration: acceleration does not increase with the command")
-    return mc - ma / slope
+    return mc - ma / slope, slope

@@ -27,15 +27,16 @@ from datt.tasks.common import console, hydra_run_dir, set_threads
 def _start_server(cfg: DictConfig, params: DeployParams, thrust: ThrustParams):
     """The simulated Crazyflie of ``deploy.server`` on the ``deploy.uri`` port."""
     from datt.deploy.sim import SimCrazyflie, SimCrazyflieParams
+    from datt.deploy.sim.motors import MotorParams
 
     url = urlparse(params.uri)
     if url.scheme != "udp":
         raise ConfigError(f"deploy.uri: the simulated Crazyflie listens on udp://host:port, got {params.uri!r}")
     server_cfg = {k: (tuple(v) if isinstance(v, list) else v) for k, v in params.server.items()}
-    # the simulated vehicle's motors follow the model at its true mass (never the user's calibration)
-    true_mass = server_cfg.pop("mass_kg", None) or thrust.mass_kg
-    vehicle = ThrustParams(mass_kg=float(true_mass), k2=thrust.k2, k1=thrust.k1, k0=thrust.k0)
-    sim_params = SimCrazyflieParams(host=url.hostname, port=url.port, thrust=vehicle, **server_cfg)
+    # the simulated vehicle's own motors and mass (never the controller's map or calibration)
+    motor_keys = {k: server_cfg.pop(k) for k in ("mass_kg", "thrust_max_n", "thrust_gain") if k in server_cfg}
+    motor_keys["mass_kg"] = float(motor_keys.get("mass_kg") or thrust.mass_kg)
+    sim_params = SimCrazyflieParams(host=url.hostname, port=url.port, motors=MotorParams(**motor_keys), **server_cfg)
     return SimCrazyflie(sim_params, disturbance=instantiate_option(cfg, "disturbance")).start()
 
 
@@ -102,9 +103,11 @@ def run_deploy(cfg: DictConfig, run_dir: Path | None = None, estop=None, server_
         summary["controller"] = labels
         (run_dir / "events.json").write_text(json.dumps(summary, indent=2, default=str) + "\n")
         if params.mode == "calibrate":
+            fit = summary.get("calibration") or {}
             console.print(
-                f"calibration: {summary['outcome']}; hover command {summary['hover_command']} "
-                "(set deploy.thrust.hover_command)"
+                f"calibration: {summary['outcome']}; hover command {fit.get('hover_command')}, slope "
+                f"{fit.get('slope_mps2_per_command')} m/s² per unit (set deploy.thrust.hover_command and "
+                "deploy.thrust.slope_mps2_per_command)"
             )
         err = summary["track_error_m"]
         jitter = summary["jitter_ms"]

@@ -124,8 +124,10 @@ def run_phases(cfg: DictConfig, run_dir: Path, train_one) -> dict:
             try:
                 metrics = train_one(phase_config(cfg, k, plan, previous), phase_dir, resumed)
             except TrainingInterrupted as exc:
-                raise TrainingInterrupted(f"{exc} (phase {k + 1} of {len(plan)}; resume the whole run with resume={run_dir})") from None
-        done.append({"phase": name, "steps": steps, "frames": metrics.get("frames"), "train_wall_s": metrics.get("train_wall_s")})
+                where = f"phase {k + 1} of {len(plan)}; resume the whole run with resume={run_dir}"
+                raise TrainingInterrupted(f"{exc} ({where})") from None
+        frames, wall = metrics.get("frames"), metrics.get("train_wall_s")
+        done.append({"phase": name, "steps": steps, "frames": frames, "train_wall_s": wall})
         previous = phase_dir / "last.pt"
     shutil.copyfile(previous, run_dir / ".last.pt.tmp")
     (run_dir / ".last.pt.tmp").replace(run_dir / "last.pt")

@@ -17,8 +17,8 @@ from datt.checkpoint import load_checkpoint
 from datt.errors import ConfigError
 from datt.paths import original_cwd, resolve_path
 from datt.runs import is_locked
-from datt.tasks.phases import is_phased, phased_parent
 from datt.tasks.common import command_overrides
+from datt.tasks.phases import is_phased, phased_parent
 
 # Dotted keys (or prefixes ending in ".") an override may change on resume.
 RESUMABLE = (

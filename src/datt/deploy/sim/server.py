@@ -13,6 +13,8 @@ Firmware behaviour that matters for safety is emulated:
 * **setpoint watchdog**: 0.5 s without a setpoint -> level attitude at the last thrust; 2 s ->
   motors off (``commander`` watchdog of the firmware);
 * **emergency stop**: motors off and locked until the server restarts;
+* **motors**: the firmware's battery-compensated linear thrust map on the vehicle's own mass and
+  motors (:mod:`datt.deploy.sim.motors`), never the controller's map;
 * **battery**: ``pm.vbat`` falls linearly with motor-on time (``battery_drain_vps``); tests can
   set it (``server.battery_v``).
 
@@ -26,7 +28,8 @@ complementary; 2 = Kalman):
   the estimate jumps to; between measurements it dead-reckons, with its error growing at
   ``dead_reckoning_drift_mps`` (a real filter on the IMU alone drifts faster). Onboard yaw is
   relative to the heading at start-up (``boot_yaw_deg`` from the mocap frame's x axis) until an
-  ``extpose`` gives the filter the mocap attitude.
+  ``extpose`` gives the filter the mocap attitude (a Lighthouse deck measures yaw itself; Loco
+  and Flow decks do not).
 """
 
 from __future__ import annotations
@@ -42,7 +45,8 @@ from dataclasses import dataclass, field
 import torch
 
 from datt.deploy import crtp
-from datt.deploy.thrust import ThrustMap, ThrustParams
+from datt.deploy.sim.motors import FirmwareMotors, MotorParams
+from datt.deploy.thrust import ThrustMap
 from datt.errors import ConfigError
 from datt.sim.quadrotor import Quadrotor, QuadrotorParams
 
@@ -72,6 +76,7 @@ PARAMS = [  # (group, name, type, default)
     ("deck", "bcDWM1000", "uint8_t", 0),
     ("deck", "bcFlow2", "uint8_t", 0),
 ]
+POSITIONING_DECKS = ("bcLighthouse4", "bcDWM1000", "bcFlow2")  # the decks simulated (all ask for Kalman)
 COMPLEMENTARY, KALMAN = 1, 2
 EXT_POSE = 8  # localization generic channel message type (cflib Localization.EXT_POSE)
 WATCHDOG_LEVEL_S, WATCHDOG_OFF_S = 0.5, 2.0
@@ -96,7 +101,7 @@ class SimCrazyflieParams:
     battery_v: float = 4.1
     battery_drain_vps: float = 0.002
     start_pos_m: tuple = (0.0, 0.0, 0.0)
-    thrust: ThrustParams = field(default_factory=ThrustParams)
+    motors: MotorParams = field(default_factory=MotorParams)  # the vehicle's own (datt.deploy.sim.motors)
     decks: tuple = ()  # deck param names present, e.g. ("bcLighthouse4",): 0 = any then picks Kalman
     boot_yaw_deg: float = 0.0  # heading at start-up in the mocap frame (onboard yaw is relative to it)
     dead_reckoning_drift_mps: float = 0.2  # Kalman estimate error growth without measurements (along x)
@@ -108,7 +113,7 @@ class SimCrazyflie:
 
     def __init__(self, params: SimCrazyflieParams | None = None, disturbance=None, quad: QuadrotorParams | None = None):
         self.p = params or SimCrazyflieParams()
-        self.thrust_map = ThrustMap(self.p.thrust)
+        self.motors = FirmwareMotors(self.p.motors)
         self.quad = Quadrotor(1, quad or QuadrotorParams(), dt_s=self.p.dt_s)
         self.quad.reset(pos_m=torch.tensor([list(self.p.start_pos_m)]))
         self.quad.state.thrust_mps2.zero_()
@@ -121,7 +126,9 @@ class SimCrazyflie:
         self.params = {f"{g}.{n}": v for g, n, _, v in PARAMS}
         for deck in self.p.decks:
             if f"deck.{deck}" not in self.params:
-                raise ConfigError(f"deploy.server.decks: unknown deck {deck!r}; allowed: bcLighthouse4, bcDWM1000, bcFlow2")
+                raise ConfigError(
+                    f"deploy.server.decks: unknown deck {deck!r}; allowed: {', '.join(POSITIONING_DECKS)}"
+                )
             self.params[f"deck.{deck}"] = 1
         self.read_only = {f"{g}.{n}" for g, n, _, _ in PARAMS if g == "deck"}
         self.pos_error_m = [0.0, 0.0, 0.0]  # Kalman: estimate - true position (held between measurements)
@@ -211,7 +218,7 @@ class SimCrazyflie:
             # level the attitude (P on the tilt) at the last thrust, as the firmware's watchdog
             q = self.quad.state.quat[0]
             wx, wy, wz = -8.0 * float(q[1]) * 2, -8.0 * float(q[2]) * 2, 0.0
-        thrust = self.thrust_map.thrust_mps2(command) if self.armed else 0.0
+        thrust = self.motors.thrust_mps2(command, self.battery_v) if self.armed else 0.0
         d = torch.zeros(1, 3)
         if self.disturbance is not None and self.motors_on:
             d = self.disturbance.current_mps2
@@ -239,7 +246,7 @@ class SimCrazyflie:
         requested = int(self.params["stabilizer.estimator"])
         if requested in (COMPLEMENTARY, KALMAN):
             return requested
-        return KALMAN if any(self.params[f"deck.{d}"] for d in ("bcLighthouse4", "bcDWM1000", "bcFlow2")) else COMPLEMENTARY
+        return KALMAN if any(self.params[f"deck.{d}"] for d in POSITIONING_DECKS) else COMPLEMENTARY
 
     def _estimate(self) -> list[float]:
         s = self.quad.state
@@ -249,7 +256,7 @@ class SimCrazyflie:
             pos[0] = pos[1] = vel[0] = vel[1] = 0.0
         else:
             pos = [p + e for p, e in zip(pos, self.pos_error_m)]
-        if not self.yaw_aligned and self.p.boot_yaw_deg:
+        if not (self.yaw_aligned or self.params["deck.bcLighthouse4"]) and self.p.boot_yaw_deg:
             q = _yaw_rotated(q, -math.radians(self.p.boot_yaw_deg))
         # firmware order qx, qy, qz, qw
         return [*pos, *vel, q[1], q[2], q[3], q[0], self.battery_v, float(self.armed)]
