@@ -9,5 +9,6 @@ SHORT_FLIGHT = [
     # default 0.1 s would KILL. The mocap limit stays at 0.4 s: after a dropout the onboard
     # estimate drifts, and 0.8 s of chasing it once tilted past the 75 deg KILL limit.
     "deploy.safety.max_state_age_s=0.8",
+    "deploy.safety.kill_state_age_s=1.0",
     "deploy.safety.max_mocap_age_s=0.4",
 ]

@@ -28,7 +28,7 @@ def test_safety_decisions_unit():
     )
     assert check().action == safety.OK
     assert check(estop=True).reason == "operator e-stop"
-    assert check(now_s=10.5).action == safety.KILL
+    assert check(now_s=10.5).action == safety.LAND and check(now_s=10.6).action == safety.KILL
     assert check(command=[math.nan, 0, 0, 0]).action == safety.KILL
     assert check(command=[9.81, 0, 0, 5.0]).action == safety.LAND
     assert check(mocap_age_s=0.3).action == safety.LAND
@@ -90,7 +90,9 @@ def decide(**kw):
         ({"link_lost": True}, ("KILL", "link lost")),
         ({"state": None}, ("KILL", "no state estimate")),
         ({"now_s": 10.1}, ("OK", "")),  # 100 ms old: at the limit, still fresh
-        ({"now_s": 10.15}, ("KILL", "state estimate stale (150 ms > 100 ms)")),
+        ({"now_s": 10.15}, ("LAND", "state estimate stale (150 ms > 100 ms)")),  # late: land on it
+        ({"now_s": 10.5}, ("LAND", "state estimate stale (500 ms > 100 ms)")),
+        ({"now_s": 10.55}, ("KILL", "state estimate stale (550 ms > 500 ms)")),  # lost: motors off
         ({"state": _state(vel=(math.nan, 0.0, 0.0))}, ("KILL", "non-finite state estimate")),
         ({"state": _state(quat=(1.0, 0.0, 0.0, math.inf))}, ("KILL", "non-finite state estimate")),
         ({"state": _state(pos=(2.6, 0.0, 1.0))}, ("KILL", "geofence breached by 0.60 m (> margin 0.5 m)")),
@@ -150,6 +152,9 @@ def test_safety_params_are_the_deploy_config_defaults():
         ({"geofence_min_m": [-2.0, -2.0]}, "deploy.safety.geofence_min_m/max_m: need 3 values each with min < max"),
         ({"kill_battery_v": 3.3}, None),
         ({"kill_battery_v": 3.4}, "deploy.safety.kill_battery_v: must be <= land_battery_v"),
+        ({"kill_state_age_s": 0.1}, None),
+        ({"kill_state_age_s": 0.05}, "deploy.safety.kill_state_age_s: must be >= max_state_age_s (0.1), got 0.05"),
+        ({"battery_filter_s": -1.0}, "deploy.safety.battery_filter_s: must be >= 0, got -1.0"),
     ],
 )
 def test_safety_params_validation(kwargs, message):
@@ -186,6 +191,23 @@ def test_safety_limits_are_strict_inequalities():
 
 
 def test_stale_messages_in_milliseconds():
-    params = safety.SafetyParams(max_state_age_s=0.7, max_mocap_age_s=0.7)
-    assert decide(params=params, now_s=10.9) == ("KILL", "state estimate stale (900 ms > 700 ms)")
+    params = safety.SafetyParams(max_state_age_s=0.7, kill_state_age_s=0.8, max_mocap_age_s=0.7)
+    assert decide(params=params, now_s=10.75) == ("LAND", "state estimate stale (750 ms > 700 ms)")
+    assert decide(params=params, now_s=10.9) == ("KILL", "state estimate stale (900 ms > 800 ms)")
     assert decide(params=params, mocap_age_s=0.9) == ("LAND", "mocap stale (900 ms > 700 ms)")
+
+
+def test_battery_filter_rides_out_a_sag_and_follows_a_drop():
+    """A 0.2 s sag to 3.1 V under load does not LAND (the filtered voltage stays above 3.3 V); a
+    lasting drop to 3.2 V does, once the 1 s low-pass has followed it."""
+    dt = 0.02
+    sag = safety.BatteryFilter(1.0)
+    seen = [sag.update(4.0, dt)] + [sag.update(3.1, dt) for _ in range(10)] + [sag.update(4.0, dt) for _ in range(10)]
+    assert min(seen) > 3.3 and seen[0] == 4.0
+    drop = safety.BatteryFilter(1.0)
+    drop.update(4.0, dt)
+    values = [drop.update(3.2, dt) for _ in range(200)]
+    below = next(k for k, v in enumerate(values) if v < 3.3)
+    assert 1.5 < below * dt < 2.5  # ln((4.0 - 3.2) / (3.3 - 3.2)) = 2.08 time constants
+    assert values[-1] == pytest.approx(3.2, abs=0.02)
+    assert safety.BatteryFilter(0.0).update(3.1, dt) == 3.1  # 0 = no filter

@@ -53,9 +53,38 @@ def test_setpoint_watchdog_levels_then_cuts_the_motors(vehicle):
     assert abs(server.true_state()["quat"][1]) > 0.02
     time.sleep(1.2)  # > 0.5 s: levelled at the last thrust
     assert abs(server.true_state()["quat"][1]) < 0.02 and server.cmd[3] == hover
-    time.sleep(1.2)  # > 2 s: motors off
-    assert server.cmd[3] == 0
+    time.sleep(1.2)  # > 2 s: motors off, and the supervisor locks (latched, as in flight)
+    assert server.cmd[3] == 0 and server.locked
     assert any("watchdog" in text for _, text in server.events)
+    hold(link, 0.3, hover)  # setpoints after the lock are ignored: only a restart unlocks
+    assert server.cmd[3] == 0 and server.true_state()["pos_m"][2] < 0.5
+    assert link.supervisor_bits() >> 6 & 1  # the supervisor reports Locked
+
+
+def test_estop_watchdog_stops_the_motors_one_second_after_the_last_notification(vehicle):
+    server, link = vehicle
+    link.arm(True)
+    hold(link, 0.1, 0)
+    end = time.monotonic() + 0.6
+    while time.monotonic() < end:  # setpoints with the watchdog, as the runner sends them
+        link.send_rates(0.0, 0.0, 0.0, ThrustMap().command(10.5))
+        link.send_estop_watchdog()
+        time.sleep(0.02)
+    last = server.estop_watchdog_t
+    hold(link, 1.5, ThrustMap().command(10.5))  # setpoints keep coming, the watchdog does not
+    assert server.emergency_stopped and server.cmd[3] == 0
+    stop_t = next(t for t, text in server.events if text.startswith("emergency stop: no e-stop watchdog"))
+    assert 1.0 <= stop_t - last <= 1.0 + 2 * server.p.dt_s
+
+
+def test_arming_is_refused_while_locked_and_the_state_bitfield_says_why(vehicle):
+    server, link = vehicle
+    assert link.supervisor_bits() & 0b1011011 == 0b0000001  # can be armed; not armed, flying or locked
+    link.emergency_stop()
+    time.sleep(0.1)
+    link.arm(True)
+    time.sleep(0.1)
+    assert not server.armed and link.supervisor_bits() >> 6 & 1
 
 
 def test_emergency_stop_locks_the_motors(vehicle):

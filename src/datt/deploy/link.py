@@ -36,6 +36,8 @@ class LinkError(RuntimeError):
 KALMAN_ESTIMATOR = 2
 # Decks that give the Kalman filter a position (or flow + height) of its own (firmware deck drivers'
 # requiredEstimator = kalman); without one and without mocap, x and y are unobserved.
+SUPERVISOR_GET_STATE_BITFIELD = 12  # crtp_supervisor.c, info channel
+SUPERVISOR_BIT_LOCKED, SUPERVISOR_BIT_CRASHED, SUPERVISOR_BIT_TUMBLED = 6, 7, 5
 POSITIONING_DECKS = ("deck.bcLighthouse4", "deck.bcDWM1000", "deck.bcLoco", "deck.bcFlow", "deck.bcFlow2")
 
 
@@ -236,8 +238,36 @@ class CrazyflieLink:
         if error is not None:
             self._on_lost(self.uri, f"{what}: {type(error).__name__}: {error}")
 
+    def supervisor_bits(self) -> int:
+        """The supervisor's state bitfield, asked for over the link (bit 1 armed, 3 can fly, 6
+        locked, 7 crashed; ``crtp_supervisor.c``)."""
+        from cflib.crtp.crtpstack import CRTPPacket, CRTPPort
+
+        got, seen = threading.Event(), []
+
+        def cb(pk):
+            if pk.channel == 0 and len(pk.data) >= 3 and pk.data[0] == 0x80 | SUPERVISOR_GET_STATE_BITFIELD:
+                seen.append(int.from_bytes(bytes(pk.data[1:3]), "little"))
+                got.set()
+
+        self.cf.add_port_callback(CRTPPort.SUPERVISOR, cb)
+        try:
+            pk = CRTPPacket()
+            pk.set_header(CRTPPort.SUPERVISOR, 0)
+            pk.data = bytes([SUPERVISOR_GET_STATE_BITFIELD])
+            self._send("supervisor state", self.cf.send_packet, pk)
+            if not got.wait(self._io.timeout_s * 4):
+                raise LinkError("preflight: the vehicle does not answer the supervisor state request (old firmware?)")
+        finally:
+            self.cf.remove_port_callback(CRTPPort.SUPERVISOR, cb)
+        return seen[-1]
+
     def close(self) -> None:
         if self.cf is not None:
+            if not self.link_lost.is_set():  # leave the vehicle in angle mode for the next user (best effort)
+                for name in ("flightmode.stabModeRoll", "flightmode.stabModePitch"):
+                    if self._io.call(self.set_param_checked, name, 1, timeout_s=self._io.timeout_s * 4) is not None:
+                        break
             # bounded like the sends; cflib joins its packet thread here (up to 1 s), hence the
             # longer bound. Errors must not mask the flight's outcome.
             error = self._io.call(self.cf.close_link, timeout_s=max(2.0, self._io.timeout_s))
@@ -276,6 +306,11 @@ class CrazyflieLink:
 
     def arm(self, on: bool = True) -> None:
         self._send("arm", self.cf.supervisor.send_arming_request, bool(on))
+
+    def send_estop_watchdog(self) -> None:
+        """Once sent, the firmware stops the motors (emergency stop, locked) if 1 s passes without
+        another (``supervisor.c``): a dead link cannot leave the vehicle flying on its last setpoint."""
+        self._send("e-stop watchdog", self.cf.supervisor.send_emergency_stop_watchdog)
 
     def emergency_stop(self) -> None:
         self._send("emergency stop", self.cf.supervisor.send_emergency_stop)

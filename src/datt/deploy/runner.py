@@ -18,6 +18,7 @@ row per tick), ``events.json`` (phases, safety decisions, timing), and track plo
 from __future__ import annotations
 
 import csv
+import dataclasses
 import json
 import math
 import signal
@@ -29,7 +30,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from datt.deploy.safety import KILL, LAND, OK, SafetyParams, check, tilt_deg
+from datt.deploy.link import SUPERVISOR_BIT_CRASHED, SUPERVISOR_BIT_LOCKED, SUPERVISOR_BIT_TUMBLED
+from datt.deploy.safety import KILL, LAND, OK, BatteryFilter, SafetyParams, check, tilt_deg
 from datt.deploy.thrust import ThrustMap
 from datt.refs.base import RefFamily
 from datt.runs import stop_signals
@@ -96,6 +98,7 @@ class FlightParams:
     preflight_timeout_s: float = 3.0
     min_battery_v: float = 3.7
     late_tick_ms: float = 5.0
+    estop_watchdog: bool = True  # send the firmware's e-stop watchdog every tick (motors off 1 s after the last)
     origin_m: list = field(default_factory=lambda: [0.0, 0.0])  # hover point x, y (z = takeoff_height_m)
 
     def validate(self) -> None:
@@ -135,6 +138,7 @@ class FlightRunner:
         self.phase = "CONNECT"
         self.t0 = time.monotonic()
         self.outcome = "incomplete"
+        self.battery = BatteryFilter(safety.battery_filter_s)
         self._mocap_sent_t: float | None = None  # time stamp of the last mocap sample forwarded
         self._excitation = None  # calibration: extra thrust (m/s²) as a function of the tick index
 
@@ -291,17 +295,38 @@ class FlightRunner:
 
     def _preflight(self) -> np.ndarray:
         deadline = time.monotonic() + self.p.preflight_timeout_s
-        state = None
-        while time.monotonic() < deadline:
+        state, mocap_pos = None, None
+        while time.monotonic() < deadline:  # a fresh estimate, converged on mocap when there is one
             self._mocap_age()
             state = self.link.state()
-            if state is not None and time.monotonic() - state.t_s < self.safety.max_state_age_s:
+            mocap_pos = self._mocap_position()
+            fresh = state is not None and time.monotonic() - state.t_s < self.safety.max_state_age_s
+            if not fresh:
+                agrees = False
+            elif mocap_pos is None:  # no mocap source: nothing to agree with; a source: wait for its first frame
+                agrees = not self._has_mocap()
+            else:
+                agrees = self._estimate_error_m(state, mocap_pos) < self.safety.max_estimate_mocap_m
+            if fresh and agrees:
                 break
             time.sleep(0.02)
-        checks = []
+        checks = self._supervisor_checks()
         if state is None:
             checks.append("no state estimate from the vehicle")
         else:
+            if self._has_mocap() and mocap_pos is None:
+                checks.append("no mocap frame for the vehicle")
+            elif mocap_pos is not None:
+                err = self._estimate_error_m(state, mocap_pos)
+                limit_cm = self.safety.max_estimate_mocap_m * 100
+                if err * 100 >= limit_cm:
+                    checks.append(
+                        f"onboard estimate {err * 100:.0f} cm from mocap (> {limit_cm:.0f} cm; is stabilizer.estimator "
+                        "the Kalman filter, the mocap frame the vehicle's?)"
+                    )
+                lo, hi = self.safety.geofence_min_m, self.safety.geofence_max_m
+                if not all(lo[i] <= mocap_pos[i] <= hi[i] for i in range(3)):
+                    checks.append("mocap position outside the geofence")
             if state.vbat_v < self.p.min_battery_v:
                 checks.append(f"battery {state.vbat_v:.2f} V < {self.p.min_battery_v} V")
             if tilt_deg(state.quat) > 10:
@@ -318,6 +343,23 @@ class FlightRunner:
             raise _Abort(self.outcome)
         self._event("preflight ok", f"battery {state.vbat_v:.2f} V")
         return np.array(state.pos_m)
+
+    def _mocap_position(self) -> np.ndarray | None:
+        sample = self.mocap.read() if self._has_mocap() else None
+        return None if sample is None else np.array(sample[0], dtype=float)
+
+    @staticmethod
+    def _estimate_error_m(state, mocap_pos: np.ndarray) -> float:
+        return float(np.linalg.norm(np.array(state.pos_m) - mocap_pos))
+
+    def _supervisor_checks(self) -> list[str]:
+        bits = self.link.supervisor_bits()
+        checks = []
+        if bits >> SUPERVISOR_BIT_LOCKED & 1:
+            checks.append("vehicle locked (an emergency stop or watchdog timeout earlier): restart it")
+        if bits >> SUPERVISOR_BIT_CRASHED & 1 or bits >> SUPERVISOR_BIT_TUMBLED & 1:
+            checks.append("vehicle crashed or tumbled")
+        return checks
 
     def _check_reference_in_geofence(self, model: FlightModel, duration_s: float | None) -> None:
         """Refuse before arming a reference that would leave the geofence (it would be KILLed mid-air)."""
@@ -346,6 +388,10 @@ class FlightRunner:
             now = time.monotonic()
             jitter_ms = (now - scheduled) * 1e3
             state = self.link.state()
+            if state is not None:  # the decision sees the low-passed voltage (the log keeps the raw one)
+                state_for_check = dataclasses.replace(state, vbat_v=self.battery.update(state.vbat_v, dt))
+            else:
+                state_for_check = None
             mocap_age = self._mocap_age()
             action, command = None, 0
             if state is not None and all(math.isfinite(v) for v in (*state.pos_m, *state.vel_mps, *state.quat)):
@@ -356,7 +402,7 @@ class FlightRunner:
             decision = check(
                 self.safety,
                 now_s=time.monotonic(),
-                state=state,
+                state=state_for_check,
                 command=action,
                 estop=self.estop.is_set(),
                 link_lost=self.link.link_lost.is_set(),
@@ -371,6 +417,8 @@ class FlightRunner:
             if decision.action == LAND:  # already landing: keep landing, note why
                 self._event("warning", decision.reason)
             command = self._send(action)
+            if self.p.estop_watchdog:
+                self.link.send_estop_watchdog()
             compute_ms = (time.monotonic() - now) * 1e3
             self.rows.append(
                 {

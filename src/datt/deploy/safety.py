@@ -2,15 +2,19 @@
 
 Checked every control tick, in this order (the first KILL wins, then the first LAND):
 
-KILL: operator e-stop; link lost; no state estimate or one older than ``max_state_age_s``;
+KILL: operator e-stop; link lost; no state estimate or one older than ``kill_state_age_s``;
       non-finite state; outside the geofence by more than ``geofence_margin_m``; tilt above
       ``max_tilt_deg``; non-finite command; battery below ``kill_battery_v``.
-LAND: outside the geofence box; speed above ``max_speed_mps``; external position (mocap) older
-      than ``max_mocap_age_s`` while a mocap source is configured; command out of range
-      (thrust or rates beyond the policy's bounds); battery below ``land_battery_v``.
+LAND: a state estimate older than ``max_state_age_s`` (a late log packet: land on the last
+      estimate before giving up at ``kill_state_age_s``); outside the geofence box; speed above
+      ``max_speed_mps``; external position (mocap) older than ``max_mocap_age_s`` while a mocap
+      source is configured; command out of range (thrust or rates beyond the policy's bounds);
+      battery below ``land_battery_v``.
 
 The runner acts on the decision (KILL sends the emergency stop before anything else) and logs
-the reason. All limits are ``conf/deploy/*.yaml`` key ``safety``.
+the reason. The battery voltage it is given is low-passed by the runner (:class:`BatteryFilter`):
+under load the pack sags for a moment without being empty. All limits are ``conf/deploy/*.yaml``
+key ``safety``.
 """
 
 from __future__ import annotations
@@ -29,11 +33,14 @@ class SafetyParams:
     max_tilt_deg: float = 75.0
     max_speed_mps: float = 4.0
     max_state_age_s: float = 0.1
+    kill_state_age_s: float = 0.5
     max_mocap_age_s: float = 0.1
     land_battery_v: float = 3.3
     kill_battery_v: float = 3.0
     max_thrust_mps2: float = 39.81
     max_rate_radps: list = field(default_factory=lambda: [20.0, 20.0, 2.0])
+    battery_filter_s: float = 1.0  # time constant of the battery voltage low-pass
+    max_estimate_mocap_m: float = 0.05  # preflight: the onboard estimate must agree with mocap
 
     def validate(self) -> None:
         from datt.errors import ConfigError
@@ -42,6 +49,13 @@ class SafetyParams:
             raise ConfigError("deploy.safety.geofence_min_m/max_m: need 3 values each with min < max")
         if not self.kill_battery_v <= self.land_battery_v:
             raise ConfigError("deploy.safety.kill_battery_v: must be <= land_battery_v")
+        if not 0 < self.max_state_age_s <= self.kill_state_age_s:
+            raise ConfigError(
+                f"deploy.safety.kill_state_age_s: must be >= max_state_age_s ({self.max_state_age_s}), "
+                f"got {self.kill_state_age_s}"
+            )
+        if not self.battery_filter_s >= 0:
+            raise ConfigError(f"deploy.safety.battery_filter_s: must be >= 0, got {self.battery_filter_s}")
 
 
 @dataclass
@@ -70,8 +84,8 @@ def check(
     if state is None:
         return Decision(KILL, "no state estimate")
     age = now_s - state.t_s
-    if age > p.max_state_age_s:
-        return Decision(KILL, f"state estimate stale ({age * 1e3:.0f} ms > {p.max_state_age_s * 1e3:.0f} ms)")
+    if age > p.kill_state_age_s:
+        return Decision(KILL, f"state estimate stale ({age * 1e3:.0f} ms > {p.kill_state_age_s * 1e3:.0f} ms)")
     values = [*state.pos_m, *state.vel_mps, *state.quat]
     if not all(math.isfinite(v) for v in values):
         return Decision(KILL, "non-finite state estimate")
@@ -86,6 +100,8 @@ def check(
         return Decision(KILL, "non-finite command")
     if state.vbat_v < p.kill_battery_v:
         return Decision(KILL, f"battery {state.vbat_v:.2f} V < {p.kill_battery_v} V")
+    if age > p.max_state_age_s:
+        return Decision(LAND, f"state estimate stale ({age * 1e3:.0f} ms > {p.max_state_age_s * 1e3:.0f} ms)")
     if max(outside) > 0:
         return Decision(LAND, f"outside geofence by {max(outside):.2f} m")
     speed = math.sqrt(sum(v * v for v in state.vel_mps))
@@ -100,3 +116,19 @@ def check(
     if state.vbat_v < p.land_battery_v:
         return Decision(LAND, f"battery {state.vbat_v:.2f} V < {p.land_battery_v} V")
     return Decision(OK)
+
+
+class BatteryFilter:
+    """First-order low-pass of the battery voltage with time constant ``tau_s`` (0 = no filter);
+    starts at the first reading."""
+
+    def __init__(self, tau_s: float) -> None:
+        self.tau_s = float(tau_s)
+        self.value_v: float | None = None
+
+    def update(self, vbat_v: float, dt_s: float) -> float:
+        if self.value_v is None or self.tau_s <= 0 or not math.isfinite(vbat_v):
+            self.value_v = vbat_v
+        else:
+            self.value_v += (vbat_v - self.value_v) * min(1.0, dt_s / self.tau_s)
+        return self.value_v

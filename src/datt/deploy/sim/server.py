@@ -11,8 +11,13 @@ Firmware behaviour that matters for safety is emulated:
 * **thrust lock**: after start-up (and after an emergency stop is cleared by a restart) setpoints
   with thrust > 0 are ignored until one with thrust 0 arrives;
 * **setpoint watchdog**: 0.5 s without a setpoint -> level attitude at the last thrust; 2 s ->
-  motors off (``commander`` watchdog of the firmware);
-* **emergency stop**: motors off and locked until the server restarts;
+  motors off and the supervisor **locked** (latched: later setpoints are ignored until the
+  server restarts), as ``supervisor.c`` does in flight;
+* **emergency stop**: motors off and locked until the server restarts; also when the host has
+  sent the emergency-stop watchdog once and then not for 1 s (``supervisor.c``,
+  ``DEFAULT_EMERGENCY_STOP_WATCHDOG_TIMEOUT``);
+* **supervisor state**: the info channel answers the state bitfield (can be armed, armed, can
+  fly, flying, locked);
 * **motors**: the firmware's battery-compensated linear thrust map on the vehicle's own mass and
   motors (:mod:`datt.deploy.sim.motors`), never the controller's map;
 * **battery**: ``pm.vbat`` falls linearly with motor-on time (``battery_drain_vps``); tests can
@@ -80,6 +85,9 @@ POSITIONING_DECKS = ("bcLighthouse4", "bcDWM1000", "bcFlow2")  # the decks simul
 COMPLEMENTARY, KALMAN = 1, 2
 EXT_POSE = 8  # localization generic channel message type (cflib Localization.EXT_POSE)
 WATCHDOG_LEVEL_S, WATCHDOG_OFF_S = 0.5, 2.0
+ESTOP_WATCHDOG_S = 1.0  # supervisor.c: DEFAULT_EMERGENCY_STOP_WATCHDOG_TIMEOUT
+CMD_ARM, CMD_ESTOP, CMD_ESTOP_WATCHDOG, CMD_GET_STATE_BITFIELD = 1, 3, 4, 12  # crtp_supervisor.c
+BIT_CAN_BE_ARMED, BIT_ARMED, BIT_CAN_FLY, BIT_FLYING, BIT_LOCKED = 0, 1, 3, 4, 6
 
 
 def _yaw_rotated(q: list[float], angle_rad: float) -> list[float]:
@@ -138,6 +146,8 @@ class SimCrazyflie:
         self.armed = False
         self.thrust_locked = True
         self.emergency_stopped = False
+        self.watchdog_locked = False  # the commander watchdog timed out in flight (latched)
+        self.estop_watchdog_t: float | None = None  # sim time of the last e-stop watchdog notification
         self.cmd = (0.0, 0.0, 0.0, 0)  # wx, wy, wz (rad/s), thrust command
         self.last_setpoint_t = -math.inf
         self.client = None
@@ -185,8 +195,24 @@ class SimCrazyflie:
 
     # -- state -----------------------------------------------------------------------------
     @property
+    def locked(self) -> bool:
+        """The supervisor's Locked state: only a restart leaves it."""
+        return self.emergency_stopped or self.watchdog_locked
+
+    @property
     def motors_on(self) -> bool:
-        return self.cmd[3] > 0 and not self.emergency_stopped
+        return self.cmd[3] > 0 and not self.locked
+
+    def state_bitfield(self) -> int:
+        flying = self.armed and self.motors_on
+        bits = {
+            BIT_CAN_BE_ARMED: not self.locked and not self.armed,
+            BIT_ARMED: self.armed,
+            BIT_CAN_FLY: self.armed and not self.locked,
+            BIT_FLYING: flying,
+            BIT_LOCKED: self.locked,
+        }
+        return sum(1 << bit for bit, on in bits.items() if on)
 
     def true_state(self) -> dict:
         s = self.quad.state
@@ -209,9 +235,13 @@ class SimCrazyflie:
         now = self.sim_time_s
         wx, wy, wz, command = self.cmd
         age = now - self.last_setpoint_t
-        if self.emergency_stopped or age > WATCHDOG_OFF_S:
-            if command and not self.emergency_stopped:
-                self._event("watchdog: no setpoint for 2 s, motors off")
+        if self.estop_watchdog_t is not None and now - self.estop_watchdog_t >= ESTOP_WATCHDOG_S and not self.locked:
+            self.emergency_stopped = True
+            self._event("emergency stop: no e-stop watchdog notification for 1 s")
+        if not self.locked and age > WATCHDOG_OFF_S and command:
+            self.watchdog_locked = True  # in flight: the supervisor locks
+            self._event("watchdog: no setpoint for 2 s, motors off, locked")
+        if self.locked or age > WATCHDOG_OFF_S:
             command, wx, wy, wz = 0, 0.0, 0.0, 0.0
             self.cmd = (0.0, 0.0, 0.0, 0)
         elif age > WATCHDOG_LEVEL_S:
@@ -393,7 +423,7 @@ class SimCrazyflie:
             self._send(crtp.packet(crtp.PORT_MEM, 0, bytes([1, 0])))
 
     def _on_commander(self, ch: int, data: bytes) -> None:
-        if ch != 0 or len(data) < 14 or self.emergency_stopped:
+        if ch != 0 or len(data) < 14 or self.locked:
             return
         roll, pitch_wire, yaw, thrust = struct.unpack("<fffH", data[:14])
         self.last_setpoint_t = self.sim_time_s
@@ -432,13 +462,23 @@ class SimCrazyflie:
             self.yaw_aligned = True
 
     def _on_supervisor(self, ch: int, data: bytes) -> None:
-        if ch != 1 or not data:
+        if not data:
             return
-        if data[0] == 1:  # arm / disarm
-            self.armed = bool(data[1]) if len(data) > 1 else False
-            self._event("armed" if self.armed else "disarmed")
-            self._send(crtp.packet(crtp.PORT_SUPERVISOR, 1, bytes([0x81, 1, int(self.armed)])))
-        elif data[0] == 3:  # emergency stop
+        if ch == 0 and data[0] == CMD_GET_STATE_BITFIELD:  # info channel
+            reply = bytes([0x80 | CMD_GET_STATE_BITFIELD]) + struct.pack("<H", self.state_bitfield())
+            self._send(crtp.packet(crtp.PORT_SUPERVISOR, 0, reply))
+        if ch != 1:
+            return
+        if data[0] == CMD_ARM:  # arm / disarm (refused while locked)
+            wanted = bool(data[1]) if len(data) > 1 else False
+            ok = not (wanted and self.locked)
+            if ok:
+                self.armed = wanted
+                self._event("armed" if self.armed else "disarmed")
+            self._send(crtp.packet(crtp.PORT_SUPERVISOR, 1, bytes([0x80 | CMD_ARM, int(ok), int(self.armed)])))
+        elif data[0] == CMD_ESTOP:
             self.emergency_stopped = True
             self.cmd = (0.0, 0.0, 0.0, 0)
             self._event("emergency stop")
+        elif data[0] == CMD_ESTOP_WATCHDOG:
+            self.estop_watchdog_t = self.sim_time_s
