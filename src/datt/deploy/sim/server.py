@@ -20,6 +20,12 @@ Firmware behaviour that matters for safety is emulated:
   fly, flying, locked);
 * **motors**: the firmware's battery-compensated linear thrust map on the vehicle's own mass and
   motors (:mod:`datt.deploy.sim.motors`), never the controller's map;
+* **yaw**: the legacy commander's yaw rate is integrated into a yaw-angle setpoint and the
+  attitude PID (``controller_pid.c``: kp 6, ki 1 per second) turns the error into the yaw rate
+  flown, so yaw lags the command (roll and pitch rates are flown as sent);
+* **radio**: every packet is delayed by ``radio_latency_s`` each way, and setpoints, mocap and
+  log data are lost with probability ``radio_loss`` (the radio's own retries make other losses
+  rare; cflib resends requests that expect a reply);
 * **battery**: ``pm.vbat`` falls linearly with motor-on time (``battery_drain_vps``); tests can
   set it (``server.battery_v``).
 
@@ -39,7 +45,9 @@ complementary; 2 = Kalman):
 
 from __future__ import annotations
 
+import heapq
 import math
+import random
 import socket
 import struct
 import threading
@@ -97,6 +105,10 @@ def _yaw_rotated(q: list[float], angle_rad: float) -> list[float]:
     return [c * w - s * z, c * x - s * y, c * y + s * x, c * z + s * w]
 
 
+def _wrap(angle_rad: float) -> float:
+    return (angle_rad + math.pi) % (2 * math.pi) - math.pi
+
+
 def _toc_crc(entries: list[tuple]) -> int:
     return zlib.crc32(repr(entries).encode()) & 0xFFFFFFFF
 
@@ -113,6 +125,9 @@ class SimCrazyflieParams:
     decks: tuple = ()  # deck param names present, e.g. ("bcLighthouse4",): 0 = any then picks Kalman
     boot_yaw_deg: float = 0.0  # heading at start-up in the mocap frame (onboard yaw is relative to it)
     dead_reckoning_drift_mps: float = 0.2  # Kalman estimate error growth without measurements (along x)
+    radio_latency_s: float = 0.005  # each way (host -> vehicle, vehicle -> host): 10 ms round trip
+    radio_loss: float = 0.0  # probability a setpoint, mocap or log packet is lost (after the radio's retries)
+    radio_seed: int = 0
 
 
 class SimCrazyflie:
@@ -153,6 +168,12 @@ class SimCrazyflie:
         self.client = None
         self.sim_time_s = 0.0
         self.events: list[tuple[float, str]] = []
+        self.yaw_setpoint_rad = 0.0  # the firmware's attitudeDesired.yaw (legacy commander: integrated rate)
+        self.yaw_integral = 0.0
+        self._radio: list = []  # heap of (due monotonic time, seq, direction, datagram)
+        self._radio_seq = 0
+        self._radio_ready = threading.Condition()
+        self._radio_rng = random.Random(self.p.radio_seed)
         self._lock = threading.Lock()
         self._running = threading.Event()
         self._threads: list[threading.Thread] = []
@@ -173,7 +194,7 @@ class SimCrazyflie:
         self.sock.settimeout(0.05)
         self._running.set()
         self._t0 = time.monotonic()
-        for target in (self._rx_loop, self._physics_loop):
+        for target in (self._rx_loop, self._physics_loop, self._radio_loop):
             t = threading.Thread(target=target, daemon=True)
             t.start()
             self._threads.append(t)
@@ -248,6 +269,8 @@ class SimCrazyflie:
             # level the attitude (P on the tilt) at the last thrust, as the firmware's watchdog
             q = self.quad.state.quat[0]
             wx, wy, wz = -8.0 * float(q[1]) * 2, -8.0 * float(q[2]) * 2, 0.0
+        else:
+            wz = self._yaw_rate(wz, command)
         thrust = self.motors.thrust_mps2(command, self.battery_v) if self.armed else 0.0
         d = torch.zeros(1, 3)
         if self.disturbance is not None and self.motors_on:
@@ -268,6 +291,20 @@ class SimCrazyflie:
         else:  # dead reckoning until the next external measurement
             self.pos_error_m[0] += self.p.dead_reckoning_drift_mps * self.p.dt_s
         self.sim_time_s += self.p.dt_s
+
+    def _yaw_rate(self, yaw_rate_cmd: float, command: int) -> float:
+        """The yaw rate the firmware flies for a legacy yaw-rate setpoint: the setpoint integrates
+        into a yaw angle (reset to the current yaw while thrust is 0) and the attitude PID turns
+        the yaw error into a rate (``controller_pid.c``; PID_YAW_KP 6, KI 1, integral limit 360 deg)."""
+        q = self.quad.state.quat[0].tolist()
+        yaw = math.atan2(2 * (q[0] * q[3] + q[1] * q[2]), 1 - 2 * (q[2] ** 2 + q[3] ** 2))
+        if command == 0:
+            self.yaw_setpoint_rad, self.yaw_integral = yaw, 0.0
+            return 0.0
+        self.yaw_setpoint_rad = _wrap(self.yaw_setpoint_rad + yaw_rate_cmd * self.p.dt_s)
+        error = _wrap(self.yaw_setpoint_rad - yaw)
+        self.yaw_integral = max(-2 * math.pi, min(2 * math.pi, self.yaw_integral + error * self.p.dt_s))
+        return 6.0 * error + 1.0 * self.yaw_integral
 
     @property
     def estimator(self) -> int:
@@ -308,11 +345,43 @@ class SimCrazyflie:
 
     # -- radio -----------------------------------------------------------------------------
     def _send(self, data: bytes) -> None:
-        if self.client is not None:
+        if data[:1] == bytes([crtp.header(crtp.PORT_LOG, 2)]) and self._lost():
+            return
+        self._via_radio("out", data)
+
+    def _lost(self) -> bool:
+        return self.p.radio_loss > 0 and self._radio_rng.random() < self.p.radio_loss
+
+    def _via_radio(self, direction: str, data: bytes) -> None:
+        """Deliver ``data`` (to the host: "out"; to the firmware: "in") after the radio latency."""
+        if self.p.radio_latency_s <= 0:
+            self._deliver(direction, data)
+            return
+        with self._radio_ready:
+            self._radio_seq += 1
+            heapq.heappush(self._radio, (time.monotonic() + self.p.radio_latency_s, self._radio_seq, direction, data))
+            self._radio_ready.notify()
+
+    def _deliver(self, direction: str, data: bytes) -> None:
+        if direction == "in":
+            with self._lock:
+                self._handle(data)
+        elif self.client is not None:
             try:
                 self.sock.sendto(data, self.client)
             except OSError:
                 pass
+
+    def _radio_loop(self) -> None:
+        while self._running.is_set():
+            with self._radio_ready:
+                while self._running.is_set() and (not self._radio or self._radio[0][0] > time.monotonic()):
+                    wait = 0.05 if not self._radio else self._radio[0][0] - time.monotonic()
+                    self._radio_ready.wait(max(0.0, min(wait, 0.05)))
+                if not self._running.is_set():
+                    return
+                _, _, direction, data = heapq.heappop(self._radio)
+            self._deliver(direction, data)
 
     def _rx_loop(self) -> None:
         while self._running.is_set():
@@ -325,8 +394,10 @@ class SimCrazyflie:
             if not data:
                 continue
             self.client = addr
-            with self._lock:
-                self._handle(data)
+            port = crtp.split(data)[0] if data != b"\xff" else None
+            if port in (crtp.PORT_COMMANDER, crtp.PORT_LOCALIZATION) and self._lost():
+                continue
+            self._via_radio("in", data)
 
     def _handle(self, datagram: bytes) -> None:
         if datagram == b"\xff":  # scan probe / null packet
