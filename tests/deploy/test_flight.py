@@ -245,3 +245,27 @@ def test_hover_calibration_finds_the_true_hover_command_and_slope(tmp_path):
     fit = summary["calibration"]
     assert abs(fit["hover_command"] - true_hover) / true_hover < 0.01
     assert abs(fit["slope_mps2_per_command"] - true_slope) / true_slope < 0.15
+
+
+def test_calibration_measures_the_radio_latency(tmp_path):
+    """The command-to-response latency the calibration reports grows with the radio's: 40 ms
+    more round trip (10 -> 50 ms) shows as 40 ms more, within a tick (20 ms) each way: the phase
+    of the vehicle's loop against the host's ticks differs from flight to flight."""
+
+    def calibrate(one_way_s, run_dir):
+        cfg = compose(
+            "deploy",
+            [
+                f"deploy.uri=udp://127.0.0.1:{next(_ports)}",
+                *SHORT,
+                "deploy.mode=calibrate",
+                "deploy.calibrate_hover_s=3.0",
+                f"deploy.server.radio_latency_s={one_way_s}",
+            ],
+        )
+        summary = run_deploy(cfg, run_dir=run_dir)
+        assert summary["outcome"] == "landed", summary["outcome"]
+        return summary["calibration"]["response_latency_ms"]
+
+    near, far = calibrate(0.005, tmp_path / "near"), calibrate(0.025, tmp_path / "far")
+    assert 20.0 <= far - near <= 80.0, (near, far)

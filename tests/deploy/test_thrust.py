@@ -149,3 +149,32 @@ def test_simulated_motors_are_the_vehicles_not_the_controllers():
     assert heavy.thrust_mps2(round(c), 4.1) == pytest.approx(9.81 / 1.1, rel=1e-4)
     with pytest.raises(ConfigError, match=r"^deploy.server.thrust_gain: must be > 0, got 0.0$"):
         FirmwareMotors(MotorParams(thrust_gain=0.0))
+
+
+@pytest.mark.parametrize("lag", [1.0, 2.0, 3.4, 5.75])
+def test_response_lag_recovers_a_delay_between_excitation_and_acceleration(lag):
+    """Acceleration = the excitation delayed by ``lag`` ticks (linear interpolation between
+    ticks), minus a slower feedback term, plus noise: the lag comes back within 0.25 tick, less
+    the half tick by which a sampled jump is placed between its last low and first high sample."""
+    import random
+
+    from datt.deploy.thrust import response_lag_ticks
+
+    rng = random.Random(0)
+    exc = [1.0 if (k // 25) % 2 else -1.0 for k in range(200)]
+
+    def delayed(k):
+        t = k - lag
+        i = math.floor(t)
+        if i < 0:
+            return exc[0]
+        f = t - i
+        return exc[i] * (1 - f) + exc[min(i + 1, len(exc) - 1)] * f
+
+    acc, fb = [], 0.0
+    for k in range(len(exc)):
+        fb += 0.1 * (delayed(k) - fb)  # the controller's slower reaction
+        acc.append(delayed(k) - 0.8 * fb + rng.gauss(0.0, 0.05))
+    assert response_lag_ticks(exc, acc) == pytest.approx(lag - 0.5, abs=0.25)
+    with pytest.raises(ValueError, match="^latency: needs an excitation with steps"):
+        response_lag_ticks([1.0] * 50, acc[:50])

@@ -254,14 +254,16 @@ class FlightRunner:
 
         return self._flight(build, airborne)
 
-    def calibrate(self, hover_s: float = 4.0, excitation_mps2: float = 1.0, lag_ticks: int = 3) -> dict:
+    def calibrate(self, hover_s: float = 4.0, excitation_mps2: float = 1.0) -> dict:
         """Hover calibration flight: takeoff, then hold the hover point with the PID while a slow
-        square wave of ±``excitation_mps2`` is added to its thrust; fit the command at which the
-        vertical acceleration (from the logged velocity, ``lag_ticks`` after the command) is zero
-        and the slope of acceleration against command (:func:`~datt.deploy.thrust.fit_hover`), then
-        land. Returns the summary with ``calibration`` = ``{hover_command, slope_mps2_per_command}``
-        (set them as ``deploy.thrust.*``)."""
-        from datt.deploy.thrust import fit_hover
+        square wave of ±``excitation_mps2`` is added to its thrust. From the logged velocity:
+        the loop's response latency (ticks from a command to the state showing its effect,
+        :func:`~datt.deploy.thrust.response_lag_ticks`), then, with the commands shifted by it,
+        the command at which the vertical acceleration is zero and the slope of acceleration
+        against command (:func:`~datt.deploy.thrust.fit_hover`); then land. Returns the summary
+        with ``calibration`` = ``{hover_command, slope_mps2_per_command, response_latency_ms}``
+        (set the first two as ``deploy.thrust.*``)."""
+        from datt.deploy.thrust import fit_hover, response_lag_ticks
 
         fitted = {}
 
@@ -275,23 +277,34 @@ class FlightRunner:
                 return
             self._set_phase("CALIBRATE")
             half_period = int(self.p.rate_hz / 2)
-            self._excitation = lambda k: excitation_mps2 * (1.0 if (k // half_period) % 2 else -1.0)
+            self._excitation = lambda k: excitation_mps2 * self._square(k, half_period)
             first = len(self.rows)
             result = self._tick_loop(hold, int(hover_s * self.p.rate_hz), origin)
             self._excitation = None
             if result == OK:
                 rows = self.rows[first:]
-                acc = np.diff([r["vel"][2] for r in rows]) * self.p.rate_hz
-                cmds = [float(r["thrust_cmd"]) for r in rows[: len(acc) - lag_ticks]]
-                hover, slope = fit_hover(cmds, list(acc[lag_ticks:]))
-                fitted.update(hover_command=hover, slope_mps2_per_command=slope)
-                self._event("calibrated", f"hover command {hover:.0f}, slope {slope:.3e} m/s² per unit")
+                acc = list(np.diff([r["vel"][2] for r in rows]) * self.p.rate_hz)
+                lag = response_lag_ticks([self._square(k, half_period) for k in range(len(acc))], acc)
+                shift = int(round(lag))
+                cmds = [float(r["thrust_cmd"]) for r in rows[: len(acc) - shift]]
+                hover, slope = fit_hover(cmds, acc[shift:])
+                latency_ms = lag / self.p.rate_hz * 1000.0
+                fitted.update(hover_command=hover, slope_mps2_per_command=slope, response_latency_ms=latency_ms)
+                self._event(
+                    "calibrated",
+                    f"hover command {hover:.0f}, slope {slope:.3e} m/s² per unit, "
+                    f"command-to-response latency {latency_ms:.0f} ms",
+                )
             if result != KILL:
                 self._land(origin)
 
         summary = self._flight(build, airborne)
         summary["calibration"] = fitted or None
         return summary
+
+    @staticmethod
+    def _square(k: int, half_period: int) -> float:
+        return 1.0 if (k // half_period) % 2 else -1.0
 
     def _preflight(self) -> np.ndarray:
         deadline = time.monotonic() + self.p.preflight_timeout_s

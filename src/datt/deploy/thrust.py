@@ -116,3 +116,31 @@ def fit_hover(commands: list[float], vertical_acc_mps2: list[float]) -> tuple[fl
     if slope <= 0:
         raise ValueError("calibration: acceleration does not increase with the command")
     return mc - ma / slope, slope
+
+
+def response_lag_ticks(excitation: list[float], vertical_acc_mps2: list[float], window: int = 10) -> float:
+    """Ticks from a step of the thrust excitation to the acceleration reaching half of its jump in
+    the logged state, median over the excitation's steps (dead time plus half the rise; linear
+    interpolation between ticks). ``excitation[k]`` is what was added to the command sent at tick
+    ``k``; ``vertical_acc_mps2[k]`` the acceleration between the states read at ticks ``k`` and
+    ``k + 1``. The jump is the largest change within ``window`` ticks of the step, against the
+    mean of the 3 samples before it."""
+    n = min(len(excitation), len(vertical_acc_mps2))
+    lags = []
+    for k in range(3, n - window):
+        step = excitation[k] - excitation[k - 1]
+        if step == 0:
+            continue
+        sign = 1.0 if step > 0 else -1.0
+        base = sum(vertical_acc_mps2[k - 3 : k]) / 3.0
+        rise = [sign * (vertical_acc_mps2[j] - base) for j in range(k - 1, k + window)]
+        half = 0.5 * max(rise)
+        for j in range(1, len(rise)):
+            if rise[j] >= half > rise[j - 1]:
+                lags.append(j - 1 + (half - rise[j - 1]) / (rise[j] - rise[j - 1]) - 1.0)
+                break
+    if not lags:
+        raise ValueError("latency: needs an excitation with steps and the samples after them")
+    lags.sort()
+    mid = len(lags) // 2
+    return lags[mid] if len(lags) % 2 else 0.5 * (lags[mid - 1] + lags[mid])

@@ -107,7 +107,8 @@ def run_deploy(cfg: DictConfig, run_dir: Path | None = None, estop=None, server_
             console.print(
                 f"calibration: {summary['outcome']}; hover command {fit.get('hover_command')}, slope "
                 f"{fit.get('slope_mps2_per_command')} m/s² per unit (set deploy.thrust.hover_command and "
-                "deploy.thrust.slope_mps2_per_command)"
+                f"deploy.thrust.slope_mps2_per_command); command-to-response latency "
+                f"{fit.get('response_latency_ms')} ms"
             )
         err = summary["track_error_m"]
         jitter = summary["jitter_ms"]
