@@ -134,3 +134,26 @@ def test_no_mocap_needs_a_positioning_deck(tmp_path):
         _fly(tmp_path, "deploy.mocap.source=none")
     summary, server, _ = _fly(tmp_path / "lh", "deploy.mocap.source=none", "deploy.server.decks=[bcLighthouse4]")
     assert summary["outcome"] == "landed" and server.estimator == 2
+
+
+def test_kalman_variance_shrinks_with_measurements_and_grows_without():
+    """The logged position variance: reset to 1 m², the scalar Kalman update v r / (v + r) per
+    measurement (r = locSrv.extPosStdDev²), growth of 0.01 m²/s between them."""
+    server = hovering_server()
+    server.params["stabilizer.estimator"] = 2
+    server._on_param(2, struct.pack("<H", _param_id("kalman.resetEstimation")) + b"\x01")
+    assert server.kalman_var_m2 == [1.0, 1.0, 1.0] and server.params["kalman.resetEstimation"] == 0
+    r = 0.01**2
+    server._on_localization(0, struct.pack("<fff", 0.4, -0.3, 0.0))
+    assert server.kalman_var_m2[0] == pytest.approx(1.0 * r / (1.0 + r))
+    before = server.kalman_var_m2[0]
+    for _ in range(50):
+        server._physics_step()
+    assert server.kalman_var_m2[0] == pytest.approx(before + 0.01 * 50 * server.p.dt_s)
+    assert estimate(server)[0][:2] == pytest.approx((0.4 + 0.2, -0.3), abs=1e-6)
+
+
+def _param_id(name):
+    from datt.deploy.sim.server import PARAMS
+
+    return next(i for i, (g, n, _, _) in enumerate(PARAMS) if f"{g}.{n}" == name)

@@ -8,6 +8,7 @@ the reason in the log and the flight log written.
 import itertools
 import json
 import math
+import re
 import threading
 import time
 
@@ -62,9 +63,11 @@ def test_nominal_flight_tracks_and_lands(tmp_path):
     phases = [e["text"] for e in summary["events"] if e["kind"] == "phase"]
     assert phases == ["CONNECT", "PREFLIGHT", "ARM", "TAKEOFF", "TRACK", "LAND", "DISARM"]
     assert (tmp_path / "tracks_flight.png").is_file()
-    # the firmware was put in rate mode and streams both log blocks within its 26-byte limit
-    assert "param flightmode.stabModeRoll = 0" in [text for _, text in server.events]
-    assert len(server.log_blocks) == 2 and all(b["started"] for b in server.log_blocks.values())
+    # the firmware was put in rate mode, its Kalman filter reset before the flight, and it streams
+    # the state in two log blocks within its 26-byte limit plus the filter's variances
+    events = [text for _, text in server.events]
+    assert "param flightmode.stabModeRoll = 0" in events and "param kalman.resetEstimation = 1" in events
+    assert len(server.log_blocks) == 3 and all(b["started"] for b in server.log_blocks.values())
 
 
 def test_estop_kills_first(tmp_path):
@@ -194,8 +197,10 @@ def test_preflight_refuses_an_estimate_that_ignores_mocap(tmp_path):
         server._measure = lambda pos, quat: None
 
     summary, server = fly(tmp_path, hook=deaf_filter)
-    assert summary["outcome"].startswith("preflight failed: onboard estimate "), summary["outcome"]
-    assert "cm from mocap (> 5 cm" in summary["outcome"] and not server.armed
+    outcome = summary["outcome"]
+    assert outcome.startswith("preflight failed: Kalman filter not settled after 3 s"), outcome
+    far = re.search(r"; onboard estimate (\d+) cm from mocap \(> 5 cm", outcome)
+    assert far and int(far.group(1)) >= 5 and not server.armed
 
 
 def test_preflight_refuses_a_flat_battery(tmp_path):

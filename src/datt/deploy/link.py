@@ -21,6 +21,7 @@ vehicle's own setpoint watchdog stops the motors when setpoints stop arriving.
 
 from __future__ import annotations
 
+import collections
 import math
 import queue
 import threading
@@ -83,6 +84,7 @@ BLOCK_A = [
     "stateEstimate.vz",
 ]
 BLOCK_B = ["stateEstimate.qx", "stateEstimate.qy", "stateEstimate.qz", "stateEstimate.qw", "pm.vbat"]
+BLOCK_KALMAN = ["kalman.varPX", "kalman.varPY", "kalman.varPZ"]  # position variances (m²), every 50 ms
 
 
 class _BoundedCaller:
@@ -127,6 +129,7 @@ class CrazyflieLink:
         self._a: dict | None = None
         self._b: dict | None = None
         self._t_a = self._t_b = -math.inf
+        self.variances: collections.deque = collections.deque(maxlen=50)  # (varPX, varPY, varPZ) samples
         self._lock = threading.Lock()
         self.cf = None
 
@@ -169,7 +172,32 @@ class CrazyflieLink:
             self.cf.log.add_config(lc)
             lc.data_received_cb.add_callback(self._make_cb(store))
             lc.start()
+        lc = LogConfig(name="kalman", period_in_ms=50)
+        for v in BLOCK_KALMAN:
+            lc.add_variable(v, "float")
+        self.cf.log.add_config(lc)
+        lc.data_received_cb.add_callback(self._on_variance)
+        lc.start()
         return self
+
+    def _on_variance(self, timestamp, data, logconf) -> None:
+        with self._lock:
+            self.variances.append(tuple(float(data[v]) for v in BLOCK_KALMAN))
+
+    def reset_kalman(self) -> None:
+        """Restart the Kalman filter (``kalman.resetEstimation``) and forget the variances seen."""
+        with self._lock:
+            self.variances.clear()
+        self._send("kalman reset", self.cf.param.set_value, "kalman.resetEstimation", 1)
+
+    def kalman_settled(self, samples: int = 10, spread_m2: float = 1e-3) -> bool:
+        """The last ``samples`` position variances each vary by less than ``spread_m2`` (cflib's
+        ``wait_for_position_estimator`` rule)."""
+        with self._lock:
+            recent = list(self.variances)[-samples:]
+        if len(recent) < samples:
+            return False
+        return all(max(axis) - min(axis) < spread_m2 for axis in zip(*recent))
 
     def _configure(self, external_position: bool) -> None:
         if not external_position:

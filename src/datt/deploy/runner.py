@@ -309,7 +309,8 @@ class FlightRunner:
     def _preflight(self) -> np.ndarray:
         deadline = time.monotonic() + self.p.preflight_timeout_s
         state, mocap_pos = None, None
-        while time.monotonic() < deadline:  # a fresh estimate, converged on mocap when there is one
+        self.link.reset_kalman()  # start the filter from this position, with the mocap stream
+        while time.monotonic() < deadline:  # a fresh estimate, settled, converged on mocap when there is one
             self._mocap_age()
             state = self.link.state()
             mocap_pos = self._mocap_position()
@@ -320,10 +321,15 @@ class FlightRunner:
                 agrees = not self._has_mocap()
             else:
                 agrees = self._estimate_error_m(state, mocap_pos) < self.safety.max_estimate_mocap_m
-            if fresh and agrees:
+            if fresh and agrees and self.link.kalman_settled():
                 break
             time.sleep(0.02)
         checks = self._supervisor_checks()
+        if not self.link.kalman_settled():
+            checks.append(
+                f"Kalman filter not settled after {self.p.preflight_timeout_s:g} s (position variances still "
+                "changing: is the mocap stream or the positioning deck reaching the vehicle?)"
+            )
         if state is None:
             checks.append("no state estimate from the vehicle")
         else:

@@ -76,6 +76,9 @@ LOG_VARS = [  # (group, name, type)
     ("stateEstimate", "qw", "float"),
     ("pm", "vbat", "float"),
     ("sys", "armed", "uint8_t"),
+    ("kalman", "varPX", "float"),
+    ("kalman", "varPY", "float"),
+    ("kalman", "varPZ", "float"),
 ]
 PARAMS = [  # (group, name, type, default)
     ("flightmode", "stabModeRoll", "uint8_t", 1),
@@ -85,12 +88,14 @@ PARAMS = [  # (group, name, type, default)
     ("commander", "enHighLevel", "uint8_t", 0),
     ("locSrv", "extPosStdDev", "float", 0.01),
     ("locSrv", "extQuatStdDev", "float", 4.5e-3),
+    ("kalman", "resetEstimation", "uint8_t", 0),
     ("deck", "bcLighthouse4", "uint8_t", 0),
     ("deck", "bcDWM1000", "uint8_t", 0),
     ("deck", "bcFlow2", "uint8_t", 0),
 ]
 POSITIONING_DECKS = ("bcLighthouse4", "bcDWM1000", "bcFlow2")  # the decks simulated (all ask for Kalman)
 COMPLEMENTARY, KALMAN = 1, 2
+KALMAN_RESET_VAR_M2, KALMAN_PROCESS_M2PS = 1.0, 0.01  # variance after a reset; its growth per second
 EXT_POSE = 8  # localization generic channel message type (cflib Localization.EXT_POSE)
 WATCHDOG_LEVEL_S, WATCHDOG_OFF_S = 0.5, 2.0
 ESTOP_WATCHDOG_S = 1.0  # supervisor.c: DEFAULT_EMERGENCY_STOP_WATCHDOG_TIMEOUT
@@ -155,6 +160,7 @@ class SimCrazyflie:
             self.params[f"deck.{deck}"] = 1
         self.read_only = {f"{g}.{n}" for g, n, _, _ in PARAMS if g == "deck"}
         self.pos_error_m = [0.0, 0.0, 0.0]  # Kalman: estimate - true position (held between measurements)
+        self.kalman_var_m2 = [KALMAN_RESET_VAR_M2] * 3  # position variance: grows, shrinks with each measurement
         self.yaw_aligned = False  # an extpose has told the Kalman filter the mocap yaw
         self.extpos_rx: list[tuple[float, tuple]] = []  # (monotonic time, position) of every ext position/pose
         self.log_blocks: dict[int, dict] = {}
@@ -286,8 +292,10 @@ class SimCrazyflie:
             s.quat[0] = torch.tensor([1.0, 0.0, 0.0, 0.0])
         if self.motors_on:
             self.battery_v -= self.p.battery_drain_vps * self.p.dt_s
+        self.kalman_var_m2 = [v + KALMAN_PROCESS_M2PS * self.p.dt_s for v in self.kalman_var_m2]
         if self.params["deck.bcLighthouse4"] or self.params["deck.bcDWM1000"]:
             self.pos_error_m = [0.0, 0.0, 0.0]  # the deck measures the position itself
+            self._variance_update(0.01**2)
         else:  # dead reckoning until the next external measurement
             self.pos_error_m[0] += self.p.dead_reckoning_drift_mps * self.p.dt_s
         self.sim_time_s += self.p.dt_s
@@ -305,6 +313,11 @@ class SimCrazyflie:
         error = _wrap(self.yaw_setpoint_rad - yaw)
         self.yaw_integral = max(-2 * math.pi, min(2 * math.pi, self.yaw_integral + error * self.p.dt_s))
         return 6.0 * error + 1.0 * self.yaw_integral
+
+    def _variance_update(self, measurement_var_m2: float) -> None:
+        """The scalar Kalman update of each axis' position variance for one position measurement."""
+        r = measurement_var_m2
+        self.kalman_var_m2 = [v * r / (v + r) for v in self.kalman_var_m2]
 
     @property
     def estimator(self) -> int:
@@ -326,7 +339,7 @@ class SimCrazyflie:
         if not (self.yaw_aligned or self.params["deck.bcLighthouse4"]) and self.p.boot_yaw_deg:
             q = _yaw_rotated(q, -math.radians(self.p.boot_yaw_deg))
         # firmware order qx, qy, qz, qw
-        return [*pos, *vel, q[1], q[2], q[3], q[0], self.battery_v, float(self.armed)]
+        return [*pos, *vel, q[1], q[2], q[3], q[0], self.battery_v, float(self.armed), *self.kalman_var_m2]
 
     def _send_logs(self) -> None:
         if self.client is None:
@@ -485,6 +498,10 @@ class SimCrazyflie:
         if ch == 2 and key not in self.read_only:  # write, echoed back as the firmware does
             self.params[key] = struct.unpack(fmt, data[2 : 2 + struct.calcsize(fmt)])[0]
             self._event(f"param {key} = {self.params[key]}")
+            if key == "kalman.resetEstimation" and self.params[key]:
+                self.kalman_var_m2 = [KALMAN_RESET_VAR_M2] * 3  # the firmware re-initialises the filter
+                self.pos_error_m = [-v for v in self.quad.state.pos_m[0].tolist()]  # ... at the origin
+                self.params[key] = 0  # and clears the flag
         if ch in (1, 2):
             status = b"\0" if ch == 1 else b""
             self._send(crtp.packet(crtp.PORT_PARAM, ch, data[:2] + status + struct.pack(fmt, self.params[key])))
@@ -529,6 +546,7 @@ class SimCrazyflie:
             return
         true = self.quad.state.pos_m[0].tolist()
         self.pos_error_m = [m - t for m, t in zip(pos_m, true)]
+        self._variance_update(float(self.params["locSrv.extPosStdDev"]) ** 2)
         if quat_wxyz is not None:
             self.yaw_aligned = True
 
