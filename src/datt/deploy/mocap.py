@@ -6,7 +6,8 @@
 * ``none``: no external position; the onboard estimate is used as is.
 * ``motioncapture``: the ``motioncapture`` library (Vicon, OptiTrack, Qualisys, ...; optional,
   ``pip install motioncapture``), rigid body ``body`` from ``system``/``host``.
-* ``simulated``: the simulated Crazyflie's true position with a latency and random dropouts
+* ``simulated``: the simulated Crazyflie's true position with a latency, Gaussian noise
+  (``noise_std_m``) and random dropouts
   (``dropout_after_s`` cuts the stream for good: fault injection).
 """
 
@@ -46,11 +47,13 @@ class SimulatedMocap(MocapSource):
         dropout_after_s: float | None = None,
         rate_hz: float = 100.0,
         seed: int = 0,
+        noise_std_m: float = 0.0,
     ) -> None:
         self.server, self.latency_s, self.dropout_prob = server, float(latency_s), float(dropout_prob)
         self.dropout_after_s = dropout_after_s
         self.period_s = 1.0 / float(rate_hz)
         self.rng = random.Random(seed)
+        self.noise_std_m = float(noise_std_m)
         self._buffer: collections.deque = collections.deque()
         self._latest = None
         self._running = threading.Event()
@@ -66,7 +69,8 @@ class SimulatedMocap(MocapSource):
             cut = self.dropout_after_s is not None and now - self._t0 > self.dropout_after_s
             if not cut and self.rng.random() >= self.dropout_prob:
                 true = self.server.true_state()
-                self._buffer.append((tuple(true["pos_m"]), tuple(true["quat"]), now))
+                pos = tuple(p + self.rng.gauss(0.0, self.noise_std_m) if self.noise_std_m else p for p in true["pos_m"])
+                self._buffer.append((pos, tuple(true["quat"]), now))
             while self._buffer and now - self._buffer[0][-1] >= self.latency_s:
                 self._latest = self._buffer.popleft()
             time.sleep(self.period_s)

@@ -25,6 +25,7 @@ class MocapParams:
     latency_s: float = 0.0  # simulated source only
     dropout_prob: float = 0.0
     dropout_after_s: float | None = None
+    noise_std_m: float = 0.0  # simulated source only: Gaussian position noise
     system: str | None = None  # motioncapture source only (e.g. vicon, optitrack)
     host: str | None = None
     body: str | None = None
@@ -34,10 +35,10 @@ class MocapParams:
             raise ConfigError(
                 f"deploy.mocap.source: unknown source {self.source!r}; allowed: {', '.join(MOCAP_SOURCES)}"
             )
-        if self.latency_s < 0 or not 0 <= self.dropout_prob <= 1:
+        if self.latency_s < 0 or not 0 <= self.dropout_prob <= 1 or self.noise_std_m < 0:
             raise ConfigError(
-                "deploy.mocap: latency_s must be >= 0 and dropout_prob in [0, 1], "
-                f"got {self.latency_s}, {self.dropout_prob}"
+                "deploy.mocap: latency_s and noise_std_m must be >= 0 and dropout_prob in [0, 1], "
+                f"got {self.latency_s}, {self.noise_std_m}, {self.dropout_prob}"
             )
         if self.source == "motioncapture" and not (self.system and self.host and self.body):
             raise ConfigError("deploy.mocap: source 'motioncapture' needs system, host and body")

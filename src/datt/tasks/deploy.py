@@ -48,7 +48,11 @@ def _mocap_source(params: DeployParams, server):
         if server is None:
             raise ConfigError("deploy.mocap.source: 'simulated' needs the simulated Crazyflie (deploy=sim)")
         return mocap.SimulatedMocap(
-            server, latency_s=m.latency_s, dropout_prob=m.dropout_prob, dropout_after_s=m.dropout_after_s
+            server,
+            latency_s=m.latency_s,
+            dropout_prob=m.dropout_prob,
+            dropout_after_s=m.dropout_after_s,
+            noise_std_m=m.noise_std_m,
         )
     return mocap.MotionCaptureMocap(str(m.system), str(m.host), str(m.body))
 

@@ -36,7 +36,8 @@ complementary; 2 = Kalman):
 * **complementary**: attitude, height and vertical speed only; x, y, vx, vy stay 0 and external
   positions are dropped (as ``estimator_complementary.c`` does);
 * **Kalman**: every external position (``extpos``) or pose (``extpose``) packet is a measurement
-  the estimate jumps to; between measurements it dead-reckons, with its error growing at
+  fused with the scalar Kalman gain ``var / (var + extPosStdDev²)`` of the logged variance;
+  between measurements it dead-reckons, with its error growing at
   ``dead_reckoning_drift_mps`` (a real filter on the IMU alone drifts faster). Onboard yaw is
   relative to the heading at start-up (``boot_yaw_deg`` from the mocap frame's x axis) until an
   ``extpose`` gives the filter the mocap attitude (a Lighthouse deck measures yaw itself; Loco
@@ -545,8 +546,10 @@ class SimCrazyflie:
         if self.estimator != KALMAN:
             return
         true = self.quad.state.pos_m[0].tolist()
-        self.pos_error_m = [m - t for m, t in zip(pos_m, true)]
-        self._variance_update(float(self.params["locSrv.extPosStdDev"]) ** 2)
+        r = float(self.params["locSrv.extPosStdDev"]) ** 2
+        gains = [v / (v + r) for v in self.kalman_var_m2]  # the scalar Kalman gain per axis
+        self.pos_error_m = [e + k * ((m - t) - e) for e, k, m, t in zip(self.pos_error_m, gains, pos_m, true)]
+        self._variance_update(r)
         if quat_wxyz is not None:
             self.yaw_aligned = True
 
