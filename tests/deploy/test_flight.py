@@ -253,9 +253,9 @@ def test_hover_calibration_finds_the_true_hover_command_and_slope(tmp_path):
 
 
 def test_calibration_measures_the_radio_latency(tmp_path):
-    """The command-to-response latency the calibration reports grows with the radio's: 40 ms
-    more round trip (10 -> 50 ms) shows as 40 ms more, within a tick (20 ms) each way: the phase
-    of the vehicle's loop against the host's ticks differs from flight to flight."""
+    """The command-to-response latency the calibration reports grows with the radio's: 60 ms
+    more round trip (10 -> 70 ms) shows as 60 ms more, within a tick and a half (30 ms) each way:
+    the phase of the vehicle's loop against the host's ticks differs from flight to flight."""
 
     def calibrate(one_way_s, run_dir):
         cfg = compose(
@@ -272,5 +272,5 @@ def test_calibration_measures_the_radio_latency(tmp_path):
         assert summary["outcome"] == "landed", summary["outcome"]
         return summary["calibration"]["response_latency_ms"]
 
-    near, far = calibrate(0.005, tmp_path / "near"), calibrate(0.025, tmp_path / "far")
-    assert 20.0 <= far - near <= 80.0, (near, far)
+    near, far = calibrate(0.005, tmp_path / "near"), calibrate(0.035, tmp_path / "far")
+    assert 30.0 <= far - near <= 90.0, (near, far)
