@@ -321,7 +321,7 @@ class FlightRunner:
                 agrees = not self._has_mocap()
             else:
                 agrees = self._estimate_error_m(state, mocap_pos) < self.safety.max_estimate_mocap_m
-            if fresh and agrees and self.link.kalman_settled():
+            if agrees and self.link.kalman_settled():
                 break
             time.sleep(0.02)
         checks = self._supervisor_checks()

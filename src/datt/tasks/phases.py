@@ -86,11 +86,8 @@ def phase_config(cfg: DictConfig, k: int, plan, init_from: Path | None) -> DictC
     OmegaConf.update(out, "train.init_from", None if init_from is None else str(init_from))
     if k > 0:
         OmegaConf.update(out, "curriculum.fixed_ref_steps", 0)
-        OmegaConf.update(out, "train.eval_at_end", False)
-    if k < len(plan) - 1:
-        OmegaConf.update(out, "train.eval_at_end", False)
-    else:
-        OmegaConf.update(out, "train.eval_at_end", bool(cfg.train.eval_at_end))
+    last = k == len(plan) - 1
+    OmegaConf.update(out, "train.eval_at_end", last and bool(cfg.train.eval_at_end))
     for key, value in values.items():
         OmegaConf.update(out, key, value, merge=False)
     return out
