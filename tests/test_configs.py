@@ -68,7 +68,13 @@ def test_every_option_composes_and_instantiates(group, option, tmp_path):
         assert labels["controller"] == cfg.controller.name and hasattr(controller, "act")
         node = merged.adaptation
     else:
-        node = cfg.eval.bank if group == "bank" else cfg if group in ("sweep", "ablation", "experiment") else cfg[group]
+        node = (
+            cfg.eval.bank
+            if group == "bank"
+            else cfg
+            if group in ("sweep", "ablation", "experiment", "randomization")
+            else cfg[group]
+        )
     for target in _targets(node):
         assert instantiate(target, _convert_="all") is not None
     # the task's schemas accept what the option composes to

@@ -288,7 +288,8 @@ train_main = hydra_main("train", _task("datt.tasks.train", "run_train"))
 eval_main = hydra_main("eval", _task("datt.tasks.eval", "run_eval"))
 tables_main = _tables_entry(hydra_main("tables", _task("datt.tasks.tables", "run_tables")))
 deploy_main = hydra_main("deploy", _task("datt.tasks.deploy", "run_deploy_command"))
-COMMANDS = {"train": train_main, "eval": eval_main, "tables": tables_main, "deploy": deploy_main}
+export_main = hydra_main("export", _task("datt.tasks.export", "run_export"))
+COMMANDS = {"train": train_main, "eval": eval_main, "tables": tables_main, "deploy": deploy_main, "export": export_main}
 
 
 def main() -> None:
@@ -301,4 +302,4 @@ def main() -> None:
     COMMANDS[command]()
 
 
-__all__ = ["main", "train_main", "eval_main", "tables_main", "deploy_main", "preflight"]
+__all__ = ["main", "train_main", "eval_main", "tables_main", "deploy_main", "export_main", "preflight"]

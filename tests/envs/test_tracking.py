@@ -319,7 +319,7 @@ def test_reward_velocity_term_is_capped():
     quat = torch.tensor([[1.0, 0.0, 0.0, 0.0]])
     future = torch.zeros(2, 1, 3)
     reward = RewardParams(pos=1.0, yaw=0.5, vel=0.1, vel_cap_mps=1.0)
-    _, _, err, cost = observe_and_cost(pos, pos, vel, quat, future, ObsParams(), reward)
+    _, _, err, cost = observe_and_cost(pos, vel, quat, pos, vel, quat, future, ObsParams(), reward)
     assert err.item() == 0.0 and cost.item() == pytest.approx(0.1)
 
 

@@ -64,7 +64,7 @@ class DattController(Controller):
         key = (tuple(future.shape), pos.dtype, obs.body_frame, obs.feedback, cmds.shape[1])
         fn = self._traced.get(key)
         if fn is None:
-            module = _ObservePolicy(
+            module = ObservePolicy(
                 self.net,
                 future.shape[0],
                 self.center,
@@ -80,7 +80,7 @@ class DattController(Controller):
         return fn(pos, vel, quat, future, d_hat, cmds)
 
 
-class _ObservePolicy(nn.Module):
+class ObservePolicy(nn.Module):
     """Observation building + network + squashing as one graph (traced and frozen by
     :class:`DattController` with ``frozen=True``): the controller's whole per-step computation
     from the measured state, the future reference ``[H, N, 3]``, d̂ and the scaled command history

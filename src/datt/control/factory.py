@@ -6,6 +6,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from datt.configuration import hydra_choice, instantiate_option, with_options
 from datt.control.datt import DattController
+from datt.envs.observations import OBS_LAYOUT_KEYS
 from datt.policies.loading import load_actor
 
 
@@ -13,7 +14,8 @@ def build_controller(cfg: DictConfig):
     """``(controller, config to fly it under, labels)`` for ``cfg.controller``.
 
     Options without ``_target_`` (datt, datt_l1, datt_rma) load the policy from ``checkpoint``; its
-    observation layout (horizon, ablations) comes from its training config. An ``adaptation`` key
+    observation layout (horizon, ablations, command history) comes from its training config, the
+    observation noise does not (that belongs to where it flies). An ``adaptation`` key
     in the controller option fixes the estimator it flies with (l1_pid, l1_mppi, datt_l1, ...).
     """
     node = OmegaConf.to_container(cfg.controller, resolve=True)
@@ -28,7 +30,8 @@ def build_controller(cfg: DictConfig):
     if "_target_" in node:
         return instantiate_option(OmegaConf.create({"controller": node}), "controller"), merged, labels
     actor, train_cfg, data = load_actor(cfg.checkpoint)
-    merged = OmegaConf.merge(merged, {"horizon": train_cfg.horizon, "env": {"obs": train_cfg.env.obs}})
+    layout = {key: train_cfg.env.obs[key] for key in OBS_LAYOUT_KEYS if key in train_cfg.env.obs}
+    merged = OmegaConf.merge(merged, {"horizon": train_cfg.horizon, "env": {"obs": layout}})
     OmegaConf.set_struct(merged, False)
     labels = {**labels, "checkpoint": str(cfg.checkpoint), "frames": int(data["frames"])}
     return DattController(actor, frozen=True), merged, labels

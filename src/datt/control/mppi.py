@@ -146,7 +146,7 @@ def _rollout_step(
 ):
     """One model step of all N·K rollouts and its running cost (compilable). ``ref [N, 3]``; the
     rollouts are drone-major, so rows ``i·K .. (i+1)·K − 1`` belong to drone i."""
-    pos, vel, quat, rate, thrust = integrate(
+    pos, vel, quat, rate, thrust, _ = integrate(
         pos, vel, quat, rate, thrust, applied, d, gravity, dt, k_thrust, k_rate, max_thrust, max_rate
     )
     n = ref.shape[0]

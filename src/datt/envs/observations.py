@@ -24,6 +24,9 @@ from datt.envs.params import ObsParams, RewardParams
 from datt.sim.frames import quat_rotate_inverse, quat_yaw, wrap_angle
 
 STATE_DIM = 13  # without the optional command history
+# the ObsParams keys that shape what a policy reads (a checkpoint carries them to eval/deploy;
+# the noise keys describe the environment, not the policy)
+OBS_LAYOUT_KEYS = ("body_frame", "feedback", "action_history")
 FEEDBACK = slice(10, 13)  # the feedback error's entries in ``state``
 
 
@@ -57,6 +60,8 @@ def build_observation(
 
 def observe_and_cost(
     pos_meas_m: Tensor,
+    vel_meas_mps: Tensor,
+    quat_meas: Tensor,
     pos_m: Tensor,
     vel_mps: Tensor,
     quat: Tensor,
@@ -66,10 +71,11 @@ def observe_and_cost(
 ) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     """Observation plus the per-step cost, in one pass (compiled as one kernel by the env).
 
-    Returns ``state [N, 13]``, ``ref [N, H, 3]``, ``tracking_error_m [N, 1]`` (true position)
-    and ``cost [N, 1]`` = pos ‖p − p_d‖ + yaw |ψ| + vel min(‖v‖, cap) (reward = −cost).
+    The observation is built from the measured ``*_meas`` state, the tracking error and cost from
+    the true one. Returns ``state [N, 13]``, ``ref [N, H, 3]``, ``tracking_error_m [N, 1]`` and
+    ``cost [N, 1]`` = pos ‖p − p_d‖ + yaw |ψ| + vel min(‖v‖, cap) (reward = −cost).
     """
-    state, ref = build_observation(pos_meas_m, vel_mps, quat, ref_future_m, obs.body_frame, obs.feedback)
+    state, ref = build_observation(pos_meas_m, vel_meas_mps, quat_meas, ref_future_m, obs.body_frame, obs.feedback)
     err_m = torch.linalg.vector_norm(pos_m - ref_future_m[0], dim=-1, keepdim=True)
     yaw_err = wrap_angle(quat_yaw(quat)).abs().unsqueeze(-1)  # ψ_ref = 0
     speed = torch.linalg.vector_norm(vel_mps, dim=-1, keepdim=True).clamp_max(reward.vel_cap_mps)

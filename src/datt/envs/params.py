@@ -36,7 +36,11 @@ class ObsParams:
     future reference positions as the feedforward input). ``feedback``: the authors' "fb_term"
     (False = their "no feedback" ablation: the absolute position leaves ``state``, zeroed to
     keep shapes, and the feedback error R^T (p − p_d(t)) stays in its place). ``pos_noise_std_m``: Gaussian noise on
-    the measured position used by the observation (authors' main configs: 0.005).
+    the measured position used by the observation (authors' main configs: 0.005);
+    ``vel_noise_std_mps``: Gaussian noise on the measured velocity; ``att_noise_std_rad``: the
+    measured attitude is the true one turned by a random rotation vector with this std per axis
+    (body frame). All noise is fresh each step and enters the observation only (reward and
+    tracking error use the true state).
     ``action_history``: append the last k commands sent (each scaled to [-1, 1] by the action
     bounds, oldest first) to ``state``; 0 = the paper's inputs. Not in the paper: with a one-step
     command latency and first-order actuators, the commands in flight are state the policy
@@ -45,6 +49,8 @@ class ObsParams:
     body_frame: bool = True
     feedback: bool = True
     pos_noise_std_m: float = 0.0
+    vel_noise_std_mps: float = 0.0
+    att_noise_std_rad: float = 0.0
     action_history: int = 0
 
 
@@ -112,7 +118,9 @@ class EnvParams:
             f"must be three values > 0, got {list(self.rate_bounds_radps)}",
         )
         need(self.dtype in ("float32", "float64"), "dtype", f"unknown value {self.dtype!r}; allowed: float32, float64")
-        need(self.obs.pos_noise_std_m >= 0, "obs.pos_noise_std_m", f"must be >= 0, got {self.obs.pos_noise_std_m}")
+        for key in ("pos_noise_std_m", "vel_noise_std_mps", "att_noise_std_rad"):
+            val = getattr(self.obs, key)
+            need(val >= 0, f"obs.{key}", f"must be >= 0, got {val}")
         k = self.obs.action_history
         need(
             isinstance(k, int) and not isinstance(k, bool) and k >= 0,

@@ -30,6 +30,7 @@ from datt.envs.params import EnvParams
 from datt.errors import ConfigError
 from datt.refs.base import RefFamily
 from datt.sim.disturbances import Disturbance
+from datt.sim.frames import quat_exp_rotvec, quat_mul, quat_normalize
 from datt.sim.quadrotor import Quadrotor, resolve_dtype
 
 
@@ -160,6 +161,7 @@ class TrackingEnv(EnvBase):
         r = self.params.init_pos_range_m
         u = torch.rand(k, 3, generator=self.generator, device=self.device, dtype=self.dtype)
         self.sim.reset(idx, (2.0 * u - 1.0) * r)
+        self.sim.randomise(idx, self.generator)
         self.step_idx[idx] = 0
         self.episode_len[idx] = self.params.episode_steps
         table = self.traj.sample(k, self.t_grid_s, self.generator).to(self.dtype)
@@ -279,11 +281,8 @@ class TrackingEnv(EnvBase):
         if idx is not None:
             pos, vel, quat, future = pos[idx], vel[idx], quat[idx], future[:, idx]
             kernel = observe_and_cost  # eager: subset sizes vary, avoid recompiles
-        pos_meas = pos
-        if self.params.obs.pos_noise_std_m > 0:
-            noise = torch.randn(pos.shape, generator=self.generator, device=self.device, dtype=self.dtype)
-            pos_meas = pos + self.params.obs.pos_noise_std_m * noise
-        state, ref, err_m, cost = kernel(pos_meas, pos, vel, quat, future, self.params.obs, self.params.reward)
+        measured = self._measure(pos, vel, quat)
+        state, ref, err_m, cost = kernel(*measured, pos, vel, quat, future, self.params.obs, self.params.reward)
         if self.cmd_history.shape[1]:
             hist = self.cmd_history if idx is None else self.cmd_history[idx]
             state = torch.cat((state, hist.flatten(1)), dim=-1)
@@ -298,6 +297,22 @@ class TrackingEnv(EnvBase):
         # values are built here with the right shapes and device: skip TensorDict's checks
         td = TensorDict._new_unsafe(values, batch_size=self.batch_size, device=self.device)
         return td, err_m, cost
+
+    def _measure(self, pos: torch.Tensor, vel: torch.Tensor, quat: torch.Tensor):
+        """The state the policy observes: ``(pos, vel, quat)`` with the observation noise of
+        ``obs`` (the true tensors themselves when a noise is off)."""
+        obs = self.params.obs
+
+        def noise(like: torch.Tensor, std: float) -> torch.Tensor:
+            return std * torch.randn(like.shape, generator=self.generator, device=self.device, dtype=self.dtype)
+
+        if obs.pos_noise_std_m > 0:
+            pos = pos + noise(pos, obs.pos_noise_std_m)
+        if obs.vel_noise_std_mps > 0:
+            vel = vel + noise(vel, obs.vel_noise_std_mps)
+        if obs.att_noise_std_rad > 0:
+            quat = quat_normalize(quat_mul(quat, quat_exp_rotvec(noise(vel, obs.att_noise_std_rad))))
+        return pos, vel, quat
 
     def advance_plant(self, action: torch.Tensor):
         """The plant's half of a step: clamp the command, integrate, move the references on and

@@ -113,7 +113,10 @@ def evaluate(cfg: DictConfig, controller_factory, disturbance: str, adaptation: 
     names, counts, bank = build_bank(cfg.eval.bank)
     env_cfg = with_options(cfg, disturbance=disturbance, adaptation=adaptation)
     env_cfg.env.init_pos_range_m = 0.0
-    env_cfg.env.obs.pos_noise_std_m = 0.0
+    # the bank measures tracking, not the sensor: no observation noise (the vehicle's randomisation,
+    # env.quad.*, stays as configured: `randomization=deploy` evaluates on drawn vehicles)
+    for key in ("pos_noise_std_m", "vel_noise_std_mps", "att_noise_std_rad"):
+        env_cfg.env.obs[key] = 0.0
     env = make_env(env_cfg, num_envs=sum(counts), seed=seed, traj=bank)
     trace = run_controller(env, controller_factory(env))
     errors = episode_errors(trace.err_m, trace.crashed_at)

@@ -10,6 +10,16 @@ Inputs are the commanded thrust ``T_cmd`` and body rates ``ω_cmd``. A command r
 actuators ``latency_steps`` steps after it is sent, then passes through the first-order delay
 of paper §4.1, ``x ← x + k (x_cmd − x)`` with ``k = 0.4`` per 0.02 s step for thrust and rates.
 
+Domain randomisation (all off by default; drawn per drone at each reset, see
+:class:`QuadrotorParams`): the thrust actually produced is ``s T`` with ``s = gain / mass``
+(a vehicle heavier or weaker than the controller's unit-mass model); the latency is drawn from
+``latency_steps..latency_steps_max``; the rates follow the authors' second-order model
+(``second_order`` below) instead of the first-order one.
+
+Second-order rate model (the authors' ``QuadSim.step_angvel_raw``, per step)::
+
+    τ_des = kw (ω_cmd − ω);   τ ← τ + kt (τ_des − τ);   ω ← ω + τ
+
 Integration over one step of ``dt_s`` (actuators first, then the state):
     p ← p + v dt + ½ a dt²,  v ← v + a dt     (exact for the step's constant a)
     q ← q ⊗ exp(ω dt / 2)                      (exact for the step's constant ω)
@@ -29,6 +39,7 @@ from torch import Tensor
 from datt.sim.frames import quat_body_z, quat_exp_rotvec, quat_mul, quat_normalize
 
 _DTYPES = {"float32": torch.float32, "float64": torch.float64}
+RATE_MODELS = ("first_order", "second_order", "mixed")
 
 
 def resolve_dtype(name: str | torch.dtype) -> torch.dtype:
@@ -46,6 +57,13 @@ class QuadrotorParams:
 
     ``initial_thrust_mps2``: actuator thrust state after reset; ``None`` means hover (= g),
     which avoids the spurious drop of the authors' sim that started every episode at zero thrust.
+
+    Domain randomisation, drawn per drone at every reset (0 / ``None`` / ``first_order`` = off):
+    ``mass_spread`` and ``thrust_gain_spread``: the vehicle's mass and motor gain are
+    ``U(1 − s, 1 + s)`` times nominal, so the thrust produced is ``gain / mass`` times the
+    actuator's; ``latency_steps_max``: the latency is uniform on ``latency_steps..latency_steps_max``
+    steps; ``rate_model``: ``first_order`` (paper, ``k_rate``), ``second_order`` (the authors'
+    model with ``kw_rate``, ``kt_rate``) or ``mixed`` (each drone draws one of the two).
     """
 
     gravity_mps2: float = 9.81
@@ -55,6 +73,26 @@ class QuadrotorParams:
     initial_thrust_mps2: float | None = None
     max_thrust_mps2: float = 40.0
     max_rate_radps: float = 40.0
+    mass_spread: float = 0.0
+    thrust_gain_spread: float = 0.0
+    latency_steps_max: int | None = None
+    rate_model: str = "first_order"
+    kw_rate: float = 0.4
+    kt_rate: float = 0.6
+
+    @property
+    def max_latency_steps(self) -> int:
+        return self.latency_steps if self.latency_steps_max is None else int(self.latency_steps_max)
+
+    @property
+    def randomised(self) -> bool:
+        """True when reset draws per-drone parameters (extra random numbers from the generator)."""
+        return bool(
+            self.mass_spread
+            or self.thrust_gain_spread
+            or self.max_latency_steps != self.latency_steps
+            or self.rate_model == "mixed"
+        )
 
     def validate(self, prefix: str = "env.quad") -> None:
         from datt.errors import ConfigError
@@ -69,6 +107,24 @@ class QuadrotorParams:
             raise ConfigError(f"{prefix}.max_thrust_mps2: must be > 0, got {self.max_thrust_mps2}")
         if not self.max_rate_radps > 0:
             raise ConfigError(f"{prefix}.max_rate_radps: must be > 0, got {self.max_rate_radps}")
+        for key in ("mass_spread", "thrust_gain_spread"):
+            val = getattr(self, key)
+            if not 0.0 <= val < 1.0:
+                raise ConfigError(f"{prefix}.{key}: must be in [0, 1) (a relative half-width), got {val}")
+        top = self.latency_steps_max
+        if top is not None and (isinstance(top, bool) or int(top) != top or top < self.latency_steps):
+            raise ConfigError(
+                f"{prefix}.latency_steps_max: must be null or an integer >= latency_steps "
+                f"({self.latency_steps}), got {top!r}"
+            )
+        if self.rate_model not in RATE_MODELS:
+            raise ConfigError(
+                f"{prefix}.rate_model: unknown value {self.rate_model!r}; allowed: {', '.join(RATE_MODELS)}"
+            )
+        for key in ("kw_rate", "kt_rate"):
+            val = getattr(self, key)
+            if not 0.0 < val <= 1.0:
+                raise ConfigError(f"{prefix}.{key}: must be in (0, 1], got {val}")
 
 
 @dataclass
@@ -84,37 +140,52 @@ class QuadState:
 
 
 class CommandLatency:
-    """Fixed transport delay of ``steps`` control steps for batched commands ``[N, *shape]``.
+    """Transport delay of batched commands ``[N, *shape]``: ``steps`` control steps for every
+    drone, or a per-drone delay (``set_delay``) of up to ``max_steps``.
 
-    ``push(cmd)`` stores the command sent now and returns the one sent ``steps`` steps ago
-    (``steps = 0``: the command itself). Slots start at ``fill``; ``reset(idx)`` refills drones."""
+    ``push(cmd)`` stores the command sent now and returns, per drone, the one sent ``delay``
+    steps ago (0: the command itself). Slots start at ``fill``; ``reset(idx)`` refills drones."""
 
-    def __init__(self, steps: int, fill: Tensor, n: int) -> None:
+    def __init__(self, steps: int, fill: Tensor, n: int, max_steps: int | None = None) -> None:
         self.steps = int(steps)
+        self.max_steps = self.steps if max_steps is None else int(max_steps)
         self.fill = fill
-        self._queue = fill.expand(max(self.steps, 1), n, *fill.shape).clone()
+        # ring of the last max_steps + 1 commands sent; slot `_head` is written next
+        self._ring = fill.expand(self.max_steps + 1, n, *fill.shape).clone()
         self._head = 0
+        self._rows = torch.arange(n, device=fill.device)
+        self.delay: Tensor | None = None  # [N] long, per-drone steps; None = `steps` for all
+
+    def set_delay(self, idx: Tensor, steps: Tensor) -> None:
+        """Per-drone delays ``steps [k]`` (each in 0..max_steps) for drones ``idx [k]``."""
+        if self.delay is None:
+            self.delay = torch.full_like(self._rows, self.steps)
+        self.delay[idx] = steps.to(self.delay.dtype)
 
     def push(self, cmd: Tensor) -> Tensor:
-        if not self.steps:
+        size = self.max_steps + 1
+        if size == 1:
             return cmd
-        applied = self._queue[self._head].clone()
-        self._queue[self._head] = cmd
-        self._head = (self._head + 1) % self.steps
+        self._ring[self._head] = cmd
+        if self.delay is None:
+            applied = self._ring[(self._head - self.steps) % size].clone()
+        else:
+            applied = self._ring[(self._head - self.delay) % size, self._rows]
+        self._head = (self._head + 1) % size
         return applied
 
     def in_flight(self) -> Tensor:
-        """Commands sent but not yet applied, oldest first: ``[steps, N, *shape]``."""
-        if not self.steps or self._head == 0:  # slot order is already oldest first (a view)
-            return self._queue[: self.steps]
-        order = (self._head + torch.arange(self.steps, device=self._queue.device)) % self.steps
-        return self._queue.index_select(0, order)
+        """The last ``steps`` commands sent (those not yet applied at the nominal delay), oldest
+        first: ``[steps, N, *shape]``."""
+        size = self.max_steps + 1
+        order = (self._head - self.steps + torch.arange(self.steps, device=self._ring.device)) % size
+        return self._ring.index_select(0, order)
 
     def reset(self, idx: Tensor) -> None:
-        self._queue[:, idx] = self.fill
+        self._ring[:, idx] = self.fill
 
     def fill_all(self, value: Tensor | float) -> None:
-        self._queue[:] = value
+        self._ring[:] = value
 
 
 class Quadrotor:
@@ -153,9 +224,18 @@ class Quadrotor:
         )
         self.state.quat[:, 0] = 1.0
         self.state.thrust_mps2.fill_(self.initial_thrust)
-        self.latency = CommandLatency(p.latency_steps, self.hover_cmd, n)
+        self.latency = CommandLatency(p.latency_steps, self.hover_cmd, n, p.max_latency_steps)
         self.last_applied_cmd = self.hover_cmd.expand(n, 4).clone()
         self._integrate = integrate
+        # Domain randomisation state (None = nominal for every drone; see QuadrotorParams)
+        self.thrust_scale: Tensor | None = None  # [N] thrust produced per unit of actuator thrust
+        self.second_order: Tensor | None = None  # [N] bool: drone follows the second-order rate model
+        self.rate_torque: Tensor | None = None  # [N, 3] second-order model's rate increment per step
+        if p.mass_spread or p.thrust_gain_spread:
+            self.thrust_scale = torch.ones(n, **kw)
+        if p.rate_model != "first_order":
+            self.second_order = torch.full((n,), p.rate_model == "second_order", device=self.device)
+            self.rate_torque = torch.zeros(n, 3, **kw)
 
     def reset(self, idx: Tensor | None = None, pos_m: Tensor | None = None) -> None:
         """Reset drones ``idx`` (long tensor; all when None) to rest, level, at ``pos_m [k, 3]``."""
@@ -169,6 +249,24 @@ class Quadrotor:
         s.thrust_mps2[idx] = self.initial_thrust
         self.latency.reset(idx)
         self.last_applied_cmd[idx] = self.hover_cmd
+        if self.rate_torque is not None:
+            self.rate_torque[idx] = 0.0
+
+    def randomise(self, idx: Tensor, generator: torch.Generator) -> None:
+        """Draw the domain-randomised parameters of drones ``idx`` (see :class:`QuadrotorParams`).
+        Draws nothing (the generator's stream is untouched) when randomisation is off."""
+        p, k = self.params, len(idx)
+        kw = {"device": self.device, "generator": generator}
+
+        def spread(s: float) -> Tensor:
+            return 1.0 + s * (2.0 * torch.rand(k, dtype=self.dtype, **kw) - 1.0)
+
+        if self.thrust_scale is not None:
+            self.thrust_scale[idx] = spread(p.thrust_gain_spread) / spread(p.mass_spread)
+        if p.max_latency_steps != p.latency_steps:
+            self.latency.set_delay(idx, torch.randint(p.latency_steps, p.max_latency_steps + 1, (k,), **kw))
+        if p.rate_model == "mixed":
+            self.second_order[idx] = torch.rand(k, **kw) < 0.5
 
     def step(self, cmd: Tensor, disturbance_mps2: Tensor | None = None) -> QuadState:
         """Advance all drones by ``dt_s``.
@@ -182,7 +280,7 @@ class Quadrotor:
         if disturbance_mps2 is None:
             disturbance_mps2 = torch.zeros_like(self.state.pos_m)
         s = self.state
-        s.pos_m, s.vel_mps, s.quat, s.rate_radps, s.thrust_mps2 = self._integrate(
+        s.pos_m, s.vel_mps, s.quat, s.rate_radps, s.thrust_mps2, torque = self._integrate(
             s.pos_m,
             s.vel_mps,
             s.quat,
@@ -196,7 +294,14 @@ class Quadrotor:
             p.k_rate,
             p.max_thrust_mps2,
             p.max_rate_radps,
+            self.thrust_scale,
+            self.rate_torque,
+            self.second_order,
+            p.kw_rate,
+            p.kt_rate,
         )
+        if torque is not None:
+            self.rate_torque = torque
         return s
 
     def compile(self, **kwargs) -> Quadrotor:
@@ -221,18 +326,33 @@ def integrate(
     k_rate: float,
     max_thrust: float,
     max_rate: float,
-) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor]:
+    thrust_scale: Tensor | None = None,
+    rate_torque: Tensor | None = None,
+    second_order: Tensor | None = None,
+    kw: float = 0.4,
+    kt: float = 0.6,
+) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor, Tensor | None]:
     """One step of the model in the module docstring; pure function of its inputs (compilable).
 
     Shapes: pos, vel, rate, d ``[N, 3]``; quat ``[N, 4]``; thrust ``[N]``; applied ``[N, 4]``.
-    Returns the new (pos, vel, quat, rate, thrust).
+    Optional (domain randomisation): ``thrust_scale [N]`` (produced / actuator thrust),
+    ``rate_torque [N, 3]`` with ``second_order [N]`` (bool: which drones follow the
+    second-order rate model with ``kw``, ``kt``). Returns the new (pos, vel, quat, rate, thrust,
+    rate_torque).
     """
     thrust = torch.lerp(thrust, applied[:, 0], k_thrust).clamp(0.0, max_thrust)
-    rate = torch.lerp(rate, applied[:, 1:], k_rate)
+    rate_cmd = applied[:, 1:]
+    first = torch.lerp(rate, rate_cmd, k_rate)
+    if rate_torque is not None and second_order is not None:
+        rate_torque = torch.lerp(rate_torque, kw * (rate_cmd - rate), kt)
+        rate = torch.where(second_order.unsqueeze(-1), rate + rate_torque, first)
+    else:
+        rate = first
     rate_norm = torch.linalg.vector_norm(rate, dim=-1, keepdim=True)
     rate = rate * (max_rate / rate_norm.clamp_min(max_rate))
-    acc = quat_body_z(quat) * thrust.unsqueeze(-1) + gravity + d
+    produced = thrust if thrust_scale is None else thrust * thrust_scale
+    acc = quat_body_z(quat) * produced.unsqueeze(-1) + gravity + d
     pos = pos + vel * dt + acc * (0.5 * dt * dt)
     vel = vel + acc * dt
     quat = quat_normalize(quat_mul(quat, quat_exp_rotvec(rate * dt)))
-    return pos, vel, quat, rate, thrust
+    return pos, vel, quat, rate, thrust, rate_torque

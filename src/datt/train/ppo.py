@@ -33,6 +33,7 @@ from datt.checkpoint import load_checkpoint, save_checkpoint
 from datt.configuration import instantiate_option, structured
 from datt.envs.factory import make_env
 from datt.errors import ConfigError, TrainingDiverged, TrainingInterrupted
+from datt.paths import resolve_path
 from datt.policies.networks import PolicyParams, make_actor, make_critic
 from datt.runs import StopRequest
 from datt.train.loggers import Logger
@@ -169,7 +170,7 @@ class Trainer:
     def init_weights(self, path: str | Path) -> None:
         """Start from another run's actor/critic weights (fine-tuning); optimiser, frame count
         and curriculum start fresh. The horizon and policy shape must match."""
-        data = load_checkpoint(path, key="train.init_from")
+        data = load_checkpoint(resolve_path(path), key="train.init_from")
         if int(data["horizon"]) != self.env.horizon:
             raise ConfigError(
                 f"train.init_from: checkpoint has horizon={data['horizon']}, config has {self.env.horizon}"

@@ -1,0 +1,139 @@
+"""Domain randomisation of the simulator (env.quad.* spreads, per-drone latency, the authors'
+second-order rate model) and the observation noise, each against its definition."""
+
+import pytest
+import torch
+
+from datt.errors import ConfigError
+from datt.sim import Quadrotor, QuadrotorParams
+from datt.sim.quadrotor import CommandLatency
+
+G = 9.81
+
+
+def hover(n, dtype=torch.float64):
+    return torch.tensor([G, 0.0, 0.0, 0.0], dtype=dtype).expand(n, 4).clone()
+
+
+def test_thrust_scale_is_gain_over_mass_within_the_spreads_and_sets_the_acceleration():
+    """A hovering command gives a vertical acceleration of (gain / mass − 1) g per drone."""
+    n, s_mass, s_gain = 4000, 0.1, 0.2
+    params = QuadrotorParams(mass_spread=s_mass, thrust_gain_spread=s_gain, latency_steps=0, k_thrust=1.0)
+    quad = Quadrotor(n, params, dtype="float64")
+    quad.randomise(torch.arange(n), torch.Generator().manual_seed(1))
+    scale = quad.thrust_scale
+    assert scale.min() >= (1 - s_gain) / (1 + s_mass) and scale.max() <= (1 + s_gain) / (1 - s_mass)
+    # both factors are drawn: the spread of the ratio is wider than either alone could give
+    assert scale.min() < (1 - s_gain) + 0.02 and scale.max() > (1 + s_gain) - 0.02
+    quad.reset(pos_m=torch.zeros(n, 3, dtype=torch.float64))
+    quad.step(hover(n))
+    acc = quad.state.vel_mps[:, 2] / quad.dt_s
+    assert torch.allclose(acc, (scale - 1.0) * G, atol=1e-9)
+
+
+def test_nominal_drones_draw_nothing_and_keep_the_exact_model():
+    gen = torch.Generator().manual_seed(3)
+    before = gen.get_state()
+    quad = Quadrotor(5, QuadrotorParams())
+    quad.randomise(torch.arange(5), gen)
+    assert torch.equal(gen.get_state(), before)
+    assert quad.thrust_scale is None and quad.second_order is None and quad.latency.delay is None
+
+
+def test_per_drone_latency_delays_each_command_by_its_own_steps():
+    latency = CommandLatency(1, torch.zeros(1), n=3, max_steps=3)
+    latency.set_delay(torch.arange(3), torch.tensor([1, 2, 3]))
+    out = [latency.push(torch.full((3, 1), float(k + 1)))[:, 0].tolist() for k in range(6)]
+    # drone i applies at push k the command sent at push k − delay_i (the fill, 0, before that)
+    for k, row in enumerate(out):
+        assert row == [float(max(k + 1 - d, 0)) for d in (1, 2, 3)], k
+    # in flight = the last `steps` (nominal) commands sent, oldest first
+    assert latency.in_flight()[:, 0, 0].tolist() == [6.0]
+
+
+def test_latency_draws_cover_the_range_uniformly():
+    n = 6000
+    quad = Quadrotor(n, QuadrotorParams(latency_steps=1, latency_steps_max=3))
+    quad.randomise(torch.arange(n), torch.Generator().manual_seed(0))
+    counts = torch.bincount(quad.latency.delay, minlength=4)
+    assert counts[0] == 0 and counts[1:].sum() == n
+    assert (counts[1:].float() / n - 1 / 3).abs().max() < 0.03
+
+
+def test_a_step_in_rate_reaches_the_body_after_the_drawn_latency():
+    """Two drones, delays 1 and 3, k_rate = 1: the roll rate appears after 1 and 3 steps."""
+    quad = Quadrotor(2, QuadrotorParams(k_rate=1.0, latency_steps=1, latency_steps_max=3), dtype="float64")
+    quad.latency.set_delay(torch.arange(2), torch.tensor([1, 3]))
+    cmd = hover(2)
+    cmd[:, 1] = 2.0
+    seen = [quad.step(cmd).rate_radps[:, 0].tolist() for _ in range(4)]
+    assert seen == [[0.0, 0.0], [2.0, 0.0], [2.0, 0.0], [2.0, 2.0]]
+
+
+def test_second_order_rate_model_follows_the_authors_recurrence():
+    kw, kt = 0.4, 0.6
+    quad = Quadrotor(
+        1, QuadrotorParams(latency_steps=0, rate_model="second_order", kw_rate=kw, kt_rate=kt), dtype="float64"
+    )
+    cmd = hover(1)
+    cmd[:, 1:] = torch.tensor([1.0, -2.0, 0.5], dtype=torch.float64)
+    w, tau = [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]
+    for _ in range(30):
+        quad.step(cmd)
+        for i, target in enumerate((1.0, -2.0, 0.5)):  # τ_des = kw (ω_cmd − ω); τ += kt (τ_des − τ); ω += τ
+            tau[i] += kt * (kw * (target - w[i]) - tau[i])
+            w[i] += tau[i]
+        assert quad.state.rate_radps[0].tolist() == pytest.approx(w, abs=1e-12)
+
+
+def test_second_order_overshoots_where_first_order_does_not():
+    first = Quadrotor(1, QuadrotorParams(latency_steps=0), dtype="float64")
+    second = Quadrotor(1, QuadrotorParams(latency_steps=0, rate_model="second_order"), dtype="float64")
+    cmd = hover(1)
+    cmd[:, 1] = 1.0
+    peak = {"first": 0.0, "second": 0.0}
+    for _ in range(40):
+        peak["first"] = max(peak["first"], first.step(cmd).rate_radps[0, 0].item())
+        peak["second"] = max(peak["second"], second.step(cmd).rate_radps[0, 0].item())
+    assert peak["first"] <= 1.0 + 1e-12 and 1.02 < peak["second"] < 1.05  # ~3 % overshoot (kw 0.4, kt 0.6)
+
+
+def test_mixed_rate_model_gives_about_half_the_drones_each_model_and_redraws_at_reset():
+    n = 4000
+    quad = Quadrotor(n, QuadrotorParams(rate_model="mixed"))
+    gen = torch.Generator().manual_seed(0)
+    quad.randomise(torch.arange(n), gen)
+    first_draw = quad.second_order.clone()
+    assert abs(first_draw.float().mean().item() - 0.5) < 0.03
+    quad.randomise(torch.arange(n), gen)
+    assert not torch.equal(first_draw, quad.second_order)
+
+
+def test_reset_clears_the_second_order_state():
+    quad = Quadrotor(2, QuadrotorParams(latency_steps=0, rate_model="second_order"))
+    cmd = hover(2, torch.float32)
+    cmd[:, 1] = 3.0
+    for _ in range(5):
+        quad.step(cmd)
+    quad.reset(torch.tensor([0]))
+    assert quad.rate_torque[0].abs().sum() == 0 and quad.rate_torque[1].abs().sum() > 0
+
+
+@pytest.mark.parametrize(
+    "kwargs, key",
+    [
+        ({"mass_spread": -0.1}, "mass_spread"),
+        ({"thrust_gain_spread": 1.0}, "thrust_gain_spread"),
+        ({"latency_steps": 2, "latency_steps_max": 1}, "latency_steps_max"),
+        ({"latency_steps_max": 2.5}, "latency_steps_max"),
+        ({"rate_model": "third_order"}, "rate_model"),
+        ({"kw_rate": 0.0}, "kw_rate"),
+        ({"kt_rate": 1.2}, "kt_rate"),
+    ],
+)
+def test_bad_randomisation_values_name_the_key(kwargs, key):
+    with pytest.raises(ConfigError, match=f"env.quad.{key}") as info:
+        Quadrotor(1, QuadrotorParams(**kwargs))
+    assert "\n" not in str(info.value)
+    if key == "rate_model":
+        assert "first_order, second_order, mixed" in str(info.value)
