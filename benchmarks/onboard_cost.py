@@ -13,7 +13,8 @@ firmware builds and at ``-O2``):
   shift=0`` by SysTick around one call, calibrated with a loop of 200000 known instructions;
 * cycles per step: that count times a cycles-per-instruction figure from the disassembly of the
   hottest loop (``linear``'s inner loop): VLDR 2 cycles (1 when it follows another load, the
-  optimistic bound), VMUL/VADD and integer ops 1, a taken branch 2 extra (Cortex-M4 TRM); and,
+  optimistic bound), VMLA 3, VMUL/VADD and integer ops 1, a taken branch 2 extra (Cortex-M4
+  TRM); and,
   as a cross-check, the MAC count times the cycles per MAC implied by the published onboard MLP
   figures (learning-to-fly / RLtools on the same MCU: 743 µs generic C, 478 µs CMSIS-DSP,
   293 µs hand-optimised for a 146-64-64-4 MLP = 13,696 MACs -> 9.1 / 5.9 / 3.6 cycles per MAC;
@@ -105,13 +106,19 @@ def hot_loop_cpi(obj: Path) -> dict:
         target = re.match(r"([0-9a-f]+) <", args)
         if op.startswith("b") and target and int(target.group(1), 16) < addr:
             loops.append([r for r in rows if int(target.group(1), 16) <= r[0] <= addr])
-    loop = max(loops, key=lambda rs: sum(op.startswith("vld") for _, op, _ in rs))
+    # the innermost loop that multiplies: the shortest backward-branch span with a multiply in it
+    # (at -Os GCC uses VMLA, a multiply-accumulate that rounds the product as VMUL + VADD do)
+    multiplies = ("vmul", "vmla", "vfma")
+    loop = min((rs for rs in loops if any(op.startswith(multiplies) for _, op, _ in rs)), key=len)
     ops = [op for _, op, _ in loop]
     loads = sum(op.startswith("vld") for op in ops)
-    worst = len(ops) + loads + 2  # every VLDR 2 cycles, the taken branch 2 extra
-    best = len(ops) + 2 + 1  # back-to-back loads pipelined: only the first pays the extra cycle
-    return {"instructions": len(ops), "vldr": loads, "vmul": ops.count("vmul.f32"), "vadd": ops.count("vadd.f32"),
-            "cpi_low": best / len(ops), "cpi_high": worst / len(ops)}  # fmt: skip
+    vmla = sum(op.startswith(("vmla", "vfma")) for op in ops)
+    # Cortex-M4 TRM: VLDR 2 cycles (1 when pipelined after another load), VMLA/VFMA 3, VMUL/VADD
+    # and integer ops 1, a taken branch 1 + 2 for the pipeline refill
+    worst = len(ops) + loads + 2 * vmla + 2
+    best = len(ops) + 1 + 2 * vmla + 2
+    return {"instructions": len(ops), "vldr": loads, "vmla": vmla, "vmul": ops.count("vmul.f32"),
+            "vadd": ops.count("vadd.f32"), "cpi_low": best / len(ops), "cpi_high": worst / len(ops)}  # fmt: skip
 
 
 def main() -> None:

@@ -16,14 +16,15 @@ MISSING = toolchain_missing() or (None if GCC else "gcc not found")
 pytestmark = pytest.mark.skipif(MISSING is not None, reason=f"Cortex-M4F build or qemu unavailable: {MISSING}")
 
 
-def test_cortex_m4_build_under_qemu_matches_the_host_build_bit_for_bit(tmp_path):
+@pytest.mark.parametrize("opt", ["-Os", "-O2"])  # -Os: the firmware's level (GCC uses VMLA there)
+def test_cortex_m4_build_under_qemu_matches_the_host_build_bit_for_bit(opt, tmp_path):
     spec, controller, merged = export_spec(compose("export", []))
     write_c(spec, tmp_path)
     obs = random_observations(300, spec.horizon, spec.action_history, seed=2)
     rec = record_rollout(merged, DattController(controller.actor, frozen=False), num_envs=1, steps=500)
     write_harness(tmp_path, vectors_h(obs, rec.action[:, 0], rec.vel_after[:, 0], rec.quat_after[:, 0]))
-    host = subprocess.run([str(build_host(tmp_path))], check=True, capture_output=True, text=True).stdout
-    m4 = run_qemu(build_m4(tmp_path))
+    host = subprocess.run([str(build_host(tmp_path, opt=opt))], check=True, capture_output=True, text=True).stdout
+    m4 = run_qemu(build_m4(tmp_path, opt=opt))
     lines = host.splitlines()
     assert len(lines) == 300 + 499 + 1 and lines[-1] == "self-test ok"
     assert m4 == host  # every action and d-hat word, and the on-target self-test

@@ -188,18 +188,23 @@ def write_harness(out: Path, vectors: str) -> None:
         (out / name).write_text(text)
 
 
-def build_host(out: Path, cc: str = "gcc") -> Path:
-    exe = Path(out) / "harness_host"
+def _flags(opt: str) -> list[str]:
+    return [f for f in COMMON_FLAGS if f != "-O2"] + [opt]
+
+
+def build_host(out: Path, cc: str = "gcc", opt: str = "-O2") -> Path:
+    exe = Path(out) / f"harness_host{opt}"
     srcs = [str(Path(out) / n) for n in ("datt_policy.c", "harness.c", "host_main.c")]
-    subprocess.run([cc, *COMMON_FLAGS, "-o", str(exe), *srcs], check=True, capture_output=True, text=True)
+    subprocess.run([cc, *_flags(opt), "-o", str(exe), *srcs], check=True, capture_output=True, text=True)
     return exe
 
 
-def build_m4(out: Path) -> Path:
-    """The harness for the Cortex-M4F with the firmware's flags (no C library: freestanding)."""
-    elf = Path(out) / "harness_m4.elf"
+def build_m4(out: Path, opt: str = "-O2") -> Path:
+    """The harness for the Cortex-M4F with the firmware's flags (no C library: freestanding);
+    ``opt``: ``-Os`` is the firmware's own optimisation level."""
+    elf = Path(out) / f"harness_m4{opt}.elf"
     srcs = [str(Path(out) / n) for n in ("datt_policy.c", "harness.c", "m4_startup.c")]
-    cmd = [M4_GCC, *COMMON_FLAGS, *M4_FLAGS, "-ffreestanding", "-nostdlib", "-T", str(Path(out) / "m4.ld")]
+    cmd = [M4_GCC, *_flags(opt), *M4_FLAGS, "-ffreestanding", "-nostdlib", "-T", str(Path(out) / "m4.ld")]
     subprocess.run([*cmd, "-o", str(elf), *srcs, "-lgcc"], check=True, capture_output=True, text=True)
     return elf
 
@@ -298,8 +303,7 @@ def build_m4_timing(out: Path, opt: str = "-O2") -> Path:
     (out / "timing.c").write_text(TIMING_C)
     elf = out / f"timing_m4{opt}.elf"
     srcs = [str(out / n) for n in ("datt_policy.c", "timing.c", "m4_startup.c")]
-    flags = [f for f in COMMON_FLAGS if f != "-O2"] + [opt]
-    cmd = [M4_GCC, *flags, *M4_FLAGS, "-ffreestanding", "-nostdlib", "-T", str(out / "m4.ld")]
+    cmd = [M4_GCC, *_flags(opt), *M4_FLAGS, "-ffreestanding", "-nostdlib", "-T", str(out / "m4.ld")]
     subprocess.run([*cmd, "-o", str(elf), *srcs, "-lgcc"], check=True, capture_output=True, text=True)
     return elf
 
