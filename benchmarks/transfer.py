@@ -15,58 +15,12 @@ writes ``benchmarks/results/transfer.json``. Real time: ~20 s per flight; run it
 from __future__ import annotations
 
 import argparse
-import itertools
 import tempfile
 from pathlib import Path
 
 from _common import write_result
 
-from datt.configuration import compose
-from datt.tasks.deploy import run_deploy
-from datt.tasks.eval import run_eval
-
-CHECKPOINTS = ["checkpoints/datt_h10.pt", "checkpoints/datt_h10_deploy.pt"]
-MASS_KG = 0.034  # deploy.thrust.mass_kg's default: what the controller believes
-CONDITIONS = {
-    "deploy.server.radio_latency_s": 0.02,  # each way: 40 ms round trip
-    "deploy.server.thrust_gain": 0.9,
-    "deploy.server.mass_kg": round(MASS_KG * 1.1, 5),
-    "deploy.server.radio_loss": 0.02,
-}
-_ports = itertools.count(19950)
-
-
-def eval_star_error(checkpoint: str, out: Path) -> float:
-    cfg = compose(
-        "eval",
-        [
-            f"checkpoint={checkpoint}",
-            "controller=datt_l1",
-            "traj=star",
-            "eval.traj_count=1",
-            "eval.plots=false",
-            "eval.save_trace=false",
-            "eval.timing.steps=0",
-        ],
-    )
-    metrics = run_eval(cfg, run_dir=out)
-    (cond,) = metrics["conditions"].values()
-    (group,) = cond["groups"].values()  # the one reference family flown
-    return float(group["mean_m"])
-
-
-def fly(checkpoint: str, conditions: dict, out: Path, seed: int) -> dict:
-    overrides = [f"checkpoint={checkpoint}", f"deploy.uri=udp://127.0.0.1:{next(_ports)}", f"seed={seed}"]
-    overrides += [f"{k}={v}" for k, v in conditions.items()]
-    overrides.append(f"deploy.server.radio_seed={seed}")
-    summary = run_deploy(compose("deploy", overrides), run_dir=out)
-    return {
-        "outcome": summary["outcome"],
-        "track_error_m": summary["track_error_m"],
-        "jitter_ms": summary["jitter_ms"],
-        "late_ticks": summary["late_ticks"],
-        "compute_ms": summary["compute_ms"],
-    }
+from datt.tasks.transfer import CHECKPOINTS, CONDITIONS, eval_star_error, fly
 
 
 def main() -> None:

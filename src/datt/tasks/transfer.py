@@ -1,0 +1,55 @@
+"""Sim-to-real transfer test (issue 18): fly a policy against the strict simulated Crazyflie made
+worse than the controller assumes, and compare with ``eval.py`` on the same reference.
+
+Transfer conditions (``CONDITIONS``): 40 ms radio round trip, motors 10 % weaker than the
+firmware's fit, the vehicle 10 % heavier than ``deploy.thrust.mass_kg``, 2 % of setpoint, mocap
+and log packets lost; no calibration flight (the controller flies the nominal map). Used by
+``benchmarks/transfer.py`` and ``tests/deploy/test_transfer.py``.
+"""
+
+from __future__ import annotations
+
+import itertools
+from pathlib import Path
+
+from datt.configuration import compose
+from datt.tasks.deploy import run_deploy
+from datt.tasks.eval import run_eval
+
+CHECKPOINTS = ["checkpoints/datt_h10.pt", "checkpoints/datt_h10_deploy.pt"]
+MASS_KG = 0.034  # deploy.thrust.mass_kg's default: what the controller believes
+CONDITIONS = {
+    "deploy.server.radio_latency_s": 0.02,  # each way: 40 ms round trip
+    "deploy.server.thrust_gain": 0.9,
+    "deploy.server.mass_kg": round(MASS_KG * 1.1, 5),
+    "deploy.server.radio_loss": 0.02,
+}
+_ports = itertools.count(19950)
+
+
+def eval_star_error(checkpoint: str, out: Path) -> float:
+    """``eval.py``'s star error of the policy with L1 (the bank's star group: the reference
+    ``deploy.py`` flies), no disturbance, nominal simulator."""
+    cfg = compose(
+        "eval",
+        [f"checkpoint={checkpoint}", "controller=datt_l1", "eval.plots=false", "eval.save_trace=false", "eval.timing.steps=0"],
+    )
+    metrics = run_eval(cfg, run_dir=out)
+    (cond,) = metrics["conditions"].values()
+    return float(cond["groups"]["star"]["mean_m"])
+
+
+def fly(checkpoint: str, conditions: dict, out: Path, seed: int, extra: tuple = ()) -> dict:
+    """One ``deploy.py`` flight (DATT + L1, the star) of ``checkpoint`` under ``conditions``
+    (``deploy.*`` overrides); ``seed`` also seeds the radio's losses. Returns the summary's figures."""
+    overrides = [f"checkpoint={checkpoint}", f"deploy.uri=udp://127.0.0.1:{next(_ports)}", f"seed={seed}"]
+    overrides += [f"{k}={v}" for k, v in conditions.items()]
+    overrides += [f"deploy.server.radio_seed={seed}", *extra]
+    summary = run_deploy(compose("deploy", overrides), run_dir=out)
+    return {
+        "outcome": summary["outcome"],
+        "track_error_m": summary["track_error_m"],
+        "jitter_ms": summary["jitter_ms"],
+        "late_ticks": summary["late_ticks"],
+        "compute_ms": summary["compute_ms"],
+    }
