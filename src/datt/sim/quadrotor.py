@@ -84,16 +84,6 @@ class QuadrotorParams:
     def max_latency_steps(self) -> int:
         return self.latency_steps if self.latency_steps_max is None else int(self.latency_steps_max)
 
-    @property
-    def randomised(self) -> bool:
-        """True when reset draws per-drone parameters (extra random numbers from the generator)."""
-        return bool(
-            self.mass_spread
-            or self.thrust_gain_spread
-            or self.max_latency_steps != self.latency_steps
-            or self.rate_model == "mixed"
-        )
-
     def validate(self, prefix: str = "env.quad") -> None:
         from datt.errors import ConfigError
 
