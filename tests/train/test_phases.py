@@ -60,6 +60,9 @@ def test_shipped_experiment_is_the_five_phase_schedule():
     assert last.curriculum.fixed_ref_steps == 0 and last.train.init_from == "p4/last.pt"
     assert (last.algo.lr, last.algo.num_envs, last.algo.minibatch_size, last.env.reward.vel) == (1e-4, 2048, 4096, 0.0)
     assert dict(last.traj.weights) == {"zigzag": 6, "poly": 1, "chained_poly": 1}
+    # the checkpoint's zigzags: the iid ones (the training default when it was trained)
+    for family in (first.traj.families.zigzag, first.curriculum.fixed.family):
+        assert (family.waypoints, family.seg_min_s, family.seg_max_s, family.range_m) == ("iid", 0.5, 1.5, 1.0)
     assert last.train.phases is None and last.train.total_steps == 10_000_000
     # the evaluation runs once, after the last phase
     assert not first.train.eval_at_end and last.train.eval_at_end
