@@ -137,3 +137,11 @@ def test_bad_randomisation_values_name_the_key(kwargs, key):
     assert "\n" not in str(info.value)
     if key == "rate_model":
         assert "first_order, second_order, mixed" in str(info.value)
+
+
+def test_a_wider_ring_without_drawn_delays_keeps_the_nominal_latency():
+    """``max_steps`` > ``steps`` but no per-drone draw yet: every drone gets ``steps``."""
+    latency = CommandLatency(2, torch.zeros(1), n=2, max_steps=4)
+    out = [latency.push(torch.full((2, 1), float(k + 1)))[:, 0].tolist() for k in range(7)]
+    assert out == [[0.0, 0.0], [0.0, 0.0]] + [[float(k - 1)] * 2 for k in range(2, 7)]
+    assert latency.in_flight()[:, 0, 0].tolist() == [6.0, 7.0]
