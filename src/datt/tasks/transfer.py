@@ -32,7 +32,13 @@ def eval_star_error(checkpoint: str, out: Path) -> float:
     ``deploy.py`` flies), no disturbance, nominal simulator."""
     cfg = compose(
         "eval",
-        [f"checkpoint={checkpoint}", "controller=datt_l1", "eval.plots=false", "eval.save_trace=false", "eval.timing.steps=0"],
+        [
+            f"checkpoint={checkpoint}",
+            "controller=datt_l1",
+            "eval.plots=false",
+            "eval.save_trace=false",
+            "eval.timing.steps=0",
+        ],
     )
     metrics = run_eval(cfg, run_dir=out)
     (cond,) = metrics["conditions"].values()
