@@ -20,6 +20,7 @@ from pathlib import Path
 
 from _common import write_result
 
+from datt.paths import resolve_path
 from datt.tasks.transfer import CHECKPOINTS, CONDITIONS, eval_star_error, fly
 
 
@@ -29,8 +30,11 @@ def main() -> None:
     ap.add_argument("--checkpoints", nargs="+", default=CHECKPOINTS)
     args = ap.parse_args()
     results = {}
+    missing = [c for c in args.checkpoints if not resolve_path(c).exists()]
+    for ckpt in missing:
+        print(f"{ckpt}: not found, skipped")
     with tempfile.TemporaryDirectory() as tmp:
-        for k, ckpt in enumerate(args.checkpoints):
+        for k, ckpt in enumerate(c for c in args.checkpoints if c not in missing):
             base = Path(tmp) / f"policy{k}"
             eval_err = eval_star_error(ckpt, base / "eval")
             flights = [fly(ckpt, CONDITIONS, base / f"flight{i}", seed=i) for i in range(args.flights)]

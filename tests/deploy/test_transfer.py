@@ -6,13 +6,20 @@ import pytest
 
 pytest.importorskip("cflib")
 
+from datt.paths import resolve_path  # noqa: E402
 from datt.tasks.transfer import CONDITIONS, eval_star_error, fly  # noqa: E402
 
 pytestmark = [pytest.mark.slow, pytest.mark.flight]
+DEPLOY_GRADE = "checkpoints/datt_h10_deploy.pt"
 
 
+@pytest.mark.skipif(
+    not resolve_path(DEPLOY_GRADE).is_file(),
+    reason="no deploy-grade policy in the package yet: `python train.py experiment=deploy` has not "
+    "produced one that passes (docs/deploy.md, the transfer test)",
+)
 def test_deploy_grade_policy_lands_within_1_5x_of_its_eval_error(tmp_path):
-    checkpoint = "checkpoints/datt_h10_deploy.pt"
+    checkpoint = DEPLOY_GRADE
     eval_err = eval_star_error(checkpoint, tmp_path / "eval")
     flight = fly(checkpoint, CONDITIONS, tmp_path / "flight", seed=0)
     assert flight["outcome"].startswith("landed"), flight["outcome"]
