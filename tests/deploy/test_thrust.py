@@ -178,3 +178,53 @@ def test_response_lag_recovers_a_delay_between_excitation_and_acceleration(lag):
     assert response_lag_ticks(exc, acc) == pytest.approx(lag - 0.5, abs=0.25)
     with pytest.raises(ValueError, match="^latency: needs an excitation with steps"):
         response_lag_ticks([1.0] * 50, acc[:50])
+
+
+@pytest.mark.parametrize("direction", [1.0, -1.0])
+def test_response_lag_of_one_step_up_or_down_by_hand(direction):
+    """One excitation step at tick 3 (the first tick with three samples before it); the
+    acceleration jumps by 2 between samples 5 and 6: half of the jump is reached at 5.5, so the
+    lag is 5.5 - 3 = 2.5 ticks, whichever way the step goes."""
+    from datt.deploy.thrust import response_lag_ticks
+
+    exc = [0.0] * 3 + [direction] * 15
+    acc = [0.0] * 6 + [2.0 * direction] * 12
+    assert response_lag_ticks(exc, acc) == pytest.approx(2.5)
+    # a record that ends within the window after the step has no measurable step
+    with pytest.raises(ValueError, match="^latency: needs"):
+        response_lag_ticks(exc[:13], acc[:13])
+
+
+def test_response_lag_is_the_median_over_steps():
+    """Three steps (up, down, up) whose acceleration jumps 1 + delay samples later, delays 1, 2
+    and 4: lags 1.5, 2.5 and 4.5 ticks; the median is 2.5 (the mean would be 2.83)."""
+    from datt.deploy.thrust import response_lag_ticks
+
+    exc, acc = [0.0] * 60, [0.0] * 60
+    for start, delay, level in ((5, 1, 1.0), (25, 2, 0.0), (45, 4, 1.0)):
+        for k in range(start, 60):
+            exc[k] = level
+        for k in range(start + 1 + delay, 60):
+            acc[k] = level * 2.0
+    assert response_lag_ticks(exc, acc) == pytest.approx(2.5)
+
+
+def test_response_lag_interpolates_and_takes_the_middle_two_of_an_even_count():
+    """Four steps (up, down, up, down at ticks 5, 25, 45, 65) whose acceleration moves
+    1 + delay samples later by a quarter of the jump (half of it for the third step) and then
+    the rest. With the jump 2: the crossing of half the jump is interpolated a third of the way
+    into the second sample (lag = delay + 1 + 1/3), or lands on the half-way sample itself
+    (lag = delay + 1). Delays 1, 2, 3, 5 give 2.333, 3.333, 4.0, 6.333: the median of an even
+    count is the mean of the middle two, 3.667."""
+    from datt.deploy.thrust import response_lag_ticks
+
+    n = 90
+    exc, acc = [0.0] * n, [0.0] * n
+    for start, delay, level, ramp in ((5, 1, 1.0, 0.25), (25, 2, 0.0, 0.25), (45, 3, 1.0, 0.5), (65, 5, 0.0, 0.25)):
+        old = 2.0 * (1.0 - level)
+        for k in range(start, n):
+            exc[k] = level
+        acc[start + 1 + delay] = old + ramp * (2.0 * level - old)
+        for k in range(start + 2 + delay, n):
+            acc[k] = 2.0 * level
+    assert response_lag_ticks(exc, acc) == pytest.approx((10 / 3 + 4.0) / 2)
