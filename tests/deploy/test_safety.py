@@ -155,6 +155,9 @@ def test_safety_params_are_the_deploy_config_defaults():
         ({"kill_state_age_s": 0.1}, None),
         ({"kill_state_age_s": 0.05}, "deploy.safety.kill_state_age_s: must be >= max_state_age_s (0.1), got 0.05"),
         ({"battery_filter_s": -1.0}, "deploy.safety.battery_filter_s: must be >= 0, got -1.0"),
+        ({"battery_filter_s": 0.0}, None),  # 0 = no filter
+        ({"battery_filter_s": 0.5}, None),
+        ({"max_state_age_s": 0.0}, "deploy.safety.max_state_age_s: must be > 0, got 0.0"),
     ],
 )
 def test_safety_params_validation(kwargs, message):
@@ -211,3 +214,14 @@ def test_battery_filter_rides_out_a_sag_and_follows_a_drop():
     assert 1.5 < below * dt < 2.5  # ln((4.0 - 3.2) / (3.3 - 3.2)) = 2.08 time constants
     assert values[-1] == pytest.approx(3.2, abs=0.02)
     assert safety.BatteryFilter(0.0).update(3.1, dt) == 3.1  # 0 = no filter
+
+
+def test_battery_filter_step_response_by_hand():
+    """tau 2 s: a 1 V drop seen 0.5 s later moves the filter by 0.5 / 2 of it; a reading after a gap
+    longer than tau lands on the reading (no overshoot); tau 0 follows every reading."""
+    f = safety.BatteryFilter(2.0)
+    assert f.update(4.0, 0.02) == 4.0  # the first reading starts the filter
+    assert f.update(3.0, 0.5) == pytest.approx(3.75)
+    assert f.update(3.0, 6.0) == pytest.approx(3.0)
+    unfiltered = safety.BatteryFilter(0.0)
+    assert [unfiltered.update(v, 0.02) for v in (4.0, 3.1, 3.9)] == [4.0, 3.1, 3.9]

@@ -49,7 +49,9 @@ class SafetyParams:
             raise ConfigError("deploy.safety.geofence_min_m/max_m: need 3 values each with min < max")
         if not self.kill_battery_v <= self.land_battery_v:
             raise ConfigError("deploy.safety.kill_battery_v: must be <= land_battery_v")
-        if not 0 < self.max_state_age_s <= self.kill_state_age_s:
+        if not self.max_state_age_s > 0:
+            raise ConfigError(f"deploy.safety.max_state_age_s: must be > 0, got {self.max_state_age_s}")
+        if not self.max_state_age_s <= self.kill_state_age_s:
             raise ConfigError(
                 f"deploy.safety.kill_state_age_s: must be >= max_state_age_s ({self.max_state_age_s}), "
                 f"got {self.kill_state_age_s}"
