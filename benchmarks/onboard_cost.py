@@ -38,10 +38,10 @@ from datt.configuration import compose
 from datt.control.datt import DattController
 from datt.export import export_spec, record_rollout, write_c
 from datt.export.harness import (
-    COMMON_FLAGS,
     M4_FLAGS,
     M4_GCC,
     build_m4_timing,
+    flags_at,
     instructions_per_call,
     toolchain_missing,
     vectors_h,
@@ -67,8 +67,7 @@ def macs(spec) -> int:
 
 def compile_object(src: Path, opt: str) -> Path:
     obj = src.with_name(f"policy{opt}.o")
-    flags = [f for f in COMMON_FLAGS if f != "-O2"] + [opt]
-    subprocess.run([M4_GCC, *flags, *M4_FLAGS, "-fstack-usage", "-c", "-o", str(obj), str(src)], check=True)
+    subprocess.run([M4_GCC, *flags_at(opt), *M4_FLAGS, "-fstack-usage", "-c", "-o", str(obj), str(src)], check=True)
     return obj
 
 

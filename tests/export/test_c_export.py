@@ -12,10 +12,11 @@ import torch
 from datt.configuration import compose, instantiate_option
 from datt.control.datt import DattController
 from datt.export import export_spec, record_rollout, reference_action, replay_l1, write_c
+from datt.export.harness import COMMON_FLAGS
 
 GCC = shutil.which("gcc")
 pytestmark = pytest.mark.skipif(GCC is None, reason="no gcc on this machine: the C export cannot be built here")
-FLAGS = ["-std=c99", "-O2", "-Wall", "-Wextra", "-Werror", "-pedantic", "-ffp-contract=off"]
+FLAGS = [*COMMON_FLAGS, "-Werror"]
 F = ctypes.POINTER(ctypes.c_float)
 
 

@@ -6,7 +6,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from datt.configuration import hydra_choice, instantiate_option, with_options
 from datt.control.datt import DattController
-from datt.envs.observations import OBS_LAYOUT_KEYS
+from datt.envs.params import OBS_LAYOUT_KEYS
 from datt.policies.loading import load_actor
 
 

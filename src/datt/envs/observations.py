@@ -24,9 +24,6 @@ from datt.envs.params import ObsParams, RewardParams
 from datt.sim.frames import quat_rotate_inverse, quat_yaw, wrap_angle
 
 STATE_DIM = 13  # without the optional command history
-# the ObsParams keys that shape what a policy reads (a checkpoint carries them to eval/deploy;
-# the noise keys describe the environment, not the policy)
-OBS_LAYOUT_KEYS = ("body_frame", "feedback", "action_history")
 FEEDBACK = slice(10, 13)  # the feedback error's entries in ``state``
 
 

@@ -27,6 +27,12 @@ class RewardParams:
     crash_penalty: float = 300.0
 
 
+# ObsParams keys that shape what a policy reads (a checkpoint carries them to eval and deploy)
+# and keys that describe the sensor (the environment's, never carried by a checkpoint)
+OBS_LAYOUT_KEYS = ("body_frame", "feedback", "action_history")
+OBS_NOISE_KEYS = ("pos_noise_std_m", "vel_noise_std_mps", "att_noise_std_rad")
+
+
 @dataclass
 class ObsParams:
     """How observations are built (ablations live here, never in network code).
@@ -118,7 +124,7 @@ class EnvParams:
             f"must be three values > 0, got {list(self.rate_bounds_radps)}",
         )
         need(self.dtype in ("float32", "float64"), "dtype", f"unknown value {self.dtype!r}; allowed: float32, float64")
-        for key in ("pos_noise_std_m", "vel_noise_std_mps", "att_noise_std_rad"):
+        for key in OBS_NOISE_KEYS:
             val = getattr(self.obs, key)
             need(val >= 0, f"obs.{key}", f"must be >= 0, got {val}")
         k = self.obs.action_history

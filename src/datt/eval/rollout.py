@@ -17,6 +17,7 @@ from omegaconf import DictConfig, OmegaConf
 from datt.configuration import instantiate_option, load_option, with_options
 from datt.control.base import Controller
 from datt.envs.factory import make_env
+from datt.envs.params import OBS_NOISE_KEYS
 from datt.eval.metrics import episode_errors, summarize
 from datt.refs.base import RefFamily
 from datt.refs.composite import Seeded
@@ -115,7 +116,7 @@ def evaluate(cfg: DictConfig, controller_factory, disturbance: str, adaptation: 
     env_cfg.env.init_pos_range_m = 0.0
     # the bank measures tracking, not the sensor: no observation noise (the vehicle's randomisation,
     # env.quad.*, stays as configured: `randomization=deploy` evaluates on drawn vehicles)
-    for key in ("pos_noise_std_m", "vel_noise_std_mps", "att_noise_std_rad"):
+    for key in OBS_NOISE_KEYS:
         env_cfg.env.obs[key] = 0.0
     env = make_env(env_cfg, num_envs=sum(counts), seed=seed, traj=bank)
     trace = run_controller(env, controller_factory(env))

@@ -49,8 +49,8 @@ def record_rollout(cfg: DictConfig, controller: DattController, num_envs: int, s
     rows: dict[str, list[torch.Tensor]] = {k: [] for k in Recording.__dataclass_fields__}
     for _ in range(steps):
         inputs = env.control_input()
-        for key, name in (("pos_m", "pos_m"), ("vel_mps", "vel_mps"), ("quat", "quat"), ("d_hat", "d_hat")):
-            rows[name].append(inputs[key].clone())
+        for key in ("pos_m", "vel_mps", "quat", "d_hat"):
+            rows[key].append(inputs[key].clone())
         rows["ref_m"].append(inputs["ref_window_m"].clone())
         rows["cmd_hist"].append(inputs["cmd_history"].flatten(1).clone())
         action = controller.act(env, td)

@@ -171,7 +171,7 @@ def generate(spec: PolicySpec, prefix: str = "datt") -> tuple[str, str]:
 #ifndef {up}_POLICY_H
 #define {up}_POLICY_H
 
-#define {up}_HORIZON {h}            /* future reference points, {spec_spacing_note()} */
+#define {up}_HORIZON {h}            /* future reference points, env.ref_spacing_s apart, the first now */
 #define {up}_HISTORY {k}            /* commands in the history (0: none) */
 #define {up}_STATE_DIM {spec.state_dim}
 #define {up}_L1_LATENCY {lat}        /* thrust commands in flight in the L1 actuator model */
@@ -237,10 +237,6 @@ int {p}_self_test(float *max_err);
         _self_test_c(p, spec),
     ]
     return header, "".join(parts)
-
-
-def spec_spacing_note() -> str:
-    return "spaced env.ref_spacing_s apart, the first at the current time"
 
 
 def _helpers(k: int) -> str:

@@ -188,30 +188,36 @@ def write_harness(out: Path, vectors: str) -> None:
         (out / name).write_text(text)
 
 
-def _flags(opt: str) -> list[str]:
+def flags_at(opt: str) -> list[str]:
+    """``COMMON_FLAGS`` at optimisation level ``opt`` (``-O2``, ``-Os``, ...)."""
     return [f for f in COMMON_FLAGS if f != "-O2"] + [opt]
 
 
 def build_host(out: Path, cc: str = "gcc", opt: str = "-O2") -> Path:
     exe = Path(out) / f"harness_host{opt}"
     srcs = [str(Path(out) / n) for n in ("datt_policy.c", "harness.c", "host_main.c")]
-    subprocess.run([cc, *_flags(opt), "-o", str(exe), *srcs], check=True, capture_output=True, text=True)
+    subprocess.run([cc, *flags_at(opt), "-o", str(exe), *srcs], check=True, capture_output=True, text=True)
     return exe
 
 
-def build_m4(out: Path, opt: str = "-O2") -> Path:
-    """The harness for the Cortex-M4F with the firmware's flags (no C library: freestanding);
-    ``opt``: ``-Os`` is the firmware's own optimisation level."""
-    elf = Path(out) / f"harness_m4{opt}.elf"
-    srcs = [str(Path(out) / n) for n in ("datt_policy.c", "harness.c", "m4_startup.c")]
-    cmd = [M4_GCC, *_flags(opt), *M4_FLAGS, "-ffreestanding", "-nostdlib", "-T", str(Path(out) / "m4.ld")]
+def build_m4(out: Path, opt: str = "-O2", program: str = "harness") -> Path:
+    """``<program>.c`` (the harness, or ``timing``) with the generated code for the Cortex-M4F,
+    with the firmware's flags (no C library: freestanding); ``opt``: ``-Os`` is the firmware's
+    own optimisation level."""
+    out = Path(out)
+    elf = out / f"{program}_m4{opt}.elf"
+    srcs = [str(out / n) for n in ("datt_policy.c", f"{program}.c", "m4_startup.c")]
+    cmd = [M4_GCC, *flags_at(opt), *M4_FLAGS, "-ffreestanding", "-nostdlib", "-T", str(out / "m4.ld")]
     subprocess.run([*cmd, "-o", str(elf), *srcs, "-lgcc"], check=True, capture_output=True, text=True)
     return elf
 
 
-def run_qemu(elf: Path, timeout_s: float = 300.0) -> str:
+def run_qemu(elf: Path, timeout_s: float = 300.0, icount: bool = False) -> str:
+    """Run ``elf`` on the STM32F405 model; returns what it printed (SYS_WRITE0). ``icount``:
+    every instruction takes the same virtual time (``-icount shift=0``)."""
     proc = subprocess.run(
         [QEMU, "-M", "netduinoplus2", "-nographic", "-monitor", "none", "-serial", "none",
+         *(["-icount", "shift=0"] if icount else []),
          "-semihosting-config", "enable=on,target=native", "-kernel", str(elf)],
         check=True, capture_output=True, text=True, timeout=timeout_s,
     )  # fmt: skip
@@ -299,22 +305,12 @@ int run_all(void) {
 
 def build_m4_timing(out: Path, opt: str = "-O2") -> Path:
     """The SysTick timing program (``TIMING_C``) for the Cortex-M4F."""
-    out = Path(out)
-    (out / "timing.c").write_text(TIMING_C)
-    elf = out / f"timing_m4{opt}.elf"
-    srcs = [str(out / n) for n in ("datt_policy.c", "timing.c", "m4_startup.c")]
-    cmd = [M4_GCC, *_flags(opt), *M4_FLAGS, "-ffreestanding", "-nostdlib", "-T", str(out / "m4.ld")]
-    subprocess.run([*cmd, "-o", str(elf), *srcs, "-lgcc"], check=True, capture_output=True, text=True)
-    return elf
+    (Path(out) / "timing.c").write_text(TIMING_C)
+    return build_m4(out, opt, program="timing")
 
 
 def instructions_per_call(elf: Path) -> tuple[int, int]:
     """Instructions executed by one ``datt_act`` and one ``datt_l1_step`` (qemu ``-icount``;
     the SysTick ticks scaled by the calibration loop's 200000 instructions)."""
-    proc = subprocess.run(
-        [QEMU, "-M", "netduinoplus2", "-nographic", "-monitor", "none", "-serial", "none", "-icount", "shift=0",
-         "-semihosting-config", "enable=on,target=native", "-kernel", str(elf)],
-        check=True, capture_output=True, text=True, timeout=120,
-    )  # fmt: skip
-    cal, act, l1 = (int(x) for x in proc.stderr.split())
+    cal, act, l1 = (int(x) for x in run_qemu(elf, timeout_s=120, icount=True).split())
     return round(act * 200000 / cal), round(l1 * 200000 / cal)
