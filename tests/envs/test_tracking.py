@@ -323,6 +323,33 @@ def test_reward_velocity_term_is_capped():
     assert err.item() == 0.0 and cost.item() == pytest.approx(0.1)
 
 
+def test_reward_velocity_term_is_per_drone():
+    """Two drones, one at rest and one at 0.5 m/s: each pays for its own speed only."""
+    from datt.envs.observations import observe_and_cost
+    from datt.envs.params import ObsParams, RewardParams
+
+    pos = torch.zeros(2, 3)
+    vel = torch.tensor([[0.0, 0.0, 0.0], [0.3, 0.4, 0.0]])
+    quat = torch.tensor([[1.0, 0.0, 0.0, 0.0]]).repeat(2, 1)
+    reward = RewardParams(pos=1.0, yaw=0.5, vel=0.1, vel_cap_mps=1.0)
+    _, _, _, cost = observe_and_cost(pos, vel, quat, pos, vel, quat, torch.zeros(2, 2, 3), ObsParams(), reward)
+    assert cost.shape == (2, 1) and cost[:, 0].tolist() == pytest.approx([0.0, 0.05])
+
+
+def test_observation_defaults_are_the_papers_input():
+    """``build_observation`` without the ablation flags is the body-frame input with feedback."""
+    from datt.envs.observations import build_observation
+
+    g = torch.Generator().manual_seed(3)
+    pos, vel, ref = torch.randn(4, 3, generator=g), torch.randn(4, 3, generator=g), torch.randn(5, 4, 3, generator=g)
+    quat = torch.nn.functional.normalize(torch.randn(4, 4, generator=g), dim=-1)
+    default = build_observation(pos, vel, quat, ref)
+    for got, want in zip(default, build_observation(pos, vel, quat, ref, True, True)):
+        assert torch.equal(got, want)
+    assert not torch.equal(default[0], build_observation(pos, vel, quat, ref, False, True)[0])
+    assert not torch.equal(default[0], build_observation(pos, vel, quat, ref, True, False)[0])
+
+
 def test_tracking_error_is_read_from_the_reference_table(make_tracking_env):
     """``tracking_error_m`` at step k equals ‖p_k − ref_table[k]‖, the table read directly."""
     env = make_tracking_env(n=3)

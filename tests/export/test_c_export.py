@@ -187,7 +187,8 @@ def test_torchscript_and_onnx_exports_compute_the_same_action(exported, tmp_path
 @pytest.mark.parametrize(
     "overrides, message",
     [
-        (["format=tflite"], "format: unknown value 'tflite'; allowed: c, torchscript, onnx"),
+        (["format=tflite"], "format: unknown value 'tflite'; allowed: c, app, torchscript, onnx"),
+        (["format=app", "prefix=cf"], "prefix: format=app uses the prefix datt"),
         (["prefix=9lives"], "prefix: must be a C identifier"),
         (["controller=datt"], "adaptation: the C export runs the L1 estimator onboard"),
         (["controller=pid"], "controller: the export needs a DATT policy"),

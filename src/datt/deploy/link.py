@@ -318,6 +318,34 @@ class CrazyflieLink:
             vbat_v=b["pm.vbat"],
         )
 
+    # -- the onboard app (deploy.onboard=true) --------------------------------------------------
+    def has_param(self, name: str) -> bool:
+        """The vehicle's firmware has the parameter ``name`` (e.g. ``datt.run``: the DATT app)."""
+        return self._in_toc(name)
+
+    def set_param(self, name: str, value: float) -> None:
+        """Set ``name`` without reading it back (within ``io_timeout_s``; a failure marks the link lost)."""
+        self._send(f"param {name}", self.cf.param.set_value, name, value)
+
+    def send_app_packet(self, data: bytes) -> None:
+        """One app-channel packet (at most 30 bytes) to the app."""
+        self._send("app channel", self.cf.appchannel.send_packet, bytes(data))
+
+    def on_app_packet(self, callback) -> None:
+        """``callback(data: bytes)`` for every app-channel packet from the vehicle."""
+        self.cf.appchannel.packet_received.add_callback(lambda data: callback(bytes(data)))
+
+    def log_block(self, name: str, variables: list[str], period_ms: int, callback) -> None:
+        """Start a log block; ``callback(values: dict)`` per sample (types from the vehicle's TOC)."""
+        _, _, LogConfig = _cflib()
+        lc = LogConfig(name=name, period_in_ms=int(period_ms))
+        for v in variables:
+            group, short = v.split(".")
+            lc.add_variable(v, self.cf.log.toc.get_element(group, short).ctype)
+        self.cf.log.add_config(lc)
+        lc.data_received_cb.add_callback(lambda timestamp, data, logconf: callback(dict(data)))
+        lc.start()
+
     # -- commands --------------------------------------------------------------------------
     def send_rates(self, roll_degps: float, pitch_degps: float, yaw_arg_degps: float, thrust_cmd: int) -> None:
         self._send("setpoint", self.cf.commander.send_setpoint, roll_degps, pitch_degps, yaw_arg_degps, int(thrust_cmd))

@@ -30,6 +30,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from datt.deploy import onboard
 from datt.deploy.link import SUPERVISOR_BIT_CRASHED, SUPERVISOR_BIT_LOCKED, SUPERVISOR_BIT_TUMBLED
 from datt.deploy.safety import KILL, LAND, OK, BatteryFilter, SafetyParams, check, tilt_deg
 from datt.deploy.thrust import ThrustMap
@@ -53,6 +54,9 @@ class Ramp(RefFamily):
     def sample(self, n, t_s, generator):
         u = (t_s / self.duration_s).clamp(0.0, 1.0).unsqueeze(-1)
         return (self.start + u * (self.end - self.start)).to(t_s.dtype).expand(n, len(t_s), 3).clone()
+
+
+LINK_LOST = "LINK_LOST"  # onboard flights: the host lost the vehicle while the app flew on
 
 
 class FlightModel:
@@ -125,6 +129,7 @@ class FlightRunner:
         run_dir: Path,
         estop: threading.Event | None = None,
         console=None,
+        onboard: bool = False,
     ) -> None:
         self.link, self.mocap = link, mocap
         self.make_env, self.track_controller, self.pid_factory = make_env, track_controller, pid_factory
@@ -141,6 +146,9 @@ class FlightRunner:
         self.battery = BatteryFilter(safety.battery_filter_s)
         self._mocap_sent_t: float | None = None  # time stamp of the last mocap sample forwarded
         self._excitation = None  # calibration: extra thrust (m/s²) as a function of the tick index
+        self.onboard = onboard  # TRACK runs in the vehicle's DATT app (datt.deploy.onboard)
+        self._app: dict = {"samples": {}, "last": None}  # the app's log: step -> its error, latest values
+        self._onboard_steps = 0  # TRACK steps the app flies (set when the reference is uploaded)
 
     # -- helpers ---------------------------------------------------------------------------
     def _event(self, kind: str, text: str = "", **extra) -> None:
@@ -253,6 +261,176 @@ class FlightRunner:
             self._land(origin)
 
         return self._flight(build, airborne)
+
+    def fly_onboard(self) -> dict:
+        """Takeoff (PID, off-board), then the vehicle's DATT app tracks the reference and lands
+        by itself: the reference is uploaded before arming, ``datt.run = 1`` hands it the flight,
+        and the host only streams mocap and watches (KILL on a safety breach; a LAND decision
+        stops the app and lands with the PID). A lost link leaves the app flying to the end."""
+
+        def build(start_rel):
+            track = self._model(self.track_controller, self.track_family)
+            self._check_reference_in_geofence(track, self.p.track_s)
+            self._onboard_prepare(track)
+            return self._takeoff(start_rel)
+
+        def airborne(origin, takeoff):
+            name, model, duration = takeoff
+            self._set_phase(name)
+            if self._fly_phase(model, duration, origin) != OK:
+                return
+            self._set_phase("TRACK")
+            result = self._onboard_track(origin)
+            if result == LAND:
+                self._land(origin)
+            elif result == OK:
+                self.link.send_rates(0.0, 0.0, 0.0, 0)
+                self.outcome = "landed (onboard)"
+
+        return self._flight(build, airborne)
+
+    def _onboard_track_steps(self, model: FlightModel) -> int:
+        duration = self.p.track_s or model.env.params.episode_steps * model.env.dt_s
+        return int(round(duration * self.p.rate_hz))
+
+    def _onboard_prepare(self, track: FlightModel) -> None:
+        """Check the app is there, select its controller hook, set its parameters, upload the
+        reference (controller frame) and follow its log."""
+        if not self.link.has_param("datt.run"):
+            self.outcome = (
+                "preflight failed: deploy.onboard: the vehicle's firmware has no DATT app (no parameter datt.run): "
+                "build and flash it (datt export format=app; docs/onboard.md), or fly off-board (deploy.onboard=false)"
+            )
+            self._event("preflight failed", self.outcome)
+            raise _Abort(self.outcome)
+        steps = self._onboard_track_steps(track)
+        env = track.env
+        table = env.ref_table[0, : min(steps + env.window, env.table_len)].double().numpy()
+        origin = self._origin()
+        values = {
+            "originX": origin[0],
+            "originY": origin[1],
+            "originZ": origin[2],
+            "nPoints": len(table),
+            "trackSteps": steps,
+            "landZ": -origin[2] + 0.05,
+            "landS": self.p.land_s,
+            "landHoldS": 0.5,
+            "hoverCmd": self.thrust.hover_command,
+            "slope": self.thrust.slope,
+            "maxCmd": self.thrust.p.max_command,
+            "maxRateRoll": self.thrust.p.max_rate_degps[0],
+            "maxRatePitch": self.thrust.p.max_rate_degps[1],
+            "maxRateYaw": self.thrust.p.max_rate_degps[2],
+            "maxTiltDeg": self.safety.max_tilt_deg,
+        }
+        self.link.set_param_checked("datt.run", 0)
+        self.link.set_param_checked("stabilizer.controller", onboard.CONTROLLER_OOT)  # the app's state hook
+        for name, value in values.items():
+            self.link.set_param(f"datt.{name}", value)
+        upload = onboard.Upload(self.link.send_app_packet, table)
+        self.link.on_app_packet(upload.on_packet)
+        started = time.monotonic()
+        try:
+            upload.run()
+        except RuntimeError as exc:
+            self.outcome = f"preflight failed: the reference upload to the app failed: {exc}"
+            self._event("preflight failed", self.outcome)
+            raise _Abort(self.outcome) from None
+        self._event("onboard", f"reference uploaded: {len(table)} points in {time.monotonic() - started:.2f} s")
+        self._onboard_steps = steps
+        self.link.log_block("datt", onboard.LOG_BLOCK, self.link.log_period_ms, self._on_app_log)
+
+    def _on_app_log(self, values: dict) -> None:
+        phase, step = int(values["datt.phase"]), int(values["datt.step"])
+        ref = (values["datt.refX"], values["datt.refY"], values["datt.refZ"])
+        self._app["last"] = (phase, step, ref, time.monotonic())
+        if phase in (onboard.TRACK, onboard.LAND, onboard.DONE) and step > 0:
+            # datt.errM / datt.ref* belong to the step before datt.step (the app counts after stepping)
+            self._app["samples"][step - 1] = float(values["datt.errM"])
+
+    def _onboard_track(self, origin: np.ndarray) -> str:
+        """Hand the flight to the app and watch until it has landed (or the time it needs has
+        passed). Returns OK (the app landed), LAND (stopped: the host lands) or KILL."""
+        self.link.set_param_checked("datt.run", 1)
+        dt = 1.0 / self.p.rate_hz
+        budget_s = self._onboard_steps * dt + self.p.land_s + 0.5 + 2.0
+        deadline = time.monotonic() + budget_s
+        quiet = False
+        next_t = time.monotonic()
+        while time.monotonic() < deadline:
+            now = time.monotonic()
+            state = self.link.state()
+            mocap_age = self._mocap_age()
+            last = self._app["last"]
+            phase = last[0] if last is not None else onboard.IDLE
+            if phase == onboard.REFUSED:
+                self._event("LAND", "the app refused to start (table incomplete or a parameter invalid)")
+                self.link.set_param("datt.run", 0)
+                return LAND
+            if phase in (onboard.DONE, onboard.ABORTED):
+                self.link.set_param("datt.run", 0)
+                if phase == onboard.ABORTED:
+                    self.outcome = "aborted by the onboard app (tilt or a non-finite state/action): motors stopped"
+                    self._event("KILL", self.outcome)
+                    return KILL
+                self._event("onboard", "the app has landed")
+                return OK
+            fresh = state is not None and now - state.t_s < self.safety.max_state_age_s
+            if self.link.link_lost.is_set() or not fresh:
+                if not quiet:  # nothing the host can do: the app flies on by itself
+                    self._event("warning", "no fresh state from the vehicle: the onboard app flies on")
+                    quiet = True
+            else:
+                quiet = False
+                state_for_check = dataclasses.replace(state, vbat_v=self.battery.update(state.vbat_v, dt))
+                decision = check(
+                    self.safety,
+                    now_s=now,
+                    state=state_for_check,
+                    command=None,
+                    estop=self.estop.is_set(),
+                    link_lost=False,
+                    mocap_age_s=mocap_age,
+                )
+                if decision.action == KILL:
+                    self._kill(decision.reason)
+                    return KILL
+                if decision.action == LAND:
+                    self._event("LAND", decision.reason)
+                    self.link.set_param("datt.run", 0)  # the app hands the commander back
+                    return LAND
+                ref = np.array(last[2]) + origin if last is not None else np.full(3, np.nan)
+                self.rows.append(
+                    {
+                        "t_s": now - self.t0,
+                        "phase": "TRACK" if phase != onboard.LAND else "LAND",
+                        "pos": list(state.pos_m),
+                        "vel": list(state.vel_mps),
+                        "quat": list(state.quat),
+                        "ref": list(ref),
+                        "action": [math.nan] * 4,  # computed onboard
+                        "thrust_cmd": 0,
+                        "d_hat": [math.nan] * 3,
+                        "vbat": state.vbat_v,
+                        "decision": decision.action,
+                        "jitter_ms": (now - next_t) * 1e3,
+                        "compute_ms": 0.0,
+                    }
+                )
+            next_t += dt
+            time.sleep(max(0.0, next_t - time.monotonic()))
+        state = self.link.state()
+        if self.link.link_lost.is_set() or state is None or time.monotonic() - state.t_s > self.safety.max_state_age_s:
+            # an e-stop could not arrive, and would drop a vehicle that may still be flying well
+            self.outcome = (
+                "link lost during the onboard flight: the app flew on by itself; the host cannot confirm it landed"
+            )
+            self._event("warning", self.outcome)
+            return LINK_LOST
+        self._event("LAND", f"the app did not report landing within {budget_s:.1f} s")
+        self.link.set_param("datt.run", 0)
+        return LAND
 
     def calibrate(self, hover_s: float = 4.0, excitation_mps2: float = 1.0) -> dict:
         """Hover calibration flight: takeoff, then hold the hover point with the PID while a slow
@@ -436,7 +614,7 @@ class FlightRunner:
             if decision.action == LAND:  # already landing: keep landing, note why
                 self._event("warning", decision.reason)
             command = self._send(action)
-            if self.p.estop_watchdog:
+            if self.p.estop_watchdog and not self.onboard:  # onboard: a lost link must not stop the app's flight
                 self.link.send_estop_watchdog()
             compute_ms = (time.monotonic() - now) * 1e3
             self.rows.append(
@@ -544,11 +722,14 @@ class FlightRunner:
                 )
         track = [r for r in self.rows if r["phase"] == "TRACK"]
         err = [float(np.linalg.norm(np.array(r["pos"]) - np.array(r["ref"]))) for r in track]
+        app_steps = {k: e for k, e in self._app["samples"].items() if k < self._onboard_steps}
+        if self.onboard:  # the app's own per-step error (the estimate it flew on vs p_d at that step)
+            err = list(app_steps.values())
         jitter = np.array([r["jitter_ms"] for r in self.rows]) if self.rows else np.zeros(1)
         compute = np.array([r["compute_ms"] for r in self.rows]) if self.rows else np.zeros(1)
         summary = {
             "outcome": self.outcome,
-            "track_steps": len(track),
+            "track_steps": len(app_steps) if self.onboard else len(track),
             "track_error_m": float(np.mean(err)) if err else None,
             "ticks": len(self.rows),
             "jitter_ms": {

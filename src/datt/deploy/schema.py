@@ -53,6 +53,7 @@ class DeployParams:
     server: Any = MISSING  # simulated Crazyflie (deploy=sim) or null (a real one)
     mocap: MocapParams = MISSING
     mode: str = MISSING  # fly | calibrate
+    onboard: bool = MISSING  # TRACK in the vehicle's DATT app (datt export format=app) instead of over the radio
     calibrate_hover_s: float = MISSING
     log_period_ms: int = MISSING
     connect_timeout_s: float = MISSING
@@ -65,6 +66,8 @@ class DeployParams:
         self.mocap.validate()
         if self.mode not in MODES:
             raise ConfigError(f"deploy.mode: unknown mode {self.mode!r}; allowed: {', '.join(MODES)}")
+        if self.onboard and self.mode != "fly":
+            raise ConfigError(f"deploy.onboard: only deploy.mode=fly runs onboard, got mode={self.mode!r}")
         if not self.calibrate_hover_s > 0:
             raise ConfigError(f"deploy.calibrate_hover_s: must be > 0, got {self.calibrate_hover_s}")
         if not 10 <= self.log_period_ms <= 2550:

@@ -98,6 +98,7 @@ def export_spec(cfg: DictConfig, golden_steps: int = 40) -> tuple[PolicySpec, Da
     net = controller.net
     spec = policy_spec(net, env.horizon, env.params.obs, env.action_low, env.action_high)
     spec.l1 = l1_spec(l1, env.dt_s, env.params.quad.gravity_mps2)
+    spec.dt_s, spec.ref_stride = float(env.dt_s), int(env.ref_offsets[1]) if env.horizon > 1 else 1
     rec = record_rollout(merged, DattController(controller.actor, frozen=False), num_envs=1, steps=golden_steps)
     k = golden_steps - 1  # the last step: the reference is well under way
     one = {name: getattr(rec, name)[k] for name in ("pos_m", "vel_mps", "quat", "ref_m", "d_hat", "cmd_hist")}

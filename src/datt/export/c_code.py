@@ -65,6 +65,8 @@ class PolicySpec:
     mlp: list[tuple[np.ndarray, np.ndarray]]  # (W [out, in], b [out]), ReLU after each
     head: tuple[np.ndarray, np.ndarray]  # (W [4, hidden], b [4])
     use_d_hat: bool = True
+    dt_s: float = 0.02  # the control step (env.dt_s)
+    ref_stride: int = 1  # control steps between two of the H reference points (env.ref_spacing_s / dt_s)
     l1: L1Spec | None = None
     golden: dict = field(default_factory=dict)
 
@@ -171,7 +173,10 @@ def generate(spec: PolicySpec, prefix: str = "datt") -> tuple[str, str]:
 #ifndef {up}_POLICY_H
 #define {up}_POLICY_H
 
-#define {up}_HORIZON {h}            /* future reference points, env.ref_spacing_s apart, the first now */
+#define {up}_HORIZON {h}            /* future reference points, {up}_REF_STRIDE steps apart, the first now */
+#define {up}_REF_STRIDE {spec.ref_stride}
+#define {up}_DT_S {_f(spec.dt_s)}         /* the control step, s */
+#define {up}_GRAVITY_MPS2 {_f(spec.l1.gravity_mps2)}
 #define {up}_HISTORY {k}            /* commands in the history (0: none) */
 #define {up}_STATE_DIM {spec.state_dim}
 #define {up}_L1_LATENCY {lat}        /* thrust commands in flight in the L1 actuator model */

@@ -24,7 +24,20 @@ from datt.runs import stop_signals
 from datt.tasks.common import console, hydra_run_dir, set_threads
 
 
-def _start_server(cfg: DictConfig, params: DeployParams, thrust: ThrustParams):
+def _onboard_library(cfg: DictConfig, run_dir: Path) -> str:
+    """The DATT app for the simulated Crazyflie: exported from the flight's checkpoint and
+    adaptation (``<run>/onboard_app``, the sources a real vehicle would be built from) and
+    compiled for this machine."""
+    from datt.export import export_spec
+    from datt.export.app import build_sil_library, write_app
+
+    spec, _, _ = export_spec(cfg)
+    app_dir = run_dir / "onboard_app"
+    write_app(spec, app_dir)
+    return str(build_sil_library(app_dir))
+
+
+def _start_server(cfg: DictConfig, params: DeployParams, thrust: ThrustParams, run_dir: Path):
     """The simulated Crazyflie of ``deploy.server`` on the ``deploy.uri`` port."""
     from datt.deploy.sim import SimCrazyflie, SimCrazyflieParams
     from datt.deploy.sim.motors import MotorParams
@@ -36,6 +49,8 @@ def _start_server(cfg: DictConfig, params: DeployParams, thrust: ThrustParams):
     # the simulated vehicle's own motors and mass (never the controller's map or calibration)
     motor_keys = {k: server_cfg.pop(k) for k in ("mass_kg", "thrust_max_n", "thrust_gain") if k in server_cfg}
     motor_keys["mass_kg"] = float(motor_keys.get("mass_kg") or thrust.mass_kg)
+    if params.onboard:  # the vehicle's firmware carries the app
+        server_cfg["onboard_library"] = _onboard_library(cfg, run_dir)
     sim_params = SimCrazyflieParams(host=url.hostname, port=url.port, motors=MotorParams(**motor_keys), **server_cfg)
     return SimCrazyflie(sim_params, disturbance=instantiate_option(cfg, "disturbance")).start()
 
@@ -76,7 +91,7 @@ def run_deploy(cfg: DictConfig, run_dir: Path | None = None, estop=None, server_
     # of the flight (a Ctrl-C KILLs it); before and after, a late or second one must not cut the
     # server's shutdown or the log short.
     with stop_signals(signal.SIG_IGN):
-        server = _start_server(cfg, params, thrust) if params.server is not None else None
+        server = _start_server(cfg, params, thrust, run_dir) if params.server is not None else None
         try:
             source = _mocap_source(params, server)
             link = CrazyflieLink(params.uri, params.log_period_ms, params.connect_timeout_s, params.io_timeout_s)
@@ -94,11 +109,15 @@ def run_deploy(cfg: DictConfig, run_dir: Path | None = None, estop=None, server_
                 run_dir,
                 estop=estop,
                 console=console,
+                onboard=params.onboard,
             )
             if server_hook is not None:
                 server_hook(server, runner)
             try:
-                summary = runner.fly() if params.mode == "fly" else runner.calibrate(params.calibrate_hover_s)
+                if params.mode == "calibrate":
+                    summary = runner.calibrate(params.calibrate_hover_s)
+                else:
+                    summary = runner.fly_onboard() if params.onboard else runner.fly()
             except LinkError as exc:
                 raise ConfigError(str(exc)) from None
         finally:

@@ -9,10 +9,11 @@ from omegaconf import DictConfig
 
 from datt.errors import ConfigError
 from datt.export import ObservePolicyModule, export_spec, write_c
+from datt.export.app import write_app
 from datt.paths import original_cwd
 from datt.tasks.common import console, hydra_run_dir, set_threads
 
-FORMATS = ("c", "torchscript", "onnx")
+FORMATS = ("c", "app", "torchscript", "onnx")
 
 
 def run_export(cfg: DictConfig, run_dir: Path | None = None) -> list[Path]:
@@ -22,6 +23,8 @@ def run_export(cfg: DictConfig, run_dir: Path | None = None) -> list[Path]:
     prefix = str(cfg.prefix)
     if not prefix.isidentifier():
         raise ConfigError(f"prefix: must be a C identifier, got {prefix!r}")
+    if fmt == "app" and prefix != "datt":
+        raise ConfigError(f"prefix: format=app uses the prefix datt (its sources call datt_*), got {prefix!r}")
     set_threads(cfg.threads)
     out = Path(str(cfg.out_dir)) if cfg.out_dir else (run_dir or hydra_run_dir())
     if not out.is_absolute():
@@ -29,6 +32,8 @@ def run_export(cfg: DictConfig, run_dir: Path | None = None) -> list[Path]:
     spec, controller, merged = export_spec(cfg)
     if fmt == "c":
         paths = list(write_c(spec, out, prefix))
+    elif fmt == "app":
+        paths = write_app(spec, out)
     else:
         module = ObservePolicyModule(controller, spec.horizon, merged.env.obs).eval()
         example = module.example_inputs()

@@ -26,6 +26,10 @@ Firmware behaviour that matters for safety is emulated:
 * **radio**: every packet is delayed by ``radio_latency_s`` each way, and setpoints, mocap and
   log data are lost with probability ``radio_loss`` (the radio's own retries make other losses
   rare; cflib resends requests that expect a reply);
+* **the DATT app** (``onboard_library``: the app's C, :mod:`datt.deploy.sim.onboard_app`): its
+  ``datt`` parameters and log variables, the app channel, and its 20 ms task before each physics
+  step; its setpoints hold the commander (radio setpoints are dropped) and feed the watchdog;
+  ``radio_cut_after_start_s`` silences the radio both ways that long after it starts;
 * **battery**: ``pm.vbat`` falls linearly with motor-on time (``battery_drain_vps``); tests can
   set it (``server.battery_v``).
 
@@ -59,7 +63,9 @@ from dataclasses import dataclass, field
 import torch
 
 from datt.deploy import crtp
+from datt.deploy.onboard import CONTROLLER_OOT
 from datt.deploy.sim.motors import FirmwareMotors, MotorParams
+from datt.deploy.sim.onboard_app import OnboardApp
 from datt.deploy.thrust import ThrustMap
 from datt.errors import ConfigError
 from datt.sim.quadrotor import Quadrotor, QuadrotorParams
@@ -97,6 +103,7 @@ PARAMS = [  # (group, name, type, default)
 POSITIONING_DECKS = ("bcLighthouse4", "bcDWM1000", "bcFlow2")  # the decks simulated (all ask for Kalman)
 COMPLEMENTARY, KALMAN = 1, 2
 KALMAN_RESET_VAR_M2, KALMAN_PROCESS_M2PS = 1.0, 0.01  # variance after a reset; its growth per second
+APP_CHANNEL = 2  # platform port channel of the app channel (app_channel.c)
 EXT_POSE = 8  # localization generic channel message type (cflib Localization.EXT_POSE)
 WATCHDOG_LEVEL_S, WATCHDOG_OFF_S = 0.5, 2.0
 ESTOP_WATCHDOG_S = 1.0  # supervisor.c: DEFAULT_EMERGENCY_STOP_WATCHDOG_TIMEOUT
@@ -113,6 +120,11 @@ def _yaw_rotated(q: list[float], angle_rad: float) -> list[float]:
 
 def _wrap(angle_rad: float) -> float:
     return (angle_rad + math.pi) % (2 * math.pi) - math.pi
+
+
+def _pack(fmt: str, value: float) -> bytes:
+    """One log value in its wire type (integers for the integer types)."""
+    return struct.pack(fmt, value if fmt[-1] in "fd" else int(value))
 
 
 def _toc_crc(entries: list[tuple]) -> int:
@@ -134,6 +146,8 @@ class SimCrazyflieParams:
     radio_latency_s: float = 0.005  # each way (host -> vehicle, vehicle -> host): 10 ms round trip
     radio_loss: float = 0.0  # probability a setpoint, mocap or log packet is lost (after the radio's retries)
     radio_seed: int = 0
+    onboard_library: str | None = None  # the DATT app's C as a shared library (datt.export.app); None = no app
+    radio_cut_after_start_s: float | None = None  # the radio goes silent this long after the app starts
 
 
 class SimCrazyflie:
@@ -153,6 +167,12 @@ class SimCrazyflie:
             disturbance.reset(torch.arange(1), self.quad.state)
         self.battery_v = self.p.battery_v
         self.params = {f"{g}.{n}": v for g, n, _, v in PARAMS}
+        self.app = OnboardApp(self.p.onboard_library) if self.p.onboard_library else None
+        self.param_toc = PARAMS + (self.app.param_toc if self.app else [])
+        self.log_toc = LOG_VARS + (self.app.log_toc if self.app else [])
+        self.app_priority = False  # the app's setpoints hold the commander (radio setpoints are dropped)
+        self.app_started_t: float | None = None  # sim time the app first started tracking
+        self.radio_down = False  # radio_cut_after_start_s passed: nothing gets through either way
         for deck in self.p.decks:
             if f"deck.{deck}" not in self.params:
                 raise ConfigError(
@@ -260,6 +280,8 @@ class SimCrazyflie:
             time.sleep(max(0.0, next_t - time.monotonic()))
 
     def _physics_step(self) -> None:
+        if self.app is not None:
+            self._app_tick()
         now = self.sim_time_s
         wx, wy, wz, command = self.cmd
         age = now - self.last_setpoint_t
@@ -301,6 +323,41 @@ class SimCrazyflie:
             self.pos_error_m[0] += self.p.dead_reckoning_drift_mps * self.p.dt_s
         self.sim_time_s += self.p.dt_s
 
+    def _app_tick(self) -> None:
+        """The app's 20 ms task: the state the out-of-tree controller hook handed over (zero
+        unless ``stabilizer.controller`` selects it), one step, its setpoint to the commander at
+        the app's priority (``COMMANDER_PRIORITY_EXTRX``: radio setpoints are then dropped)."""
+        if int(self.params["stabilizer.controller"]) == CONTROLLER_OOT:
+            est = self._estimate()
+            pos, vel, quat = est[0:3], est[3:6], [est[9], est[6], est[7], est[8]]
+        else:
+            pos, vel, quat = [0.0] * 3, [0.0] * 3, [0.0] * 4
+        sp, relax = self.app.tick(pos, vel, quat)
+        if relax:
+            self.app_priority = False
+            self._event("app: stopped, commander handed back")
+        if sp is None:
+            return
+        if not self.app_priority:
+            self._event("app: flying")
+        self.app_priority = True
+        self.last_setpoint_t = self.sim_time_s  # commanderSetSetpoint stamps it: the watchdog is fed
+        if sp.stop:
+            self.cmd = (0.0, 0.0, 0.0, 0)
+        else:  # controller_pid.c: rateDesired tracked against (gyro.x, -gyro.y, gyro.z)
+            self.cmd = (
+                math.radians(sp.roll_degps),
+                -math.radians(sp.pitch_degps),
+                math.radians(sp.yaw_degps),
+                sp.thrust,
+            )
+        if self.app_started_t is None:
+            self.app_started_t = self.sim_time_s
+        cut = self.p.radio_cut_after_start_s
+        if cut is not None and not self.radio_down and self.sim_time_s - self.app_started_t >= cut:
+            self.radio_down = True
+            self._event("radio: link cut")
+
     def _yaw_rate(self, yaw_rate_cmd: float, command: int) -> float:
         """The yaw rate the firmware flies for a legacy yaw-rate setpoint: the setpoint integrates
         into a yaw angle (reset to the current yaw while thrust is 0) and the attitude PID turns
@@ -340,7 +397,8 @@ class SimCrazyflie:
         if not (self.yaw_aligned or self.params["deck.bcLighthouse4"]) and self.p.boot_yaw_deg:
             q = _yaw_rotated(q, -math.radians(self.p.boot_yaw_deg))
         # firmware order qx, qy, qz, qw
-        return [*pos, *vel, q[1], q[2], q[3], q[0], self.battery_v, float(self.armed), *self.kalman_var_m2]
+        values = [*pos, *vel, q[1], q[2], q[3], q[0], self.battery_v, float(self.armed), *self.kalman_var_m2]
+        return values + (self.app.log_values() if self.app is not None else [])
 
     def _send_logs(self) -> None:
         if self.client is None:
@@ -354,11 +412,13 @@ class SimCrazyflie:
             if block["acc_s"] + 1e-9 < block["period_s"]:
                 continue
             block["acc_s"] = 0.0
-            payload = b"".join(struct.pack(crtp.LOG_TYPES[LOG_VARS[i][2]][1], values[i]) for i in block["vars"])
+            payload = b"".join(_pack(crtp.LOG_TYPES[self.log_toc[i][2]][1], values[i]) for i in block["vars"])
             self._send(crtp.log_data(block_id, ms, payload))
 
     # -- radio -----------------------------------------------------------------------------
     def _send(self, data: bytes) -> None:
+        if self.radio_down:
+            return
         if data[:1] == bytes([crtp.header(crtp.PORT_LOG, 2)]) and self._lost():
             return
         self._via_radio("out", data)
@@ -407,9 +467,11 @@ class SimCrazyflie:
                 return
             if not data:
                 continue
+            if self.radio_down:
+                continue
             self.client = addr
             port = crtp.split(data)[0] if data != b"\xff" else None
-            if port in (crtp.PORT_COMMANDER, crtp.PORT_LOCALIZATION) and self._lost():
+            if port in (crtp.PORT_COMMANDER, crtp.PORT_LOCALIZATION, crtp.PORT_PLATFORM) and self._lost():
                 continue
             self._via_radio("in", data)
 
@@ -441,6 +503,8 @@ class SimCrazyflie:
     def _on_platform(self, ch: int, data: bytes) -> None:
         if ch == 1 and data and data[0] == 0:  # VERSION_GET_PROTOCOL
             self._send(crtp.packet(crtp.PORT_PLATFORM, 1, bytes([0, 12])))
+        elif ch == APP_CHANNEL and self.app is not None:  # the app's upload packets
+            self._send(crtp.packet(crtp.PORT_PLATFORM, APP_CHANNEL, self.app.receive(data)))
 
     def _toc(self, port: int, entries: list[tuple], types: dict, data: bytes) -> None:
         if data[0] == 3:  # info v2
@@ -455,7 +519,7 @@ class SimCrazyflie:
         if not data:
             return
         if ch == 0:
-            self._toc(crtp.PORT_LOG, LOG_VARS, crtp.LOG_TYPES, data)
+            self._toc(crtp.PORT_LOG, self.log_toc, crtp.LOG_TYPES, data)
             return
         cmd = data[0]
         if cmd == 5:  # reset
@@ -466,7 +530,7 @@ class SimCrazyflie:
             ids = [items[i + 1] | (items[i + 2] << 8) for i in range(0, len(items) - 2, 3)]
             block = self.log_blocks.setdefault(block_id, {"vars": [], "started": False, "period_s": 0.1, "acc_s": 0.0})
             block["vars"] += ids
-            size = sum(struct.calcsize(crtp.LOG_TYPES[LOG_VARS[i][2]][1]) for i in block["vars"])
+            size = sum(struct.calcsize(crtp.LOG_TYPES[self.log_toc[i][2]][1]) for i in block["vars"])
             err = 7 if size > crtp.MAX_LOG_BLOCK_BYTES else 0  # E2BIG, as the firmware
             self._send(crtp.packet(crtp.PORT_LOG, 1, bytes([cmd, block_id, err])))
         elif cmd == 3:  # start: period in 10 ms units
@@ -486,16 +550,24 @@ class SimCrazyflie:
         if not data:
             return
         if ch == 0:
-            self._toc(crtp.PORT_PARAM, PARAMS, crtp.PARAM_TYPES, data)
+            self._toc(crtp.PORT_PARAM, self.param_toc, crtp.PARAM_TYPES, data)
             return
         if len(data) < 2:
             return
         ident = data[0] | (data[1] << 8)
-        if ident >= len(PARAMS):
+        if ident >= len(self.param_toc):
             return
-        group, name, ctype, _ = PARAMS[ident]
+        group, name, ctype, _ = self.param_toc[ident]
         fmt = crtp.PARAM_TYPES[ctype][1]
         key = f"{group}.{name}"
+        if group == "datt":  # the app's variables
+            if ch == 2:
+                self.app.set(name, struct.unpack(fmt, data[2 : 2 + struct.calcsize(fmt)])[0])
+                self._event(f"param {key} = {self.app.get(name)}")
+            if ch in (1, 2):
+                status = b"\0" if ch == 1 else b""
+                self._send(crtp.packet(crtp.PORT_PARAM, ch, data[:2] + status + struct.pack(fmt, self.app.get(name))))
+            return
         if ch == 2 and key not in self.read_only:  # write, echoed back as the firmware does
             self.params[key] = struct.unpack(fmt, data[2 : 2 + struct.calcsize(fmt)])[0]
             self._event(f"param {key} = {self.params[key]}")
@@ -512,8 +584,8 @@ class SimCrazyflie:
             self._send(crtp.packet(crtp.PORT_MEM, 0, bytes([1, 0])))
 
     def _on_commander(self, ch: int, data: bytes) -> None:
-        if ch != 0 or len(data) < 14 or self.locked:
-            return
+        if ch != 0 or len(data) < 14 or self.locked or self.app_priority:
+            return  # while the app holds the commander, lower-priority setpoints are dropped
         roll, pitch_wire, yaw, thrust = struct.unpack("<fffH", data[:14])
         self.last_setpoint_t = self.sim_time_s
         if self.thrust_locked:
@@ -528,7 +600,7 @@ class SimCrazyflie:
         self.cmd = (wx, wy, wz, int(thrust))
 
     def _on_generic_commander(self, ch: int, data: bytes) -> None:
-        if ch == 0 and data and data[0] == 0:  # stop setpoint
+        if ch == 0 and data and data[0] == 0 and not self.app_priority:  # stop setpoint
             self.cmd = (0.0, 0.0, 0.0, 0)
             self.last_setpoint_t = self.sim_time_s
 

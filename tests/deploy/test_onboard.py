@@ -1,0 +1,248 @@
+"""The onboard DATT app (datt_onboard.c, built for this machine and called as the simulated
+Crazyflie calls it) and flights with the policy onboard (deploy.onboard=true)."""
+
+import itertools
+import math
+import re
+import shutil
+import struct
+from importlib import resources
+
+import numpy as np
+import pytest
+import torch
+
+from datt.configuration import compose
+from datt.deploy import onboard
+from datt.deploy.sim.onboard_app import OnboardApp
+from datt.deploy.thrust import ThrustMap
+from datt.export import export_spec
+from datt.export.app import build_sil_library, write_app
+
+pytestmark = pytest.mark.skipif(shutil.which("gcc") is None, reason="no gcc: the onboard app cannot be built here")
+LEVEL = [1.0, 0.0, 0.0, 0.0]
+
+
+@pytest.fixture(scope="module")
+def built(tmp_path_factory):
+    spec, controller, merged = export_spec(compose("export", []))
+    app_dir = tmp_path_factory.mktemp("app")
+    files = write_app(spec, app_dir)
+    return spec, controller, app_dir, files, build_sil_library(app_dir)
+
+
+def loaded(built, n_points=40, track_steps=20, **params) -> OnboardApp:
+    app = OnboardApp(built[4])
+    table = [(0.01 * k, -0.02 * k, 0.005 * k) for k in range(n_points)]
+    for i in range(0, n_points, 2):
+        assert app.receive(onboard.points_packet(i, table[i : i + 2])) == bytes([onboard.PKT_ACK, i & 255, i >> 8, 0])
+    for name, value in {"nPoints": n_points, "trackSteps": track_steps, "originX": 0.0, "originY": 0.0, "originZ": 1.0,
+                        "landZ": -0.95, "landS": 0.2, "landHoldS": 0.1, **params}.items():  # fmt: skip
+        app.set(name, value)
+    return app
+
+
+def test_the_app_directory_builds_out_of_tree():
+    """The files the firmware's out-of-tree build needs, and the app config it merges."""
+    root = resources.files("datt.export") / "app"
+    config = (root / "app-config").read_text()
+    assert "CONFIG_APP_ENABLE=y" in config and "CONFIG_CONTROLLER_OOT=y" in config
+    assert "tools/make/oot.mk" in (root / "Makefile").read_text()
+
+
+def test_written_app_has_every_source(built):
+    names = {p.relative_to(built[2]).as_posix() for p in built[3]}
+    assert names == {
+        "Makefile", "Kbuild", "app-config", "src/Kbuild", "src/datt_policy.c", "src/datt_policy.h",
+        "src/datt_onboard.c", "src/datt_onboard.h", "src/app_datt.c",
+    }  # fmt: skip
+    header = (built[2] / "src" / "datt_policy.h").read_text()
+    assert "#define DATT_REF_STRIDE 3" in header and "#define DATT_DT_S 0.0199999996f" in header
+
+
+def test_host_constants_are_the_headers():
+    text = (resources.files("datt.export") / "app" / "datt_onboard.h").read_text()
+    defines = {m[0]: int(m[1], 0) for m in re.findall(r"#define (DATT_\w+) (0x[0-9a-f]+|\d+)", text)}
+    assert defines["DATT_PKT_POINTS"] == onboard.PKT_POINTS and defines["DATT_PKT_ACK"] == onboard.PKT_ACK
+    assert defines["DATT_TABLE_MAX"] == onboard.TABLE_MAX
+    for name in ("IDLE", "TRACK", "LAND", "DONE", "ABORTED", "REFUSED"):
+        assert defines[f"DATT_{name}"] == getattr(onboard, name)
+    for name in ("OK", "RANGE", "BUSY", "MALFORMED"):
+        assert defines[f"DATT_ACK_{name}"] == getattr(onboard, f"ACK_{name}")
+    glue = (resources.files("datt.export") / "app" / "app_datt.c").read_text()
+    assert [n for n, *_ in onboard.PARAMS] == re.findall(r"PARAM_ADD\(\w+, (\w+),", glue)
+    assert [n for n, _ in onboard.LOGS] == re.findall(r"LOG_ADD\(\w+, (\w+),", glue)
+
+
+def test_upload_packets_are_acknowledged_or_refused(built):
+    app = OnboardApp(built[4])
+    assert app.self_test_ok
+    ack = app.receive(onboard.points_packet(7, [(1.0, 2.0, 3.0)]))
+    assert onboard.parse_ack(ack) == (7, onboard.ACK_OK) and app.status().n_received == 1
+    app.receive(onboard.points_packet(7, [(1.0, 2.0, 3.0)]))  # a resent packet counts once
+    assert app.status().n_received == 1
+    assert onboard.parse_ack(app.receive(onboard.points_packet(1023, [(0, 0, 0)] * 2))) == (1023, onboard.ACK_RANGE)
+    assert onboard.parse_ack(app.receive(b"\x01\x00\x00\x03" + bytes(36))) == (0, onboard.ACK_MALFORMED)
+    assert onboard.parse_ack(app.receive(b"\x02")) == (0, onboard.ACK_MALFORMED)
+    assert onboard.parse_ack(app.receive(struct.pack("<BHB", 1, 0, 1))) == (0, onboard.ACK_MALFORMED)  # no points
+
+
+def test_start_is_refused_on_an_incomplete_table_or_bad_parameters(built):
+    app = loaded(built, n_points=40)
+    app.set("nPoints", 42)  # two points never arrived
+    app.run_request = 1
+    assert app.tick([0, 0, 1], [0, 0, 0], LEVEL) == (None, False) and app.phase == onboard.REFUSED
+    app = loaded(built, track_steps=40)  # the track needs track_steps + 1 points
+    app.run_request = 1
+    app.tick([0, 0, 1], [0, 0, 0], LEVEL)
+    assert app.phase == onboard.REFUSED
+
+
+def test_one_step_is_the_policy_on_the_table_window_with_the_thrust_map(built):
+    spec, controller, _, _, lib = built
+    app = loaded(built)
+    app.run_request = 1
+    pos, vel, quat = [0.3, -0.2, 1.1], [0.5, 0.1, -0.2], [0.9, 0.1, -0.2, 0.3]
+    quat = list(np.array(quat) / np.linalg.norm(quat))
+    sp, relax = app.tick(pos, vel, quat)
+    assert sp is not None and not relax and app.phase == onboard.TRACK
+    s = app.status()
+    # the window: the table at steps 0, 3, ..., 27 (DATT_REF_STRIDE 3); the policy sees pos - origin
+    table = torch.tensor([(0.01 * k, -0.02 * k, 0.005 * k) for k in range(40)])
+    window = table[torch.arange(10) * 3].unsqueeze(0)
+    rel = torch.tensor([[0.3, -0.2, 0.1]])
+    with torch.no_grad():
+        d_hat = torch.tensor([list(s.d_hat)])  # one L1 step from the reset (the command sent: hover)
+        hover = torch.tensor([[9.81, 0.0, 0.0, 0.0]])
+        hist = ((hover - controller.center) / controller.half).repeat(1, 2)  # the history after a start
+        from datt.export import reference_action
+
+        want = reference_action(
+            controller,
+            compose("export", []).env.obs,
+            {"pos_m": rel, "vel_mps": torch.tensor([vel]), "quat": torch.tensor([quat], dtype=torch.float32),
+             "ref_m": window, "d_hat": d_hat, "cmd_hist": hist},
+        )[0].numpy()  # fmt: skip
+    assert np.abs(np.array(list(s.action)) - want).max() < 1e-4
+    assert list(s.ref_m) == pytest.approx([0.0, 0.0, 0.0])
+    assert s.error_m == pytest.approx(math.dist(rel[0].tolist(), (0, 0, 0)), abs=1e-5)
+    thrust = ThrustMap()  # the app's defaults are the firmware's map for 34 g
+    assert abs(sp.thrust - thrust.command(float(s.action[0]))) <= 1
+    # the firmware's setpoint convention: roll = wx, pitch = -wy, yaw = wz, deg/s
+    assert sp.roll_degps == pytest.approx(math.degrees(s.action[1]), rel=1e-5)
+    assert sp.pitch_degps == pytest.approx(-math.degrees(s.action[2]), rel=1e-5)
+    assert sp.yaw_degps == pytest.approx(math.degrees(s.action[3]), rel=1e-5)
+
+
+def test_track_then_land_ramp_then_motors_off(built):
+    app = loaded(built, n_points=40, track_steps=20, landS=0.2, landHoldS=0.1)  # ramp 10 steps, hold 5
+    app.run_request = 1
+    phases, refs = [], []
+    for _ in range(40):
+        sp, _ = app.tick([0.0, 0.0, 1.0], [0, 0, 0], LEVEL)
+        phases.append(app.phase)
+        refs.append(list(app.status().ref_m))
+    assert phases[:19] == [onboard.TRACK] * 19 and phases[19] == onboard.LAND  # after step 19 (the 20th)
+    assert phases[34] == onboard.DONE and phases[33] == onboard.LAND  # 15 landing steps
+    assert refs[19] == pytest.approx([0.19, -0.38, 0.095], abs=1e-6)  # the table at step 19
+    start = (0.2, -0.4, 0.1)  # the table at track_steps: the ramp's start
+    assert refs[20] == pytest.approx(start, abs=1e-6)
+    assert refs[25][2] == pytest.approx(0.1 + 0.5 * (-0.95 - 0.1), abs=1e-5)  # half way down
+    assert refs[31][2] == pytest.approx(-0.95, abs=1e-6)  # held
+    assert sp is not None and sp.stop == 1 and sp.thrust == 0  # DONE: stop setpoints until run = 0
+    app.run_request = 0
+    sp, relax = app.tick([0.0, 0.0, 0.0], [0, 0, 0], LEVEL)
+    assert relax and sp is None and app.phase == onboard.IDLE
+
+
+@pytest.mark.parametrize(
+    "pos, quat",
+    [
+        ([0.0, 0.0, 1.0], [math.cos(math.radians(40)), 0.0, math.sin(math.radians(40)), 0.0]),  # pitched 80 deg
+        ([0.0, math.nan, 1.0], LEVEL),
+    ],
+    ids=["tilt", "nan"],
+)
+def test_abort_stops_the_motors(built, pos, quat):
+    app = loaded(built)
+    app.run_request = 1
+    sp, _ = app.tick(pos, [0, 0, 0], quat)
+    assert app.phase == onboard.ABORTED and sp.stop == 1 and sp.thrust == 0
+
+
+def test_a_74_degree_tilt_flies_on(built):
+    app = loaded(built)
+    app.run_request = 1
+    half = math.radians(74) / 2
+    sp, _ = app.tick([0.0, 0.0, 1.0], [0, 0, 0], [math.cos(half), math.sin(half), 0.0, 0.0])
+    assert app.phase == onboard.TRACK and sp.stop == 0
+
+
+# -- flights with the policy onboard -----------------------------------------------------------
+
+_ports = itertools.count(19960)
+
+
+def fly(tmp_path, overrides=()):
+    pytest.importorskip("cflib")
+    from datt.tasks.deploy import run_deploy
+
+    from . import SHORT_FLIGHT
+
+    cfg = compose("deploy", [f"deploy.uri=udp://127.0.0.1:{next(_ports)}", *SHORT_FLIGHT, *overrides])
+    seen = {}
+    summary = run_deploy(cfg, run_dir=tmp_path, server_hook=lambda server, runner: seen.setdefault("server", server))
+    return summary, seen["server"]
+
+
+@pytest.mark.flight
+def test_link_loss_mid_track_the_app_finishes_and_lands(tmp_path):
+    """The radio goes silent 1 s into the track: no setpoint, no mocap, no e-stop from the host.
+    The app (Lighthouse deck: its own position) flies the rest of the track and lands."""
+    summary, server = fly(
+        tmp_path,
+        ["deploy.onboard=true", "deploy.server.radio_cut_after_start_s=1.0", "deploy.server.decks=[bcLighthouse4]"],
+    )
+    assert summary["outcome"].startswith("link lost during the onboard flight")
+    assert server.radio_down and server.app.phase == onboard.DONE
+    assert server.cmd[3] == 0 and not server.locked and server.true_state()["pos_m"][2] < 0.1
+    end = server.app.status()
+    landed = np.array(server.true_state()["pos_m"][:2])
+    assert np.linalg.norm(landed - (np.array(end.ref_m[:2]))) < 0.15  # where the reference ended
+    # the host sent nothing past the cut, and the vehicle got no e-stop watchdog at all
+    assert server.estop_watchdog_t is None
+
+
+@pytest.mark.slow
+def test_onboard_star_tracks_within_ten_percent_of_off_board(tmp_path):
+    """The full star both ways on the same simulated vehicle (deploy=sim defaults)."""
+    full = ["deploy.flight.track_s=null"]
+    off, _ = fly(tmp_path / "off", full)
+    on, server = fly(tmp_path / "on", [*full, "deploy.onboard=true"])
+    assert off["outcome"] == "landed" and on["outcome"] == "landed (onboard)"
+    assert on["track_steps"] >= 495
+    assert on["track_error_m"] <= 1.1 * off["track_error_m"]
+
+
+def test_onboard_calibration_is_refused():
+    from datt.deploy.schema import deploy_params
+    from datt.errors import ConfigError
+
+    cfg = compose("deploy", ["deploy.onboard=true", "deploy.mode=calibrate"])
+    with pytest.raises(ConfigError, match="deploy.onboard: only deploy.mode=fly runs onboard"):
+        deploy_params(cfg.deploy)
+
+
+@pytest.mark.flight
+def test_a_vehicle_without_the_app_is_refused_before_arming(tmp_path):
+    pytest.importorskip("cflib")
+    from datt.deploy.sim.server import PARAMS
+    from datt.tasks.deploy import run_deploy
+
+    def stock_firmware(server, runner):
+        server.app, server.param_toc = None, PARAMS  # as flashed without the app
+
+    cfg = compose("deploy", [f"deploy.uri=udp://127.0.0.1:{next(_ports)}", "deploy.onboard=true"])
+    summary = run_deploy(cfg, run_dir=tmp_path, server_hook=stock_firmware)
+    assert summary["outcome"].startswith("preflight failed: deploy.onboard: the vehicle's firmware has no DATT app")
+    assert "ARM" not in [e["text"] for e in summary["events"] if e["kind"] == "phase"]
