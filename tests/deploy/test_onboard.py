@@ -60,17 +60,34 @@ def test_written_app_has_every_source(built):
     assert "#define DATT_REF_STRIDE 3" in header and "#define DATT_DT_S 0.0199999996f" in header
 
 
+def test_the_policy_id_names_the_weights_and_constants(built):
+    import copy
+
+    from datt.export.c_code import policy_id
+
+    spec = built[0]
+    header = (built[2] / "src" / "datt_policy.h").read_text()
+    assert f"#define DATT_POLICY_ID 0x{policy_id(spec):08x}u" in header
+    assert OnboardApp(built[4]).get("policyId") == policy_id(spec)
+    other = copy.deepcopy(spec)
+    other.head[1][0] += 1e-6  # one bias, one ulp-scale change
+    assert policy_id(other) != policy_id(spec)
+    other = copy.deepcopy(spec)
+    other.l1.alpha *= 0.5
+    assert policy_id(other) != policy_id(spec)
+
+
 def test_host_constants_are_the_headers():
     text = (resources.files("datt.export") / "app" / "datt_onboard.h").read_text()
     defines = {m[0]: int(m[1], 0) for m in re.findall(r"#define (DATT_\w+) (0x[0-9a-f]+|\d+)", text)}
     assert defines["DATT_PKT_POINTS"] == onboard.PKT_POINTS and defines["DATT_PKT_ACK"] == onboard.PKT_ACK
-    assert defines["DATT_TABLE_MAX"] == onboard.TABLE_MAX
+    assert defines["DATT_TABLE_MAX"] == onboard.TABLE_MAX and onboard.POINTS_PER_PACKET * 12 + 4 <= 30
     for name in ("IDLE", "TRACK", "LAND", "DONE", "ABORTED", "REFUSED"):
         assert defines[f"DATT_{name}"] == getattr(onboard, name)
     for name in ("OK", "RANGE", "BUSY", "MALFORMED"):
         assert defines[f"DATT_ACK_{name}"] == getattr(onboard, f"ACK_{name}")
     glue = (resources.files("datt.export") / "app" / "app_datt.c").read_text()
-    assert [n for n, *_ in onboard.PARAMS] == re.findall(r"PARAM_ADD\(\w+, (\w+),", glue)
+    assert [n for n, *_ in onboard.PARAMS] == re.findall(r"PARAM_ADD\([^,]+, (\w+),", glue)
     assert [n for n, _ in onboard.LOGS] == re.findall(r"LOG_ADD\(\w+, (\w+),", glue)
 
 
@@ -153,6 +170,33 @@ def test_track_then_land_ramp_then_motors_off(built):
     app.run_request = 0
     sp, relax = app.tick([0.0, 0.0, 0.0], [0, 0, 0], LEVEL)
     assert relax and sp is None and app.phase == onboard.IDLE
+
+
+def test_an_uncertain_position_lands_from_where_the_reference_was(built):
+    """Position variance above maxPosStdM² (no measurements arriving): stop tracking, ramp down
+    from the current reference point; a variance at the limit flies on."""
+    app = loaded(built, n_points=40, track_steps=30, landS=0.2, landHoldS=0.1, maxPosStdM=0.1)
+    app.run_request = 1
+    for _ in range(5):
+        app.tick([0.0, 0.0, 1.0], [0, 0, 0], LEVEL, pos_var_m2=0.01)  # std 0.1 m: on the limit
+    assert app.phase == onboard.TRACK and app.status().step == 5
+    app.tick([0.0, 0.0, 1.0], [0, 0, 0], LEVEL, pos_var_m2=0.0101)
+    s = app.status()
+    assert app.phase == onboard.LAND and s.landed_early == 1
+    assert list(s.ref_m) == pytest.approx([0.05, -0.10, 0.025], abs=1e-6)  # the table at step 5: the ramp's start
+    for _ in range(5):
+        app.tick([0.0, 0.0, 1.0], [0, 0, 0], LEVEL, pos_var_m2=0.0)  # measurements back: it keeps landing
+    assert app.phase == onboard.LAND
+    assert app.status().ref_m[2] == pytest.approx(0.025 + 0.5 * (-0.95 - 0.025), abs=1e-5)
+
+
+def test_the_uncertainty_limit_is_a_checked_setting():
+    from datt.deploy.schema import deploy_params
+    from datt.errors import ConfigError
+
+    cfg = compose("deploy", ["deploy.flight.onboard_max_pos_std_m=-1"])
+    with pytest.raises(ConfigError, match="deploy.flight.onboard_max_pos_std_m: must be >= 0"):
+        deploy_params(cfg.deploy)
 
 
 @pytest.mark.parametrize(
@@ -245,4 +289,39 @@ def test_a_vehicle_without_the_app_is_refused_before_arming(tmp_path):
     cfg = compose("deploy", [f"deploy.uri=udp://127.0.0.1:{next(_ports)}", "deploy.onboard=true"])
     summary = run_deploy(cfg, run_dir=tmp_path, server_hook=stock_firmware)
     assert summary["outcome"].startswith("preflight failed: deploy.onboard: the vehicle's firmware has no DATT app")
+    assert "ARM" not in [e["text"] for e in summary["events"] if e["kind"] == "phase"]
+
+
+@pytest.mark.flight
+def test_link_loss_without_a_positioning_deck_lands_early(tmp_path):
+    """Mocap only: the cut also stops the positions, the Kalman variance grows and the app lands
+    from where it was instead of tracking on a drifting estimate."""
+    summary, server = fly(
+        tmp_path,
+        ["deploy.onboard=true", "deploy.server.radio_cut_after_start_s=1.0", "deploy.flight.track_s=6.0"],
+    )
+    assert summary["outcome"].startswith("link lost during the onboard flight")
+    status = server.app.status()
+    assert server.app.phase == onboard.DONE and status.landed_early == 1
+    assert server.cmd[3] == 0 and server.true_state()["pos_m"][2] < 0.1
+    # it landed off its landing point by the estimate's drift (0.2 m/s) over the ~1 s the variance
+    # took to pass the limit and the 2 s landing: ~0.6 m; tracking the other 4 s first: ~1.4 m
+    off_m = math.dist(server.true_state()["pos_m"][:2], list(status.ref_m[:2]))
+    assert 0.3 < off_m < 0.9
+
+
+@pytest.mark.flight
+def test_an_app_with_another_policy_is_refused_before_arming(tmp_path):
+    pytest.importorskip("cflib")
+    from datt.tasks.deploy import run_deploy
+
+    def other_checkpoint(server, runner):
+        runner.onboard_policy_id ^= 1  # the host's checkpoint is not the one the app was built from
+
+    cfg = compose("deploy", [f"deploy.uri=udp://127.0.0.1:{next(_ports)}", "deploy.onboard=true"])
+    summary = run_deploy(cfg, run_dir=tmp_path, server_hook=other_checkpoint)
+    assert re.match(
+        r"preflight failed: deploy.onboard: the vehicle's app carries policy 0x[0-9a-f]{8}, the checkpoint",
+        summary["outcome"],
+    )
     assert "ARM" not in [e["text"] for e in summary["events"] if e["kind"] == "phase"]

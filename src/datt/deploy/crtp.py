@@ -21,7 +21,7 @@ import struct
 PORT_PARAM, PORT_COMMANDER, PORT_MEM, PORT_LOG, PORT_LOCALIZATION = 2, 3, 4, 5, 6
 PORT_COMMANDER_GENERIC, PORT_SUPERVISOR, PORT_PLATFORM, PORT_LINK = 7, 9, 13, 15
 LOG_TYPES = {"uint8_t": (0x01, "<B"), "uint16_t": (0x02, "<H"), "float": (0x07, "<f")}
-PARAM_TYPES = {"uint8_t": (0x08, "<B"), "uint16_t": (0x09, "<H"), "float": (0x06, "<f")}
+PARAM_TYPES = {"uint8_t": (0x08, "<B"), "uint16_t": (0x09, "<H"), "uint32_t": (0x0A, "<I"), "float": (0x06, "<f")}
 MAX_LOG_BLOCK_BYTES = 26  # 30-byte payload minus block id and 3-byte timestamp
 
 

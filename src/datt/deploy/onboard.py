@@ -20,6 +20,7 @@ CONTROLLER_OOT = 5  # stabilizer.controller: the out-of-tree controller (the app
 # (name, C type, datt_onboard_params field, index or None): the app's parameter group "datt"
 PARAMS = [
     ("run", "uint8_t", None, None),
+    ("policyId", "uint32_t", None, None),  # read-only: DATT_POLICY_ID of the policy compiled in
     ("originX", "float", "origin_m", 0),
     ("originY", "float", "origin_m", 1),
     ("originZ", "float", "origin_m", 2),
@@ -35,6 +36,7 @@ PARAMS = [
     ("maxRatePitch", "float", "max_rate_degps", 1),
     ("maxRateYaw", "float", "max_rate_degps", 2),
     ("maxTiltDeg", "float", "max_tilt_deg", None),
+    ("maxPosStdM", "float", "max_pos_std_m", None),
 ]
 # the app's log group "datt": what the host follows in flight (one block: 19 bytes)
 LOG_BLOCK = ["datt.phase", "datt.step", "datt.errM", "datt.refX", "datt.refY", "datt.refZ"]
@@ -47,6 +49,7 @@ LOGS = [  # (name, C type)
     ("refY", "float"),
     ("refZ", "float"),
     ("selfTest", "uint8_t"),
+    ("landedEarly", "uint8_t"),
 ]
 
 

@@ -104,6 +104,7 @@ class FlightParams:
     late_tick_ms: float = 5.0
     estop_watchdog: bool = True  # send the firmware's e-stop watchdog every tick (motors off 1 s after the last)
     origin_m: list = field(default_factory=lambda: [0.0, 0.0])  # hover point x, y (z = takeoff_height_m)
+    onboard_max_pos_std_m: float = 0.1  # deploy.onboard: the app lands when its position std exceeds this
 
     def validate(self) -> None:
         from datt.errors import ConfigError
@@ -112,6 +113,10 @@ class FlightParams:
             raise ConfigError(f"deploy.flight.rate_hz: must be > 0, got {self.rate_hz}")
         if not self.takeoff_height_m > 0:
             raise ConfigError(f"deploy.flight.takeoff_height_m: must be > 0, got {self.takeoff_height_m}")
+        if not self.onboard_max_pos_std_m >= 0:
+            raise ConfigError(
+                f"deploy.flight.onboard_max_pos_std_m: must be >= 0 (0: never), got {self.onboard_max_pos_std_m}"
+            )
 
 
 class FlightRunner:
@@ -130,6 +135,7 @@ class FlightRunner:
         estop: threading.Event | None = None,
         console=None,
         onboard: bool = False,
+        onboard_policy_id: int | None = None,
     ) -> None:
         self.link, self.mocap = link, mocap
         self.make_env, self.track_controller, self.pid_factory = make_env, track_controller, pid_factory
@@ -149,6 +155,7 @@ class FlightRunner:
         self.onboard = onboard  # TRACK runs in the vehicle's DATT app (datt.deploy.onboard)
         self._app: dict = {"samples": {}, "last": None}  # the app's log: step -> its error, latest values
         self._onboard_steps = 0  # TRACK steps the app flies (set when the reference is uploaded)
+        self.onboard_policy_id = onboard_policy_id  # the app must carry this policy (datt.export.c_code.policy_id)
 
     # -- helpers ---------------------------------------------------------------------------
     def _event(self, kind: str, text: str = "", **extra) -> None:
@@ -303,6 +310,16 @@ class FlightRunner:
             )
             self._event("preflight failed", self.outcome)
             raise _Abort(self.outcome)
+        if self.onboard_policy_id is not None:
+            carried = int(self.link.read_param("datt.policyId"))
+            if carried != self.onboard_policy_id:
+                self.outcome = (
+                    f"preflight failed: deploy.onboard: the vehicle's app carries policy {carried:#010x}, the "
+                    f"checkpoint is {self.onboard_policy_id:#010x}: flash the app exported from it "
+                    "(datt export format=app checkpoint=...), or pass the checkpoint the app was built from"
+                )
+                self._event("preflight failed", self.outcome)
+                raise _Abort(self.outcome)
         steps = self._onboard_track_steps(track)
         env = track.env
         table = env.ref_table[0, : min(steps + env.window, env.table_len)].double().numpy()
@@ -323,6 +340,7 @@ class FlightRunner:
             "maxRatePitch": self.thrust.p.max_rate_degps[1],
             "maxRateYaw": self.thrust.p.max_rate_degps[2],
             "maxTiltDeg": self.safety.max_tilt_deg,
+            "maxPosStdM": self.p.onboard_max_pos_std_m,
         }
         self.link.set_param_checked("datt.run", 0)
         self.link.set_param_checked("stabilizer.controller", onboard.CONTROLLER_OOT)  # the app's state hook

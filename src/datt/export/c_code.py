@@ -26,6 +26,7 @@ bits.
 from __future__ import annotations
 
 import math
+import zlib
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -151,6 +152,23 @@ def _array(name: str, values: np.ndarray | list[float], per_line: int = 8) -> st
     return f"static const float {name}[{flat.size}] = {{\n    {body}\n}};\n"
 
 
+def policy_id(spec: PolicySpec) -> int:
+    """CRC-32 of everything the generated step computes with (weights, bounds, layout, L1
+    constants): the same policy and estimator give the same id, any change another."""
+    crc = 0
+    arrays = [w for layer in (*spec.convs, spec.proj, *spec.mlp, spec.head) for w in layer]
+    for a in arrays:
+        crc = zlib.crc32(np.ascontiguousarray(a, dtype=np.float32).tobytes(), crc)
+    layout = (spec.horizon, spec.body_frame, spec.feedback, spec.action_history, spec.use_d_hat, spec.ref_stride)
+    numbers = [*spec.action_low, *spec.action_high, spec.dt_s]
+    if spec.l1 is not None:
+        l1 = spec.l1
+        numbers += [l1.dt_s, l1.gravity_mps2, l1.a_s, l1.alpha, l1.k_thrust, l1.latency_steps]
+        layout += (l1.predictor_uses_filtered,)
+    crc = zlib.crc32(np.array(numbers, dtype=np.float32).tobytes(), crc)
+    return zlib.crc32(repr(layout).encode(), crc)
+
+
 def generate(spec: PolicySpec, prefix: str = "datt") -> tuple[str, str]:
     """``(header, source)`` of the C99 controller for ``spec`` (functions prefixed ``prefix``)."""
     if spec.l1 is None:
@@ -177,6 +195,7 @@ def generate(spec: PolicySpec, prefix: str = "datt") -> tuple[str, str]:
 #define {up}_REF_STRIDE {spec.ref_stride}
 #define {up}_DT_S {_f(spec.dt_s)}         /* the control step, s */
 #define {up}_GRAVITY_MPS2 {_f(spec.l1.gravity_mps2)}
+#define {up}_POLICY_ID 0x{policy_id(spec):08x}u /* CRC-32 of weights, bounds, constants (c_code.policy_id) */
 #define {up}_HISTORY {k}            /* commands in the history (0: none) */
 #define {up}_STATE_DIM {spec.state_dim}
 #define {up}_L1_LATENCY {lat}        /* thrust commands in flight in the L1 actuator model */

@@ -24,20 +24,24 @@ from datt.runs import stop_signals
 from datt.tasks.common import console, hydra_run_dir, set_threads
 
 
-def _onboard_library(cfg: DictConfig, run_dir: Path) -> str:
-    """The DATT app for the simulated Crazyflie: exported from the flight's checkpoint and
-    adaptation (``<run>/onboard_app``, the sources a real vehicle would be built from) and
-    compiled for this machine."""
+def _onboard_app(cfg: DictConfig, run_dir: Path, simulated: bool) -> tuple[int, str | None]:
+    """The DATT app for the flight's checkpoint and adaptation: its policy id (the vehicle's
+    app must carry it) and, for the simulated Crazyflie, the app exported into
+    ``<run>/onboard_app`` (the sources a real vehicle would be built from) and compiled for this
+    machine."""
     from datt.export import export_spec
     from datt.export.app import build_sil_library, write_app
+    from datt.export.c_code import policy_id
 
     spec, _, _ = export_spec(cfg)
+    if not simulated:
+        return policy_id(spec), None
     app_dir = run_dir / "onboard_app"
     write_app(spec, app_dir)
-    return str(build_sil_library(app_dir))
+    return policy_id(spec), str(build_sil_library(app_dir))
 
 
-def _start_server(cfg: DictConfig, params: DeployParams, thrust: ThrustParams, run_dir: Path):
+def _start_server(cfg: DictConfig, params: DeployParams, thrust: ThrustParams, library: str | None):
     """The simulated Crazyflie of ``deploy.server`` on the ``deploy.uri`` port."""
     from datt.deploy.sim import SimCrazyflie, SimCrazyflieParams
     from datt.deploy.sim.motors import MotorParams
@@ -49,8 +53,7 @@ def _start_server(cfg: DictConfig, params: DeployParams, thrust: ThrustParams, r
     # the simulated vehicle's own motors and mass (never the controller's map or calibration)
     motor_keys = {k: server_cfg.pop(k) for k in ("mass_kg", "thrust_max_n", "thrust_gain") if k in server_cfg}
     motor_keys["mass_kg"] = float(motor_keys.get("mass_kg") or thrust.mass_kg)
-    if params.onboard:  # the vehicle's firmware carries the app
-        server_cfg["onboard_library"] = _onboard_library(cfg, run_dir)
+    server_cfg["onboard_library"] = library  # the vehicle's firmware carries the app (deploy.onboard)
     sim_params = SimCrazyflieParams(host=url.hostname, port=url.port, motors=MotorParams(**motor_keys), **server_cfg)
     return SimCrazyflie(sim_params, disturbance=instantiate_option(cfg, "disturbance")).start()
 
@@ -91,7 +94,8 @@ def run_deploy(cfg: DictConfig, run_dir: Path | None = None, estop=None, server_
     # of the flight (a Ctrl-C KILLs it); before and after, a late or second one must not cut the
     # server's shutdown or the log short.
     with stop_signals(signal.SIG_IGN):
-        server = _start_server(cfg, params, thrust, run_dir) if params.server is not None else None
+        policy_id, library = _onboard_app(cfg, run_dir, params.server is not None) if params.onboard else (None, None)
+        server = _start_server(cfg, params, thrust, library) if params.server is not None else None
         try:
             source = _mocap_source(params, server)
             link = CrazyflieLink(params.uri, params.log_period_ms, params.connect_timeout_s, params.io_timeout_s)
@@ -110,6 +114,7 @@ def run_deploy(cfg: DictConfig, run_dir: Path | None = None, estop=None, server_
                 estop=estop,
                 console=console,
                 onboard=params.onboard,
+                onboard_policy_id=policy_id,
             )
             if server_hook is not None:
                 server_hook(server, runner)

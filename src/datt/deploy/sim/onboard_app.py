@@ -28,6 +28,7 @@ class _Params(ctypes.Structure):  # datt_onboard_params
         ("max_command", ctypes.c_uint16),
         ("max_rate_degps", _F3),
         ("max_tilt_deg", ctypes.c_float),
+        ("max_pos_std_m", ctypes.c_float),
     ]
 
 
@@ -51,6 +52,7 @@ class _Status(ctypes.Structure):  # datt_onboard_status
         ("step", ctypes.c_uint16),
         ("n_received", ctypes.c_uint16),
         ("phase", ctypes.c_uint8),
+        ("landed_early", ctypes.c_uint8),
     ]
 
 
@@ -61,6 +63,7 @@ class OnboardApp:
     def __init__(self, library: str | Path) -> None:
         lib = ctypes.CDLL(str(library))
         lib.datt_onboard_size.restype = ctypes.c_uint32
+        lib.datt_onboard_policy_id.restype = ctypes.c_uint32
         lib.datt_onboard_params_of.restype = ctypes.POINTER(_Params)
         lib.datt_onboard_params_of.argtypes = [ctypes.c_void_p]
         for name in ("datt_onboard_init", "datt_onboard_stop", "datt_onboard_refuse"):
@@ -70,7 +73,7 @@ class OnboardApp:
         for name in ("datt_onboard_start", "datt_onboard_step"):
             getattr(lib, name).restype = ctypes.c_uint8
         lib.datt_onboard_start.argtypes = [ctypes.c_void_p, _F3, _F3, _F4]
-        lib.datt_onboard_step.argtypes = [ctypes.c_void_p, _F3, _F3, _F4, ctypes.POINTER(_Setpoint)]
+        lib.datt_onboard_step.argtypes = [ctypes.c_void_p, _F3, _F3, _F4, ctypes.c_float, ctypes.POINTER(_Setpoint)]
         lib.datt_onboard_get_status.argtypes = [ctypes.c_void_p, ctypes.POINTER(_Status)]
         lib.datt_self_test.argtypes = [ctypes.POINTER(ctypes.c_float)]
         lib.datt_self_test.restype = ctypes.c_int
@@ -96,11 +99,15 @@ class OnboardApp:
     def get(self, name: str) -> float:
         if name == "run":
             return self.run_request
+        if name == "policyId":
+            return self.lib.datt_onboard_policy_id()
         _, _, field, index = next(p for p in PARAMS if p[0] == name)
         value = getattr(self.p, field)
         return value[index] if index is not None else value
 
     def set(self, name: str, value: float) -> None:
+        if name == "policyId":
+            return  # read-only (PARAM_RONLY): the firmware ignores the write
         if name == "run":
             self.run_request = int(value)
             return
@@ -126,6 +133,7 @@ class OnboardApp:
             "refY": s.ref_m[1],
             "refZ": s.ref_m[2],
             "selfTest": int(self.self_test_ok),
+            "landedEarly": s.landed_early,
         }
         return [float(values[name]) for name, _ in LOGS]
 
@@ -135,9 +143,10 @@ class OnboardApp:
         n = self.lib.datt_onboard_receive(self.ptr, bytes(data), len(data), reply)
         return bytes(reply[:n])
 
-    def tick(self, pos, vel, quat) -> tuple[_Setpoint | None, bool]:
-        """The body of ``appMain``'s loop: start / stop on ``datt.run``, one step. Returns the
-        setpoint to push (None: none this tick) and whether the commander is handed back."""
+    def tick(self, pos, vel, quat, pos_var_m2: float = 0.0) -> tuple[_Setpoint | None, bool]:
+        """The body of ``appMain``'s loop: start / stop on ``datt.run``, one step on the state and
+        the Kalman filter's larger horizontal position variance. Returns the setpoint to push
+        (None: none this tick) and whether the commander is handed back."""
         relax = False
         phase = self.status().phase
         args = (_F3(*pos), _F3(*vel), _F4(*quat))
@@ -150,7 +159,7 @@ class OnboardApp:
             self.lib.datt_onboard_stop(self.ptr)
             relax = True
         sp = _Setpoint()
-        self.lib.datt_onboard_step(self.ptr, *args, ctypes.byref(sp))
+        self.lib.datt_onboard_step(self.ptr, *args, float(pos_var_m2), ctypes.byref(sp))
         return (sp if sp.active else None), relax
 
     @property

@@ -332,7 +332,9 @@ class SimCrazyflie:
             pos, vel, quat = est[0:3], est[3:6], [est[9], est[6], est[7], est[8]]
         else:
             pos, vel, quat = [0.0] * 3, [0.0] * 3, [0.0] * 4
-        sp, relax = self.app.tick(pos, vel, quat)
+        # kalman.varPX/varPY as the app reads them; without the Kalman filter its position is unknown
+        var = max(self.kalman_var_m2[:2]) if self.estimator == KALMAN else 1e6
+        sp, relax = self.app.tick(pos, vel, quat, var)
         if relax:
             self.app_priority = False
             self._event("app: stopped, commander handed back")

@@ -35,8 +35,10 @@
 static datt_onboard onboard;
 static uint8_t run_request;    /* param datt.run */
 static uint8_t self_test_ok;   /* log datt.selfTest: the embedded golden case passed at boot */
+static uint32_t policy_id = DATT_POLICY_ID; /* param datt.policyId (read-only): the host checks it */
 static state_t latest_state;   /* written by the stabilizer task, read by appMain */
 static uint32_t latest_state_ticks;
+static logVarId_t var_px, var_py; /* the Kalman filter's position variances (kalman.varPX, varPY) */
 
 void controllerOutOfTreeInit(void) { controllerPidInit(); }
 
@@ -66,6 +68,14 @@ static void read_state(float pos[3], float vel[3], float quat[4]) {
     quat[1] = s.attitudeQuaternion.x;
     quat[2] = s.attitudeQuaternion.y;
     quat[3] = s.attitudeQuaternion.z;
+}
+
+/* The larger of the Kalman filter's horizontal position variances, m^2 (huge when the Kalman
+   filter is not running: its position is then unknown). */
+static float position_var_m2(void) {
+    if (!logVarIdIsValid(var_px) || !logVarIdIsValid(var_py)) return 1e6f;
+    float vx = logGetFloat(var_px), vy = logGetFloat(var_py);
+    return vx > vy ? vx : vy;
 }
 
 static void push_setpoint(const datt_setpoint *sp) {
@@ -102,6 +112,8 @@ void appMain(void) {
     datt_setpoint sp;
 
     datt_onboard_init(&onboard);
+    var_px = logGetVarId("kalman", "varPX");
+    var_py = logGetVarId("kalman", "varPY");
     self_test_ok = datt_self_test(&err) == 0;
     DEBUG_PRINT("self-test %s (max error %f)\n", self_test_ok ? "passed" : "FAILED", (double)err);
     wake = xTaskGetTickCount();
@@ -118,7 +130,7 @@ void appMain(void) {
             datt_onboard_stop(&onboard);
             commanderRelaxPriority(); /* the radio's setpoints fly the vehicle again */
         }
-        datt_onboard_step(&onboard, pos, vel, quat, &sp);
+        datt_onboard_step(&onboard, pos, vel, quat, position_var_m2(), &sp);
         if (sp.active) push_setpoint(&sp);
         vTaskDelayUntil(&wake, period);
     }
@@ -127,6 +139,7 @@ void appMain(void) {
 /* The host's handles (docs/onboard.md): parameters set before datt.run = 1. */
 PARAM_GROUP_START(datt)
 PARAM_ADD(PARAM_UINT8, run, &run_request)
+PARAM_ADD(PARAM_UINT32 | PARAM_RONLY, policyId, &policy_id)
 PARAM_ADD(PARAM_FLOAT, originX, &onboard.p.origin_m[0])
 PARAM_ADD(PARAM_FLOAT, originY, &onboard.p.origin_m[1])
 PARAM_ADD(PARAM_FLOAT, originZ, &onboard.p.origin_m[2])
@@ -142,6 +155,7 @@ PARAM_ADD(PARAM_FLOAT, maxRateRoll, &onboard.p.max_rate_degps[0])
 PARAM_ADD(PARAM_FLOAT, maxRatePitch, &onboard.p.max_rate_degps[1])
 PARAM_ADD(PARAM_FLOAT, maxRateYaw, &onboard.p.max_rate_degps[2])
 PARAM_ADD(PARAM_FLOAT, maxTiltDeg, &onboard.p.max_tilt_deg)
+PARAM_ADD(PARAM_FLOAT, maxPosStdM, &onboard.p.max_pos_std_m)
 PARAM_GROUP_STOP(datt)
 
 LOG_GROUP_START(datt)
@@ -153,4 +167,5 @@ LOG_ADD(LOG_FLOAT, refX, &onboard.ref_m[0])
 LOG_ADD(LOG_FLOAT, refY, &onboard.ref_m[1])
 LOG_ADD(LOG_FLOAT, refZ, &onboard.ref_m[2])
 LOG_ADD(LOG_UINT8, selfTest, &self_test_ok)
+LOG_ADD(LOG_UINT8, landedEarly, &onboard.landed_early)
 LOG_GROUP_STOP(datt)

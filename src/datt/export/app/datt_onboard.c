@@ -25,6 +25,7 @@ void datt_onboard_init(datt_onboard *o) {
     o->p.max_rate_degps[1] = 720.0f;
     o->p.max_rate_degps[2] = 400.0f;
     o->p.max_tilt_deg = 75.0f;
+    o->p.max_pos_std_m = 0.1f;
     o->phase = DATT_IDLE;
 }
 
@@ -77,7 +78,7 @@ static int params_valid(const datt_onboard_params *p) {
     return p->n_points >= 1 && p->n_points <= DATT_TABLE_MAX && p->track_steps < p->n_points &&
            p->slope_mps2_per_command > 0.0f && p->hover_command > 0.0f &&
            p->hover_command < (float)p->max_command && p->land_s > 0.0f && p->land_hold_s >= 0.0f &&
-           p->max_tilt_deg > 0.0f && p->max_tilt_deg < 180.0f;
+           p->max_tilt_deg > 0.0f && p->max_tilt_deg < 180.0f && p->max_pos_std_m >= 0.0f;
 }
 
 uint8_t datt_onboard_start(datt_onboard *o, const float pos[3], const float vel[3], const float quat[4]) {
@@ -95,6 +96,7 @@ uint8_t datt_onboard_start(datt_onboard *o, const float pos[3], const float vel[
 #endif
     o->step = 0;
     o->land_steps_done = 0;
+    o->landed_early = 0;
     o->phase = DATT_TRACK;
     return o->phase;
 }
@@ -111,22 +113,20 @@ static void table_point(const datt_onboard *o, uint32_t k, float out[3]) {
     out[2] = row[2];
 }
 
-/* The landing ramp m steps after the track's end: from the table's point at track_steps straight
-   down to land_z_m over land_s, then held. */
+/* The landing ramp m steps after it began: from land_from_m straight down to land_z_m over
+   land_s, then held. */
 static void ramp_point(const datt_onboard *o, uint32_t m, float out[3]) {
-    float start[3], u = (float)m * DATT_DT_S / o->p.land_s;
-    table_point(o, o->p.track_steps, start);
+    float u = (float)m * DATT_DT_S / o->p.land_s;
     if (u > 1.0f) u = 1.0f;
-    out[0] = start[0];
-    out[1] = start[1];
-    out[2] = start[2] + u * (o->p.land_z_m - start[2]);
+    out[0] = o->land_from_m[0];
+    out[1] = o->land_from_m[1];
+    out[2] = o->land_from_m[2] + u * (o->p.land_z_m - o->land_from_m[2]);
 }
 
-void datt_onboard_reference(const datt_onboard *o, uint32_t k, float out[3]) {
-    if (k < o->p.track_steps)
-        table_point(o, k, out);
-    else
-        ramp_point(o, k - o->p.track_steps, out);
+static void begin_landing(datt_onboard *o, uint32_t from_step) {
+    table_point(o, from_step, o->land_from_m);
+    o->land_steps_done = 0;
+    o->phase = DATT_LAND;
 }
 
 static void stop_setpoint(datt_setpoint *sp) {
@@ -152,7 +152,7 @@ static uint16_t thrust_command(const datt_onboard_params *p, float thrust_mps2) 
 }
 
 uint8_t datt_onboard_step(datt_onboard *o, const float pos[3], const float vel[3], const float quat[4],
-                          datt_setpoint *sp) {
+                          float pos_var_m2, datt_setpoint *sp) {
     float rel[3], ref[DATT_HORIZON * 3], cos_tilt, cos_max, d;
     float tilt_rad = o->p.max_tilt_deg / RAD_TO_DEG;
     int i, j, landing;
@@ -172,6 +172,11 @@ uint8_t datt_onboard_step(datt_onboard *o, const float pos[3], const float vel[3
     d = tilt_rad * tilt_rad;
     cos_max = 1.0f - d / 2.0f * (1.0f - d / 12.0f * (1.0f - d / 30.0f * (1.0f - d / 56.0f)));
     if (cos_tilt < cos_max) return abort_flight(o, sp);
+    d = o->p.max_pos_std_m * o->p.max_pos_std_m;
+    if (o->phase == DATT_TRACK && d > 0.0f && !(pos_var_m2 <= d)) {
+        begin_landing(o, o->step); /* no position measurements: stop tracking, land from here */
+        o->landed_early = 1;
+    }
 
     datt_l1_step(&o->l1, o->last_cmd, vel, quat); /* the command sent last step, the state now */
     for (i = 0; i < 3; i++) rel[i] = pos[i] - o->p.origin_m[i];
@@ -225,12 +230,14 @@ uint8_t datt_onboard_step(datt_onboard *o, const float pos[3], const float vel[3
             o->phase = DATT_DONE; /* this step's setpoint still flies; the next ones stop the motors */
         }
     } else if (o->step >= o->p.track_steps) {
-        o->phase = DATT_LAND;
+        begin_landing(o, o->p.track_steps);
     }
     return o->phase;
 }
 
 uint32_t datt_onboard_size(void) { return (uint32_t)sizeof(datt_onboard); }
+
+uint32_t datt_onboard_policy_id(void) { return DATT_POLICY_ID; }
 
 datt_onboard_params *datt_onboard_params_of(datt_onboard *o) { return &o->p; }
 
@@ -245,4 +252,5 @@ void datt_onboard_get_status(const datt_onboard *o, datt_onboard_status *s) {
     s->step = o->step;
     s->n_received = o->n_received;
     s->phase = o->phase;
+    s->landed_early = o->landed_early;
 }

@@ -14,7 +14,8 @@
 /* phases (log datt.phase) */
 #define DATT_IDLE 0      /* not flying: the commander's other setpoints (the radio's) fly the vehicle */
 #define DATT_TRACK 1     /* the policy tracks the uploaded table */
-#define DATT_LAND 2      /* the policy tracks a ramp from the table's end down to land_z_m, then stops */
+#define DATT_LAND 2      /* the policy tracks a ramp down to land_z_m (from the table's end, or from
+                            where it was when the position estimate grew too uncertain), then stops */
 #define DATT_DONE 3      /* landed: motors stopped */
 #define DATT_ABORTED 4   /* a check failed in flight (tilt, non-finite state or action): motors stopped */
 #define DATT_REFUSED 5   /* start refused: the table is incomplete or the parameters are invalid */
@@ -41,6 +42,9 @@ typedef struct {
     uint16_t max_command;
     float max_rate_degps[3]; /* roll, pitch, yaw limits on the sent rates */
     float max_tilt_deg;      /* larger tilt in flight: abort (motors off) */
+    float max_pos_std_m;     /* the estimate's horizontal position std above this (no measurements
+                                for a while: a lost mocap stream): land now from the current
+                                reference point; 0 = never */
 } datt_onboard_params;
 
 /* The rate setpoint for the firmware's commander, in its own convention (setpoint_t):
@@ -67,6 +71,8 @@ typedef struct {
     float cmd_hist[DATT_HISTORY > 0 ? DATT_HISTORY * 4 : 1]; /* scaled, oldest first */
     datt_l1_state l1;
     uint16_t land_steps_done;
+    float land_from_m[3];    /* the landing ramp's start (controller frame) */
+    uint8_t landed_early;    /* 1: the landing began before the table's end (uncertain position) */
 } datt_onboard;
 
 /* Defaults (a 34 g Crazyflie 2.1, THRUST_MAX 0.12 N); clears the table. */
@@ -80,12 +86,11 @@ uint8_t datt_onboard_start(datt_onboard *o, const float pos[3], const float vel[
 void datt_onboard_stop(datt_onboard *o);
 /* Refuse to start (the caller's own check failed, e.g. the boot self-test): DATT_REFUSED. */
 void datt_onboard_refuse(datt_onboard *o);
-/* One control step (50 Hz) from the state estimate (world frame: pos m, vel m/s, quat w x y z):
-   fills sp and returns the phase after the step. */
+/* One control step (50 Hz) from the state estimate (world frame: pos m, vel m/s, quat w x y z)
+   and its horizontal position variance (m^2; the Kalman filter's max(varPX, varPY)): fills sp and
+   returns the phase after the step. */
 uint8_t datt_onboard_step(datt_onboard *o, const float pos[3], const float vel[3], const float quat[4],
-                          datt_setpoint *sp);
-/* p_d at control step k (controller frame): the table, then the landing ramp. */
-void datt_onboard_reference(const datt_onboard *o, uint32_t k, float out[3]);
+                          float pos_var_m2, datt_setpoint *sp);
 
 /* For callers that do not see this header (the simulated Crazyflie's ctypes binding): the size
    of datt_onboard, its parameters, and a fixed-layout copy of what the firmware logs. */
@@ -97,8 +102,10 @@ typedef struct {
     uint16_t step;
     uint16_t n_received;
     uint8_t phase;
+    uint8_t landed_early;
 } datt_onboard_status;
 uint32_t datt_onboard_size(void);
+uint32_t datt_onboard_policy_id(void); /* DATT_POLICY_ID of the policy compiled in */
 datt_onboard_params *datt_onboard_params_of(datt_onboard *o);
 void datt_onboard_get_status(const datt_onboard *o, datt_onboard_status *s);
 
