@@ -258,6 +258,15 @@ def test_zigzag_segment_durations_follow_their_uniform_law():
     assert seg.mean().item() == pytest.approx(1.0, abs=0.01)
 
 
+@pytest.mark.parametrize("duration_s", [0.02, 0.3, 0.59, 0.61, 1.2, 10.0])
+def test_zigzag_knots_cover_any_duration(duration_s):
+    """However short or long the reference, its knots reach past its end (no held tail)."""
+    gen = torch.Generator().manual_seed(1)
+    knot_t, knot_p = Zigzag().sample_knots(500, duration_s, gen, torch.zeros(1, dtype=torch.float64))
+    assert knot_t.shape[1] >= 3 and knot_p.shape[:2] == knot_t.shape
+    assert (knot_t[:, -1] >= duration_s).all()
+
+
 CSV_ROWS = [(0.0, 0.0, 0.0, 0.0), (0.5, 1.0, 0.0, 0.2), (1.0, 1.0, 1.0, 0.4), (2.0, -1.0, 0.5, 0.0)]
 
 
