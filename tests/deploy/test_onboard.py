@@ -325,3 +325,18 @@ def test_an_app_with_another_policy_is_refused_before_arming(tmp_path):
         summary["outcome"],
     )
     assert "ARM" not in [e["text"] for e in summary["events"] if e["kind"] == "phase"]
+
+
+@pytest.mark.flight
+def test_a_track_longer_than_the_app_holds_is_refused_before_arming(tmp_path):
+    pytest.importorskip("cflib")
+    from datt.tasks.deploy import run_deploy
+
+    cfg = compose(
+        "deploy", [f"deploy.uri=udp://127.0.0.1:{next(_ports)}", "deploy.onboard=true", "deploy.flight.track_s=30"]
+    )
+    summary = run_deploy(cfg, run_dir=tmp_path)
+    assert summary["outcome"] == (
+        "preflight failed: deploy.flight.track_s: the app holds 1024 reference points (19.9 s of track at 50 Hz); "
+        "this track needs 1501"
+    )

@@ -323,6 +323,16 @@ class FlightRunner:
         steps = self._onboard_track_steps(track)
         env = track.env
         table = env.ref_table[0, : min(steps + env.window, env.table_len)].double().numpy()
+        if len(table) <= steps:  # a track longer than the reference: hold its last point, as off-board
+            table = np.concatenate((table, np.repeat(table[-1:], steps + 1 - len(table), axis=0)))
+        if len(table) > onboard.TABLE_MAX:
+            self.outcome = (
+                f"preflight failed: deploy.flight.track_s: the app holds {onboard.TABLE_MAX} reference points "
+                f"({(onboard.TABLE_MAX - env.window) / self.p.rate_hz:.1f} s of track at {self.p.rate_hz:g} Hz); "
+                f"this track needs {len(table)}"
+            )
+            self._event("preflight failed", self.outcome)
+            raise _Abort(self.outcome)
         origin = self._origin()
         values = {
             "originX": origin[0],
@@ -386,12 +396,12 @@ class FlightRunner:
                 self._event("LAND", "the app refused to start (table incomplete or a parameter invalid)")
                 self.link.set_param("datt.run", 0)
                 return LAND
-            if phase in (onboard.DONE, onboard.ABORTED):
+            if phase == onboard.ABORTED:  # the app holds the motors off (stop setpoints) until datt.run = 0
+                self.outcome = "killed: the onboard app aborted (tilt or a non-finite state/action), motors stopped"
+                self._event("KILL", self.outcome)
+                return KILL
+            if phase == onboard.DONE:
                 self.link.set_param("datt.run", 0)
-                if phase == onboard.ABORTED:
-                    self.outcome = "aborted by the onboard app (tilt or a non-finite state/action): motors stopped"
-                    self._event("KILL", self.outcome)
-                    return KILL
                 self._event("onboard", "the app has landed")
                 return OK
             fresh = state is not None and now - state.t_s < self.safety.max_state_age_s
