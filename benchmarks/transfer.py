@@ -5,11 +5,12 @@ the controller assumes, and compare with ``eval.py`` on the same reference.
 
 Per checkpoint: ``eval.py``'s star error (DATT + L1, nominal simulator), then ``--flights``
 flights of ``deploy.py`` (takeoff, the star, land; DATT + L1 as deployed) under the transfer
-conditions (default, issue 18): 40 ms radio round trip, motors 10 % weaker than the firmware's
-fit, the vehicle 10 % heavier than ``deploy.thrust.mass_kg``, 2 % of setpoint, mocap and log
-packets lost; no calibration flight (the controller flies the nominal map). Reports per flight
-the outcome, star error, its ratio to the eval error, tick jitter and per-tick compute, and
-writes ``benchmarks/results/transfer.json``. Real time: ~20 s per flight; run it alone.
+conditions (issue 18): 40 ms radio round trip, motors 10 % weaker than the firmware's fit, the
+vehicle 10 % heavier than ``deploy.thrust.mass_kg``, 2 % of setpoint, mocap and log packets
+lost; in each mode of ``datt.tasks.transfer.MODES`` (off-board / onboard on the nominal map /
+onboard after a calibration flight under the same conditions). Reports per flight the outcome,
+star error, its ratio to the eval error, tick jitter and per-tick compute, and writes
+``benchmarks/results/transfer.json``. Real time: ~20 s per flight; run it alone.
 """
 
 from __future__ import annotations
@@ -21,37 +22,50 @@ from pathlib import Path
 from _common import write_result
 
 from datt.paths import resolve_path
-from datt.tasks.transfer import CHECKPOINTS, CONDITIONS, eval_star_error, fly
+from datt.tasks.transfer import CHECKPOINTS, CONDITIONS, MODES, calibrate, eval_star_error, fly
 
 
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--flights", type=int, default=3)
     ap.add_argument("--checkpoints", nargs="+", default=CHECKPOINTS)
+    ap.add_argument("--modes", nargs="+", default=list(MODES), choices=list(MODES))
     args = ap.parse_args()
     results = {}
     missing = [c for c in args.checkpoints if not resolve_path(c).exists()]
     for ckpt in missing:
         print(f"{ckpt}: not found, skipped")
+    calibration = None
     with tempfile.TemporaryDirectory() as tmp:
+        if any(MODES[m][1] for m in args.modes):  # one calibration flight serves every policy
+            calibration = calibrate(CONDITIONS, Path(tmp) / "calibration")
+            print(f"calibration flight: {' '.join(calibration)}")
         for k, ckpt in enumerate(c for c in args.checkpoints if c not in missing):
             base = Path(tmp) / f"policy{k}"
             eval_err = eval_star_error(ckpt, base / "eval")
-            flights = [fly(ckpt, CONDITIONS, base / f"flight{i}", seed=i) for i in range(args.flights)]
-            for f in flights:
-                err = f["track_error_m"]
-                f["ratio_to_eval"] = None if err is None else err / eval_err
-            landed = [f for f in flights if f["outcome"].startswith("landed")]
-            results[ckpt] = {"eval_star_error_m": eval_err, "landed": len(landed), "flights": flights}
-            print(f"{ckpt}: eval.py star {eval_err:.3f} m; landed {len(landed)} of {len(flights)}")
-            for f in flights:
-                err = f["track_error_m"]
-                shown = "-" if err is None else f"{err:.3f} m ({f['ratio_to_eval']:.2f}x eval)"
-                print(
-                    f"  {f['outcome']}: star {shown}; jitter median {f['jitter_ms']['median']:.2f} ms, "
-                    f"p99 {f['jitter_ms']['p99']:.2f} ms; compute median {f['compute_ms']['median']:.2f} ms"
-                )
-    path = write_result("transfer", {"conditions": CONDITIONS, "policies": results})
+            results[ckpt] = {"eval_star_error_m": eval_err, "modes": {}}
+            print(f"{ckpt}: eval.py star {eval_err:.3f} m")
+            for mode in args.modes:
+                extra, calibrated = MODES[mode]
+                extra = extra + (calibration if calibrated else ())
+                flights = [
+                    fly(ckpt, CONDITIONS, base / f"{mode}{i}".replace(" ", "_"), seed=i, extra=extra)
+                    for i in range(args.flights)
+                ]
+                for f in flights:
+                    err = f["track_error_m"]
+                    f["ratio_to_eval"] = None if err is None else err / eval_err
+                landed = [f for f in flights if f["outcome"].startswith("landed")]
+                results[ckpt]["modes"][mode] = {"landed": len(landed), "flights": flights}
+                print(f"  {mode}: landed {len(landed)} of {len(flights)}")
+                for f in flights:
+                    err = f["track_error_m"]
+                    shown = "-" if err is None else f"{err:.3f} m ({f['ratio_to_eval']:.2f}x eval)"
+                    print(
+                        f"    {f['outcome']}: star {shown}; jitter median {f['jitter_ms']['median']:.2f} ms, "
+                        f"p99 {f['jitter_ms']['p99']:.2f} ms; compute median {f['compute_ms']['median']:.2f} ms"
+                    )
+    path = write_result("transfer", {"conditions": CONDITIONS, "calibration": calibration, "policies": results})
     print(f"wrote {path}")
 
 

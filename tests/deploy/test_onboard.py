@@ -151,6 +151,16 @@ def test_one_step_is_the_policy_on_the_table_window_with_the_thrust_map(built):
     assert sp.yaw_degps == pytest.approx(math.degrees(s.action[3]), rel=1e-5)
 
 
+def test_thrust_above_the_maps_ceiling_is_sent_and_remembered_as_the_ceiling(built):
+    """The map clips at max_command: the app's action, L1 input and setpoint use the ceiling."""
+    app = loaded(built, hoverCmd=55000.0, maxCmd=56000)  # ceiling = g + slope * 1000 ≈ 10.03 m/s²
+    app.run_request = 1
+    half = math.radians(40) / 2  # tilted and below the reference: the policy asks for far more
+    sp, _ = app.tick([0.0, 0.0, 0.0], [0.0, 0.0, -2.0], [math.cos(half), math.sin(half), 0.0, 0.0])
+    ceiling = 9.81 + 4 * 0.12 / (65535 * 0.034) * 1000
+    assert app.status().action[0] == pytest.approx(ceiling, rel=1e-5) and sp.thrust == 56000
+
+
 def test_track_then_land_ramp_then_motors_off(built):
     app = loaded(built, n_points=40, track_steps=20, landS=0.2, landHoldS=0.1)  # ramp 10 steps, hold 5
     app.run_request = 1

@@ -61,6 +61,23 @@ def test_flight_model_records_the_commands_it_sends():
     assert not torch.allclose(expected[0], hover[0])
 
 
+def test_flight_model_sends_and_remembers_thrust_at_the_maps_ceiling():
+    """Far below the reference the PID asks for more than the map can give (it clips at
+    max_command): the command sent, the history and L1's input are the ceiling, not the ask."""
+    import torch
+
+    from datt.control.pid import PidController
+    from datt.deploy.runner import FlightModel
+    from datt.envs.factory import make_env
+    from datt.refs import Polygon
+
+    cfg = compose("sim", ["env.obs.action_history=2", "adaptation=l1"])
+    model = FlightModel(lambda family: make_env(cfg, num_envs=1, seed=0, traj=family), PidController(), Polygon(), 11.0)
+    sent = model.act([0.0, 0.0, -3.0], [0.0, 0.0, -2.0], [1.0, 0.0, 0.0, 0.0])
+    assert sent[0] == pytest.approx(11.0) and model.last_cmd[0, 0].item() == pytest.approx(11.0)
+    assert model.env.cmd_history[0, -1, 0] == model.env.scaled_command(torch.tensor([[11.0, 0, 0, 0]]))[0, 0]
+
+
 def _state(t_s=10.0, pos=(0.0, 0.0, 1.0), vel=(0.0, 0.0, 0.0), quat=(1.0, 0.0, 0.0, 0.0), vbat=3.9):
     from datt.deploy.link import StateSample
 

@@ -336,6 +336,23 @@ def test_reward_velocity_term_is_per_drone():
     assert cost.shape == (2, 1) and cost[:, 0].tolist() == pytest.approx([0.0, 0.05])
 
 
+def test_commands_above_the_thrust_ceiling_reach_history_and_l1_as_the_ceiling(make_tracking_env):
+    """With ``quad.max_thrust_mps2`` = 12 (a vehicle's ceiling), asking 30 m/s² is the same step
+    as asking 12 for the simulator, the command history and L1's d̂ (which would otherwise read
+    the 18 m/s² never delivered as a disturbance and run away)."""
+    over = ["env.quad.max_thrust_mps2=12.0", "env.obs.action_history=2", "adaptation=l1", "env.init_pos_range_m=0"]
+    outs = []
+    for thrust in (30.0, 12.0):
+        env = make_tracking_env(over, n=2)
+        td = env.reset()
+        td["action"] = torch.tensor([[thrust, 0.0, 0.0, 0.0]] * 2)
+        env.step(td)
+        outs.append((env.cmd_history.clone(), env.adaptation.d_hat.clone(), env.sim.state.vel_mps.clone()))
+    for a, b in zip(*outs):
+        assert torch.equal(a, b)
+    assert env.command_high[0].item() == 12.0 and env.action_high[0].item() == pytest.approx(9.81 + 30.0)
+
+
 def test_observation_defaults_are_the_papers_input():
     """``build_observation`` without the ablation flags is the body-frame input with feedback."""
     from datt.envs.observations import build_observation

@@ -62,8 +62,11 @@ LINK_LOST = "LINK_LOST"  # onboard flights: the host lost the vehicle while the 
 class FlightModel:
     """A controller flying from measurements: a one-drone env whose state is set each tick."""
 
-    def __init__(self, make_env, controller, family: RefFamily) -> None:
+    def __init__(self, make_env, controller, family: RefFamily, thrust_ceiling_mps2: float = math.inf) -> None:
         self.env = make_env(family)
+        # the thrust map clips at max_command: the adaptation and the history get what is sent
+        self.command_high = self.env.command_high.clone()
+        self.command_high[0] = min(float(self.command_high[0]), thrust_ceiling_mps2)
         self.controller = controller
         self.env.reset()
         controller.reset(self.env)
@@ -74,7 +77,7 @@ class FlightModel:
         self.env.adaptation.update(self.env.sim.state, self.last_cmd, None)
         td = None if self.controller.builds_observation else self.env.observe()
         action = self.controller.act(self.env, td)
-        cmd = torch.clamp(action, self.env.action_low, self.env.action_high)
+        cmd = torch.clamp(action, self.env.action_low, self.command_high)
         self.env.sim.latency.push(cmd)  # model-based controllers see the command in flight
         self.env.record_command(cmd)  # policies with obs.action_history see the commands sent
         self.last_cmd = cmd
@@ -668,7 +671,7 @@ class FlightRunner:
         return OK
 
     def _model(self, controller, family: RefFamily) -> FlightModel:
-        model = FlightModel(self.make_env, controller, family)
+        model = FlightModel(self.make_env, controller, family, self.thrust.ceiling_mps2)
         model.act([0.0, 0.0, 0.0], [0.0, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0])  # warm-up (traces the policy)
         model.env.reset()
         controller.reset(model.env)

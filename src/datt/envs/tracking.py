@@ -121,6 +121,10 @@ class TrackingEnv(EnvBase):
         self._observe_kernel = observe_and_cost
 
         self.action_low, self.action_high = action_bounds(params, **kw)
+        # what the vehicle takes: the action bounds, thrust also under the actuator's ceiling (on a
+        # vehicle the thrust map clips at max_command); simulator, history and adaptation see it
+        self.command_high = self.action_high.clone()
+        self.command_high[0] = min(float(self.action_high[0]), params.quad.max_thrust_mps2)
         self.action_center, self.action_half = action_center_half(self.action_low, self.action_high)
         self.state_dim = state_width(params.obs)
         self.cmd_history = torch.zeros(num_envs, params.obs.action_history, 4, **kw)
@@ -318,7 +322,7 @@ class TrackingEnv(EnvBase):
         """The plant's half of a step: clamp the command, integrate, move the references on and
         update the disturbance. Returns ``(state, cmd, d)`` for the controller's half
         (adaptation update, observation), which :meth:`_step` and the latency timer run next."""
-        cmd = torch.clamp(action, self.action_low, self.action_high)
+        cmd = torch.clamp(action, self.action_low, self.command_high)
         self.record_command(cmd)
         s = self.sim.step(cmd, self.disturbance.current_mps2)
         self._advance_refs()

@@ -2,9 +2,12 @@
 worse than the controller assumes, and compare with ``eval.py`` on the same reference.
 
 Transfer conditions (``CONDITIONS``): 40 ms radio round trip, motors 10 % weaker than the
-firmware's fit, the vehicle 10 % heavier than ``deploy.thrust.mass_kg``, 2 % of setpoint, mocap
-and log packets lost; no calibration flight (the controller flies the nominal map). Used by
-``benchmarks/transfer.py`` and ``tests/deploy/test_transfer.py``.
+firmware's fit, the vehicle 10 % heavier than ``deploy.thrust.mass_kg``, 2 % of setpoint, mocap,
+log and app-channel packets lost. ``MODES``: off-board on the nominal map (the policy over the
+radio at 50 Hz), onboard on the nominal map (the policy in the vehicle's app, ``deploy.onboard``),
+and onboard after a calibration flight under the same conditions (:func:`calibrate`: the
+deploy procedure of docs/deploy.md). Used by ``benchmarks/transfer.py`` and
+``tests/deploy/test_transfer.py``.
 """
 
 from __future__ import annotations
@@ -23,6 +26,11 @@ CONDITIONS = {
     "deploy.server.thrust_gain": 0.9,
     "deploy.server.mass_kg": round(MASS_KG * 1.1, 5),
     "deploy.server.radio_loss": 0.02,
+}
+MODES = {  # name -> (deploy overrides, calibrate first)
+    "off-board": ((), False),
+    "onboard": (("deploy.onboard=true",), False),
+    "onboard, calibrated": (("deploy.onboard=true",), True),
 }
 _ports = itertools.count(19950)
 
@@ -59,3 +67,19 @@ def fly(checkpoint: str, conditions: dict, out: Path, seed: int, extra: tuple = 
         "late_ticks": summary["late_ticks"],
         "compute_ms": summary["compute_ms"],
     }
+
+
+def calibrate(conditions: dict, out: Path, seed: int = 0) -> tuple[str, ...]:
+    """A calibration flight (``deploy.mode=calibrate``: PID hover with a thrust square wave) under
+    ``conditions``; returns the ``deploy.thrust`` overrides it fitted (hover command and slope).
+    Raises RuntimeError when the calibration flight does not land."""
+    overrides = [f"deploy.uri=udp://127.0.0.1:{next(_ports)}", "deploy.mode=calibrate", f"seed={seed}"]
+    overrides += [f"{k}={v}" for k, v in conditions.items()] + [f"deploy.server.radio_seed={seed}"]
+    summary = run_deploy(compose("deploy", overrides), run_dir=out)
+    fit = summary.get("calibration") or {}
+    if not summary["outcome"].startswith("landed") or fit.get("hover_command") is None:
+        raise RuntimeError(f"the calibration flight failed: {summary['outcome']}")
+    return (
+        f"deploy.thrust.hover_command={fit['hover_command']:.2f}",
+        f"deploy.thrust.slope_mps2_per_command={fit['slope_mps2_per_command']:.8g}",
+    )

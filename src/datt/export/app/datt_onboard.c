@@ -195,6 +195,9 @@ uint8_t datt_onboard_step(datt_onboard *o, const float pos[3], const float vel[3
 #endif
     for (i = 0; i < 4; i++)
         if (!finite_f(o->action[i])) return abort_flight(o, sp);
+    /* the thrust map clips at max_command: the L1 update and the history take what is sent */
+    d = DATT_GRAVITY_MPS2 + o->p.slope_mps2_per_command * ((float)o->p.max_command - o->p.hover_command);
+    if (o->action[0] > d) o->action[0] = d;
     d = 0.0f;
     for (i = 0; i < 3; i++) {
         o->ref_m[i] = ref[i];
