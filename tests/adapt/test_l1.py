@@ -122,6 +122,75 @@ def test_bad_l1_parameters(kwargs, key):
         L1Adaptation(**kwargs)
 
 
+K_MESSAGE = "adaptation.k_thrust must be in (0, 1] and adaptation.latency_steps >= 0"
+
+
+@pytest.mark.parametrize(
+    "kwargs, message",
+    [
+        ({"a_s": 0.0}, "adaptation.a_s: must be < 0 (Hurwitz), got 0.0"),
+        ({"cutoff_tau_s": -0.01}, "adaptation.cutoff_tau_s: must be >= 0, got -0.01"),
+        ({"k_thrust": 0.0}, K_MESSAGE),
+        ({"k_thrust": 1.5}, K_MESSAGE),
+        ({"latency_steps": -1}, K_MESSAGE),
+    ],
+)
+def test_l1_parameter_errors_are_exact(kwargs, message):
+    with pytest.raises(ValueError) as info:
+        L1Adaptation(**kwargs)
+    assert str(info.value) == message
+
+
+@pytest.mark.parametrize("kwargs", [{"cutoff_tau_s": 0.0}, {"k_thrust": 1.0}, {"latency_steps": 0}, {"a_s": -5.0}])
+def test_l1_parameter_edges_are_allowed(kwargs):
+    L1Adaptation(**kwargs)  # no filter, an instant actuator, no latency, a fast predictor
+
+
+def test_l1_defaults_follow_the_simulators_actuator():
+    """``adaptation=l1`` takes k_thrust and latency_steps from ``env.quad``: the Python defaults
+    are the simulator's own, so ``L1Adaptation()`` in a notebook models the same actuator."""
+    import inspect
+
+    from datt.sim.quadrotor import QuadrotorParams
+
+    params = inspect.signature(L1Adaptation).parameters
+    assert params["k_thrust"].default == QuadrotorParams().k_thrust
+    assert params["latency_steps"].default == QuadrotorParams().latency_steps
+
+
+def test_zero_cutoff_means_no_filter():
+    """cutoff_tau_s = 0: d-hat is the raw estimate sigma-hat at every step."""
+    from types import SimpleNamespace
+
+    est = L1Adaptation(cutoff_tau_s=0.0)
+    est.bind(2, 0.02, 9.81, "cpu", torch.float32)
+    est.reset(torch.arange(2))
+    g = torch.Generator().manual_seed(0)
+    for _ in range(5):
+        state = SimpleNamespace(vel_mps=torch.randn(2, 3, generator=g), quat=torch.tensor([[1.0, 0, 0, 0]] * 2))
+        est.update(state, torch.tensor([[9.81, 0, 0, 0]] * 2) + torch.randn(2, 4, generator=g))
+        assert torch.equal(est.d_hat, est.sigma_hat) and est.d_hat.abs().max() > 0
+
+
+def test_compile_before_bind_and_its_options(monkeypatch):
+    """compile() may come before bind() (the kernel is chosen when the batch size is known), and
+    its options reach torch.compile."""
+    import datt.adapt.l1 as l1_module
+    from datt.adapt.l1 import COMPILE_MIN_BATCH, l1_step
+
+    seen = {}
+
+    def fake_compile(fn, **kwargs):
+        seen.update(kwargs)
+        return lambda *args: fn(*args)
+
+    monkeypatch.setattr("datt.compile.compile_or_eager", fake_compile)
+    est = L1Adaptation().compile(backend="eager", mode="reduce-overhead")
+    assert seen == {"backend": "eager", "mode": "reduce-overhead"} and est._step is l1_step
+    est.bind(COMPILE_MIN_BATCH, 0.02, 9.81, "cpu", torch.float32)
+    assert est._step is not l1_step and l1_module.COMPILE_MIN_BATCH == COMPILE_MIN_BATCH
+
+
 def test_law_gain_matches_eq_7b():
     est = L1Adaptation(a_s=-0.01)
     est.bind(1, 0.02, 9.81, "cpu", torch.float32)

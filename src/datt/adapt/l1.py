@@ -140,7 +140,8 @@ class L1Adaptation(Adaptation):
         self._step = self._compiled if self._compiled is not None and big else l1_step
         # the bilinear thrust axis saves ops in eager mode; the compiler fuses the plain form
         # into its single loop, where a matmul would be a separate call
-        self._body_z_form = None if self._step is not l1_step else self.body_z_form
+        # (before bind there is no form yet; bind chooses again)
+        self._body_z_form = None if self._step is not l1_step else getattr(self, "body_z_form", None)
 
     def error_dynamics(self) -> tuple[Tensor, Tensor]:
         """Per-axis one-step map of the estimator state ``x = (ṽ, σ̂, d̂)`` under a constant
