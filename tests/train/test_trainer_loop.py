@@ -235,3 +235,103 @@ def test_first_episodes_are_staggered_only_when_configured(tmp_path, stagger):
         ended |= out["next", "truncated"].squeeze(-1)
         td = out["next"]
     assert bool(ended.any()) is stagger
+
+
+def test_rates_and_wall_time_come_from_the_clock(tmp_path, monkeypatch):
+    """With a clock that reads 100 at the start, 101 when collection starts and 103, 107 after
+    the two batches: steps/s per batch is 1,024 / 2 and 1,024 / 4, the bar's average rate
+    2,048 / 7 and the training wall time 6 s; the bar also has its bar and its two time columns."""
+    from types import SimpleNamespace
+
+    import datt.train.ppo as ppo
+
+    ticks = iter([100.0, 101.0, 103.0, 107.0])
+    monkeypatch.setattr(ppo, "time", SimpleNamespace(perf_counter=lambda: next(ticks)))
+    console = _recording_console()
+    trainer = _trainer(
+        tmp_path, f"train.total_steps={2 * BATCH}", "train.progress=true", "curriculum.fixed_ref_steps=0",
+        console=console,
+    )  # fmt: skip
+    history = trainer.train()
+    assert [row["steps_per_s"] for row in history] == [BATCH / 2, BATCH / 4]
+    assert trainer.train_wall_s == 6.0 and load_checkpoint(tmp_path / "last.pt")["train_wall_s"] == 6.0
+    text = console.export_text()
+    assert "2,048/2,048 steps 293 steps/s" in text  # 2,048 / 7
+    last = [line for line in re.split(r"(?=train ━)", text) if line.startswith("train ")][-1]
+    assert "━━━━" in last and len(re.findall(r"(?:\d+:\d\d:\d\d|-:--:--)", last)) == 2, last
+
+
+def test_update_sets_the_scheduled_lr_and_averages_its_minibatches(tmp_path):
+    """Each update sets every parameter group to the schedule's learning rate (whatever the
+    optimiser held), and its loss and gradient-norm figures are the means over its minibatches."""
+    trainer = _trainer(
+        tmp_path, f"train.total_steps={4 * BATCH}", "algo.lr_schedule=linear", "curriculum.fixed_ref_steps=0",
+        cls=SpyTrainer,
+    )  # fmt: skip
+    trainer.train()  # collects the batches the update below reuses
+    trainer.frames = 2 * BATCH  # half way: the linear schedule is between lr and its final value
+    for group in trainer.optim.param_groups:
+        group["lr"] = 123.0
+    seen = []
+    loss = trainer.loss
+
+    def recording_loss(td):
+        out = loss(td)
+        seen.append(out["loss_objective"].item())
+        return out
+
+    trainer.loss = recording_loss
+    stats = trainer.update(trainer.batches[0].clone())
+    assert stats["lr"] == trainer._lr() != trainer.algo.lr
+    assert all(group["lr"] == stats["lr"] for group in trainer.optim.param_groups)
+    assert len(seen) == trainer.algo.epochs * (BATCH // trainer.algo.minibatch_size)
+    assert stats["loss_objective"] == pytest.approx(sum(seen) / len(seen))
+
+
+@pytest.mark.parametrize("what", ["loss", "gradient"])
+def test_divergence_names_what_went_non_finite(tmp_path, what):
+    from datt.errors import TrainingDiverged
+
+    trainer = _trainer(tmp_path, f"train.total_steps={BATCH}", "curriculum.fixed_ref_steps=0", cls=SpyTrainer)
+    trainer.train()
+    loss = trainer.loss
+    weight = next(trainer.actor.parameters())
+
+    def poisoned(td):
+        out = loss(td)
+        if what == "loss":
+            out["loss_objective"] = out["loss_objective"] * float("nan")
+        else:  # finite value, non-finite gradient: d sqrt(u) / du at u = 0 is infinite
+            out["loss_objective"] = out["loss_objective"] + 0.0 * torch.sqrt((weight - weight.detach()).abs().sum())
+        return out
+
+    trainer.loss = poisoned
+    with pytest.raises(TrainingDiverged) as info:
+        trainer.update(trainer.batches[0].clone())
+    assert str(info.value).startswith(f"non-finite {what} at iteration 1 (frame {BATCH}); last good checkpoint: ")
+
+
+def test_a_resumed_main_phase_at_the_fixed_phase_end_stays_main(tmp_path):
+    trainer = _trainer(tmp_path, f"train.total_steps={4 * BATCH}", f"curriculum.fixed_ref_steps={BATCH}")
+    trainer.phase, trainer.frames = "main", BATCH
+    trainer._update_phase()
+    assert trainer.phase == "main"
+    trainer.frames = BATCH - 1  # below it: back to the fixed reference
+    trainer._update_phase()
+    assert trainer.phase == "fixed"
+
+
+def test_a_main_phase_that_never_beat_its_best_still_writes_one(tmp_path):
+    """A resumed main phase whose batches never beat the best error it carried (best.pt lost):
+    the end of the run writes best.pt from the last state."""
+    trainer = _trainer(tmp_path, f"train.total_steps={BATCH}", "curriculum.fixed_ref_steps=0")
+    trainer.best_error = -1.0
+    trainer.train()
+    assert load_checkpoint(tmp_path / "best.pt")["iteration"] == 1
+
+
+def test_checkpoints_hold_the_resolved_config(tmp_path):
+    trainer = _trainer(tmp_path, f"train.total_steps={BATCH}", "adaptation=l1")
+    trainer.train()
+    text = load_checkpoint(tmp_path / "last.pt")["config_yaml"]
+    assert "${" not in text and "k_thrust: 0.4" in text
