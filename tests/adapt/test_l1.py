@@ -134,6 +134,7 @@ K_MESSAGE = "adaptation.k_thrust must be in (0, 1] and adaptation.latency_steps 
         ({"k_thrust": 1.5}, K_MESSAGE),
         ({"latency_steps": -1}, K_MESSAGE),
     ],
+    ids=["a_s", "cutoff", "k_zero", "k_above_one", "latency"],  # plain node ids (mutmut selects tests by id)
 )
 def test_l1_parameter_errors_are_exact(kwargs, message):
     with pytest.raises(ValueError) as info:

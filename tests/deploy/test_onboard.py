@@ -302,6 +302,7 @@ def test_a_vehicle_without_the_app_is_refused_before_arming(tmp_path):
     assert "ARM" not in [e["text"] for e in summary["events"] if e["kind"] == "phase"]
 
 
+@pytest.mark.slow
 @pytest.mark.flight
 def test_link_loss_without_a_positioning_deck_lands_early(tmp_path):
     """Mocap only: the cut also stops the positions, the Kalman variance grows and the app lands
