@@ -238,9 +238,10 @@ def test_first_episodes_are_staggered_only_when_configured(tmp_path, stagger):
 
 
 def test_rates_and_wall_time_come_from_the_clock(tmp_path, monkeypatch):
-    """With a clock that reads 100 at the start, 101 when collection starts and 103, 107 after
-    the two batches: steps/s per batch is 1,024 / 2 and 1,024 / 4, the bar's average rate
-    2,048 / 7 and the training wall time 6 s; the bar also has its bar and its two time columns."""
+    """A run resumed at 1,024 frames, with a clock that reads 100 at the start, 101 when
+    collection starts and 103, 107 after its two batches: steps/s per batch is 1,024 / 2 and
+    1,024 / 4, the bar's average rate the frames of this session over its time, 2,048 / 7, and
+    the training wall time 6 s; the bar also has its bar and its two time columns."""
     from types import SimpleNamespace
 
     import datt.train.ppo as ppo
@@ -249,14 +250,15 @@ def test_rates_and_wall_time_come_from_the_clock(tmp_path, monkeypatch):
     monkeypatch.setattr(ppo, "time", SimpleNamespace(perf_counter=lambda: next(ticks)))
     console = _recording_console()
     trainer = _trainer(
-        tmp_path, f"train.total_steps={2 * BATCH}", "train.progress=true", "curriculum.fixed_ref_steps=0",
+        tmp_path, f"train.total_steps={3 * BATCH}", "train.progress=true", "curriculum.fixed_ref_steps=0",
         console=console,
     )  # fmt: skip
+    trainer.frames = BATCH
     history = trainer.train()
     assert [row["steps_per_s"] for row in history] == [BATCH / 2, BATCH / 4]
     assert trainer.train_wall_s == 6.0 and load_checkpoint(tmp_path / "last.pt")["train_wall_s"] == 6.0
     text = console.export_text()
-    assert "2,048/2,048 steps 293 steps/s" in text  # 2,048 / 7
+    assert "3,072/3,072 steps 293 steps/s" in text  # 2,048 / 7
     last = [line for line in re.split(r"(?=train ━)", text) if line.startswith("train ")][-1]
     assert "━━━━" in last and len(re.findall(r"(?:\d+:\d\d:\d\d|-:--:--)", last)) == 2, last
 
@@ -335,3 +337,21 @@ def test_checkpoints_hold_the_resolved_config(tmp_path):
     trainer.train()
     text = load_checkpoint(tmp_path / "last.pt")["config_yaml"]
     assert "${" not in text and "k_thrust: 0.4" in text
+
+
+def test_the_logger_gets_numbers_only(tmp_path):
+    """Each row's phase (a word) stays in the history; the logger (CSV, wandb) gets the numbers."""
+
+    class KeySpy(CsvLogger):
+        def __init__(self, run_dir):
+            super().__init__(run_dir)
+            self.keys = []
+
+        def log(self, metrics, step):
+            self.keys.append(set(metrics))
+            super().log(metrics, step)
+
+    logger = KeySpy(tmp_path)
+    history = _trainer(tmp_path, f"train.total_steps={2 * BATCH}", logger=logger).train()
+    assert logger.keys and all("phase" not in keys for keys in logger.keys)
+    assert all(row["phase"] in ("fixed", "main") for row in history)
