@@ -202,6 +202,13 @@ class FlightRunner:
         self.link.send_rates(roll, pitch, yaw, command)
         return command
 
+    def _refuse(self, outcome: str) -> None:
+        """End the flight before arming: ``outcome`` (a "preflight failed: ..." line) is logged
+        and becomes the flight's outcome."""
+        self.outcome = outcome
+        self._event("preflight failed", outcome)
+        raise _Abort(outcome)
+
     def _kill(self, reason: str) -> None:
         self.link.emergency_stop()  # first, before logging or anything else
         self._event("KILL", reason)
@@ -307,35 +314,29 @@ class FlightRunner:
         """Check the app is there, select its controller hook, set its parameters, upload the
         reference (controller frame) and follow its log."""
         if not self.link.has_param("datt.run"):
-            self.outcome = (
+            self._refuse(
                 "preflight failed: deploy.onboard: the vehicle's firmware has no DATT app (no parameter datt.run): "
                 "build and flash it (datt export format=app; docs/onboard.md), or fly off-board (deploy.onboard=false)"
             )
-            self._event("preflight failed", self.outcome)
-            raise _Abort(self.outcome)
         if self.onboard_policy_id is not None:
             carried = int(self.link.read_param("datt.policyId"))
             if carried != self.onboard_policy_id:
-                self.outcome = (
+                self._refuse(
                     f"preflight failed: deploy.onboard: the vehicle's app carries policy {carried:#010x}, the "
                     f"checkpoint is {self.onboard_policy_id:#010x}: flash the app exported from it "
                     "(datt export format=app checkpoint=...), or pass the checkpoint the app was built from"
                 )
-                self._event("preflight failed", self.outcome)
-                raise _Abort(self.outcome)
         steps = self._onboard_track_steps(track)
         env = track.env
         table = env.ref_table[0, : min(steps + env.window, env.table_len)].double().numpy()
         if len(table) <= steps:  # a track longer than the reference: hold its last point, as off-board
             table = np.concatenate((table, np.repeat(table[-1:], steps + 1 - len(table), axis=0)))
         if len(table) > onboard.TABLE_MAX:
-            self.outcome = (
+            self._refuse(
                 f"preflight failed: deploy.flight.track_s: the app holds {onboard.TABLE_MAX} reference points "
                 f"({(onboard.TABLE_MAX - env.window) / self.p.rate_hz:.1f} s of track at {self.p.rate_hz:g} Hz); "
                 f"this track needs {len(table)}"
             )
-            self._event("preflight failed", self.outcome)
-            raise _Abort(self.outcome)
         origin = self._origin()
         values = {
             "originX": origin[0],
@@ -365,9 +366,7 @@ class FlightRunner:
         try:
             upload.run()
         except RuntimeError as exc:
-            self.outcome = f"preflight failed: the reference upload to the app failed: {exc}"
-            self._event("preflight failed", self.outcome)
-            raise _Abort(self.outcome) from None
+            self._refuse(f"preflight failed: the reference upload to the app failed: {exc}")
         self._event("onboard", f"reference uploaded: {len(table)} points in {time.monotonic() - started:.2f} s")
         self._onboard_steps = steps
         self.link.log_block("datt", onboard.LOG_BLOCK, self.link.log_period_ms, self._on_app_log)
@@ -600,13 +599,11 @@ class FlightRunner:
             k = int(outside[0])
             axis = int(np.nonzero((path[k] < lo) | (path[k] > hi))[0][0])
             bound = "geofence_min_m" if path[k, axis] < lo[axis] else "geofence_max_m"
-            self.outcome = (
+            self._refuse(
                 f"preflight failed: deploy.safety.{bound}: the reference leaves the geofence at "
                 f"t={k / self.p.rate_hz:.2f} s ({'xyz'[axis]}={path[k, axis]:.2f} m; "
                 f"fence {lo[axis]:.2f}..{hi[axis]:.2f} m)"
             )
-            self._event("preflight failed", self.outcome)
-            raise _Abort(self.outcome)
 
     def _tick_loop(self, model: FlightModel, steps: int, origin: np.ndarray, allow_land: bool = True) -> str:
         dt = 1.0 / self.p.rate_hz
