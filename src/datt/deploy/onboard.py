@@ -14,7 +14,6 @@ ACK_OK, ACK_RANGE, ACK_BUSY, ACK_MALFORMED = 0, 1, 2, 3
 POINTS_PER_PACKET = 2  # 4 + 2 * 12 bytes: within the app channel's 30
 TABLE_MAX = 1024  # DATT_TABLE_MAX of the app as exported
 IDLE, TRACK, LAND, DONE, ABORTED, REFUSED = range(6)
-PHASE_NAMES = {IDLE: "idle", TRACK: "track", LAND: "land", DONE: "done", ABORTED: "aborted", REFUSED: "refused"}
 CONTROLLER_OOT = 5  # stabilizer.controller: the out-of-tree controller (the app's state hook)
 
 # (name, C type, datt_onboard_params field, index or None): the app's parameter group "datt"

@@ -15,6 +15,7 @@ from datt.control.factory import build_controller
 from datt.envs.factory import make_env
 from datt.errors import ConfigError
 from datt.export.c_code import L1Spec, PolicySpec, generate, l1_spec, policy_spec
+from datt.runs import atomic_write
 
 __all__ = ["Recording", "record_rollout", "export_spec", "generate", "PolicySpec", "L1Spec", "reference_action"]
 
@@ -149,9 +150,8 @@ def write_c(spec: PolicySpec, out_dir, prefix: str = "datt") -> tuple:
     header, source = generate(spec, prefix)
     paths = (out / f"{prefix}_policy.h", out / f"{prefix}_policy.c")
     for path, text in zip(paths, (header, source)):
-        tmp = path.with_suffix(path.suffix + ".tmp")
-        tmp.write_text(text)
-        tmp.replace(path)
+        with atomic_write(path) as f:
+            f.write(text)
     return paths
 
 

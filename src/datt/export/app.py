@@ -18,15 +18,10 @@ from pathlib import Path
 
 from datt.errors import ConfigError
 from datt.export.c_code import PolicySpec, generate
+from datt.runs import atomic_write
 
 SOURCES = ("datt_onboard.h", "datt_onboard.c", "app_datt.c")  # shipped as package data (datt/export/app/)
 SIL_FLAGS = ["-std=c99", "-O2", "-ffp-contract=off", "-fPIC", "-shared", "-Wall", "-Wextra", "-Werror"]
-
-
-def _atomic_write(path: Path, text: str) -> None:
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(text)
-    tmp.replace(path)
 
 
 def write_app(spec: PolicySpec, out_dir) -> list[Path]:
@@ -45,7 +40,8 @@ def write_app(spec: PolicySpec, out_dir) -> list[Path]:
     files[out / "Makefile"] = (shipped / "Makefile").read_text()
     files[out / "app-config"] = (shipped / "app-config").read_text()
     for path, text in files.items():
-        _atomic_write(path, text)
+        with atomic_write(path) as f:
+            f.write(text)
     return list(files)
 
 

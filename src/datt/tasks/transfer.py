@@ -53,12 +53,16 @@ def eval_star_error(checkpoint: str, out: Path) -> float:
     return float(cond["groups"]["star"]["mean_m"])
 
 
+def _flight_overrides(conditions: dict, seed: int) -> list[str]:
+    """A fresh port, ``conditions`` (``deploy.*`` overrides), ``seed`` for the run and the radio's losses."""
+    overrides = [f"deploy.uri=udp://127.0.0.1:{next(_ports)}", f"seed={seed}"]
+    return overrides + [f"{k}={v}" for k, v in conditions.items()] + [f"deploy.server.radio_seed={seed}"]
+
+
 def fly(checkpoint: str, conditions: dict, out: Path, seed: int, extra: tuple = ()) -> dict:
     """One ``deploy.py`` flight (DATT + L1, the star) of ``checkpoint`` under ``conditions``
     (``deploy.*`` overrides); ``seed`` also seeds the radio's losses. Returns the summary's figures."""
-    overrides = [f"checkpoint={checkpoint}", f"deploy.uri=udp://127.0.0.1:{next(_ports)}", f"seed={seed}"]
-    overrides += [f"{k}={v}" for k, v in conditions.items()]
-    overrides += [f"deploy.server.radio_seed={seed}", *extra]
+    overrides = [f"checkpoint={checkpoint}", *_flight_overrides(conditions, seed), *extra]
     summary = run_deploy(compose("deploy", overrides), run_dir=out)
     return {
         "outcome": summary["outcome"],
@@ -73,8 +77,7 @@ def calibrate(conditions: dict, out: Path, seed: int = 0) -> tuple[str, ...]:
     """A calibration flight (``deploy.mode=calibrate``: PID hover with a thrust square wave) under
     ``conditions``; returns the ``deploy.thrust`` overrides it fitted (hover command and slope).
     Raises RuntimeError when the calibration flight does not land."""
-    overrides = [f"deploy.uri=udp://127.0.0.1:{next(_ports)}", "deploy.mode=calibrate", f"seed={seed}"]
-    overrides += [f"{k}={v}" for k, v in conditions.items()] + [f"deploy.server.radio_seed={seed}"]
+    overrides = ["deploy.mode=calibrate", *_flight_overrides(conditions, seed)]
     summary = run_deploy(compose("deploy", overrides), run_dir=out)
     fit = summary.get("calibration") or {}
     if not summary["outcome"].startswith("landed") or fit.get("hover_command") is None:

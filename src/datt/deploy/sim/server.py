@@ -328,8 +328,7 @@ class SimCrazyflie:
         unless ``stabilizer.controller`` selects it), one step, its setpoint to the commander at
         the app's priority (``COMMANDER_PRIORITY_EXTRX``: radio setpoints are then dropped)."""
         if int(self.params["stabilizer.controller"]) == CONTROLLER_OOT:
-            est = self._estimate()
-            pos, vel, quat = est[0:3], est[3:6], [est[9], est[6], est[7], est[8]]
+            pos, vel, quat = self._estimated_state()
         else:
             pos, vel, quat = [0.0] * 3, [0.0] * 3, [0.0] * 4
         # kalman.varPX/varPY as the app reads them; without the Kalman filter its position is unknown
@@ -388,7 +387,8 @@ class SimCrazyflie:
             return requested
         return KALMAN if any(self.params[f"deck.{d}"] for d in POSITIONING_DECKS) else COMPLEMENTARY
 
-    def _estimate(self) -> list[float]:
+    def _estimated_state(self) -> tuple[list[float], list[float], list[float]]:
+        """The onboard estimate: position, velocity (world) and attitude (w, x, y, z)."""
         s = self.quad.state
         pos, vel = s.pos_m[0].tolist(), s.vel_mps[0].tolist()
         q = s.quat[0].tolist()  # (w, x, y, z)
@@ -398,6 +398,11 @@ class SimCrazyflie:
             pos = [p + e for p, e in zip(pos, self.pos_error_m)]
         if not (self.yaw_aligned or self.params["deck.bcLighthouse4"]) and self.p.boot_yaw_deg:
             q = _yaw_rotated(q, -math.radians(self.p.boot_yaw_deg))
+        return pos, vel, q
+
+    def _estimate(self) -> list[float]:
+        """The values of ``log_toc``, in its order."""
+        pos, vel, q = self._estimated_state()
         # firmware order qx, qy, qz, qw
         values = [*pos, *vel, q[1], q[2], q[3], q[0], self.battery_v, float(self.armed), *self.kalman_var_m2]
         return values + (self.app.log_values() if self.app is not None else [])
@@ -562,24 +567,22 @@ class SimCrazyflie:
         group, name, ctype, _ = self.param_toc[ident]
         fmt = crtp.PARAM_TYPES[ctype][1]
         key = f"{group}.{name}"
-        if group == "datt":  # the app's variables
-            if ch == 2:
-                self.app.set(name, struct.unpack(fmt, data[2 : 2 + struct.calcsize(fmt)])[0])
-                self._event(f"param {key} = {self.app.get(name)}")
-            if ch in (1, 2):
-                status = b"\0" if ch == 1 else b""
-                self._send(crtp.packet(crtp.PORT_PARAM, ch, data[:2] + status + struct.pack(fmt, self.app.get(name))))
-            return
+        # the app's variables live in its C struct (read-only ones ignore the write there)
+        get = (lambda: self.app.get(name)) if group == "datt" else (lambda: self.params[key])
         if ch == 2 and key not in self.read_only:  # write, echoed back as the firmware does
-            self.params[key] = struct.unpack(fmt, data[2 : 2 + struct.calcsize(fmt)])[0]
-            self._event(f"param {key} = {self.params[key]}")
-            if key == "kalman.resetEstimation" and self.params[key]:
+            value = struct.unpack(fmt, data[2 : 2 + struct.calcsize(fmt)])[0]
+            if group == "datt":
+                self.app.set(name, value)
+            else:
+                self.params[key] = value
+            self._event(f"param {key} = {get()}")
+            if key == "kalman.resetEstimation" and value:
                 self.kalman_var_m2 = [KALMAN_RESET_VAR_M2] * 3  # the firmware re-initialises the filter
                 self.pos_error_m = [-v for v in self.quad.state.pos_m[0].tolist()]  # ... at the origin
                 self.params[key] = 0  # and clears the flag
         if ch in (1, 2):
             status = b"\0" if ch == 1 else b""
-            self._send(crtp.packet(crtp.PORT_PARAM, ch, data[:2] + status + struct.pack(fmt, self.params[key])))
+            self._send(crtp.packet(crtp.PORT_PARAM, ch, data[:2] + status + struct.pack(fmt, get())))
 
     def _on_mem(self, ch: int, data: bytes) -> None:
         if ch == 0 and data and data[0] == 1:  # number of memories: none

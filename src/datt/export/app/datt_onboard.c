@@ -153,7 +153,7 @@ static uint16_t thrust_command(const datt_onboard_params *p, float thrust_mps2) 
 
 uint8_t datt_onboard_step(datt_onboard *o, const float pos[3], const float vel[3], const float quat[4],
                           float pos_var_m2, datt_setpoint *sp) {
-    float rel[3], ref[DATT_HORIZON * 3], cos_tilt, cos_max, d;
+    float rel[3], ref[DATT_HORIZON * 3], cos_tilt, cos_max, tilt2, max_var_m2, ceiling_mps2, err2;
     float tilt_rad = o->p.max_tilt_deg / RAD_TO_DEG;
     int i, j, landing;
     sp->active = 0;
@@ -169,11 +169,11 @@ uint8_t datt_onboard_step(datt_onboard *o, const float pos[3], const float vel[3
         if (!finite_f(quat[i])) return abort_flight(o, sp);
     /* cos(tilt) = body z . world z; cos(max tilt) by its series to x^8 (no libm; < 1e-4 to 90 deg) */
     cos_tilt = 1.0f - 2.0f * (quat[1] * quat[1] + quat[2] * quat[2]);
-    d = tilt_rad * tilt_rad;
-    cos_max = 1.0f - d / 2.0f * (1.0f - d / 12.0f * (1.0f - d / 30.0f * (1.0f - d / 56.0f)));
+    tilt2 = tilt_rad * tilt_rad;
+    cos_max = 1.0f - tilt2 / 2.0f * (1.0f - tilt2 / 12.0f * (1.0f - tilt2 / 30.0f * (1.0f - tilt2 / 56.0f)));
     if (cos_tilt < cos_max) return abort_flight(o, sp);
-    d = o->p.max_pos_std_m * o->p.max_pos_std_m;
-    if (o->phase == DATT_TRACK && d > 0.0f && !(pos_var_m2 <= d)) {
+    max_var_m2 = o->p.max_pos_std_m * o->p.max_pos_std_m;
+    if (o->phase == DATT_TRACK && max_var_m2 > 0.0f && !(pos_var_m2 <= max_var_m2)) {
         begin_landing(o, o->step); /* no position measurements: stop tracking, land from here */
         o->landed_early = 1;
     }
@@ -196,22 +196,22 @@ uint8_t datt_onboard_step(datt_onboard *o, const float pos[3], const float vel[3
     for (i = 0; i < 4; i++)
         if (!finite_f(o->action[i])) return abort_flight(o, sp);
     /* the thrust map clips at max_command: the L1 update and the history take what is sent */
-    d = DATT_GRAVITY_MPS2 + o->p.slope_mps2_per_command * ((float)o->p.max_command - o->p.hover_command);
-    if (o->action[0] > d) o->action[0] = d;
-    d = 0.0f;
+    ceiling_mps2 = DATT_GRAVITY_MPS2 + o->p.slope_mps2_per_command * ((float)o->p.max_command - o->p.hover_command);
+    if (o->action[0] > ceiling_mps2) o->action[0] = ceiling_mps2;
+    err2 = 0.0f;
     for (i = 0; i < 3; i++) {
         o->ref_m[i] = ref[i];
-        d += (rel[i] - ref[i]) * (rel[i] - ref[i]);
+        err2 += (rel[i] - ref[i]) * (rel[i] - ref[i]);
     }
     /* sqrt by Newton's iteration from a bit-level first guess (no libm) */
     {
-        float r = d;
+        float r = err2;
         uint32_t u;
         memcpy(&u, &r, sizeof u);
         u = (u >> 1) + 0x1fbd1df5u;
         memcpy(&r, &u, sizeof r);
-        for (i = 0; i < 4 && d > 0.0f; i++) r = 0.5f * (r + d / r);
-        o->error_m = d > 0.0f ? r : 0.0f;
+        for (i = 0; i < 4 && err2 > 0.0f; i++) r = 0.5f * (r + err2 / r);
+        o->error_m = err2 > 0.0f ? r : 0.0f;
     }
 #if DATT_HISTORY > 0
     for (i = 0; i + 4 < DATT_HISTORY * 4; i++) o->cmd_hist[i] = o->cmd_hist[i + 4];
