@@ -101,6 +101,26 @@ def test_phase_two_starts_from_phase_one(tmp_path, monkeypatch):
     assert all(torch.equal(loaded[0][1][k], v) for k, v in one.items())
 
 
+def test_the_first_phase_starts_from_the_runs_init_from(tmp_path, monkeypatch):
+    """A schedule can fine-tune a checkpoint (experiment=deploy): phase 1 loads ``train.init_from``,
+    phase 2 phase 1's weights."""
+    from datt.train import ppo
+
+    run_train(phased_cfg(), run_dir=tmp_path / "base")
+    start = tmp_path / "base" / "last.pt"
+    loaded = []
+    original = ppo.Trainer.init_weights
+
+    def spy(self, path):
+        original(self, path)
+        loaded.append(path)
+
+    monkeypatch.setattr(ppo.Trainer, "init_weights", spy)
+    run_train(phased_cfg(TWO_PHASES, 2048, f"train.init_from={start}"), run_dir=tmp_path / "tuned")
+    assert loaded == [str(start), str(tmp_path / "tuned" / "phase1_a" / "last.pt")]
+    assert OmegaConf.load(tmp_path / "tuned" / "phase1_a" / "config.yaml").train.init_from == str(start)
+
+
 def test_resume_keeps_finished_phases_and_runs_the_rest(tmp_path):
     run_train(phased_cfg(), run_dir=tmp_path)
     one = tmp_path / "phase1_a"

@@ -130,6 +130,34 @@ def test_init_from_copies_weights_and_checks_the_shape(tmp_path):
         Trainer(tiny_cfg(f"train.init_from={tmp_path / 'nope.pt'}"), tmp_path / "e", CsvLogger(tmp_path))
 
 
+def test_init_from_widens_the_command_history_and_keeps_the_function(tmp_path):
+    """A checkpoint with 2 commands of history fine-tuned with 4: the widened actor and critic give
+    the old outputs whatever the two older commands are; narrowing is refused in one line."""
+    from datt.errors import ConfigError
+
+    source = Trainer(tiny_cfg("env.obs.action_history=2"), tmp_path / "a", CsvLogger(tmp_path))
+    with torch.no_grad():  # non-zero weights on every input, so a misplaced column shows
+        for p in source.actor.parameters():
+            p.normal_(0.0, 0.3)
+    ckpt = source.save()
+    wide = Trainer(tiny_cfg("env.obs.action_history=4", f"train.init_from={ckpt}"), tmp_path / "b", CsvLogger(tmp_path))
+    gen = torch.Generator().manual_seed(0)
+    n, h = 5, source.env.horizon
+    state2 = torch.randn(n, 13 + 8, generator=gen)
+    older = torch.randn(n, 8, generator=gen)
+    state4 = torch.cat((state2[:, :13], older, state2[:, 13:]), dim=1)  # oldest first
+    ref, d_hat = torch.randn(n, h, 3, generator=gen), torch.randn(n, 3, generator=gen)
+    old_net, new_net = source.actor.module[0].module.net, wide.actor.module[0].module.net
+    torch.testing.assert_close(new_net(state4, ref, d_hat), old_net(state2, ref, d_hat))
+    torch.testing.assert_close(wide.critic.module(state4, ref, d_hat), source.critic.module(state2, ref, d_hat))
+    with pytest.raises(ConfigError) as info:
+        Trainer(tiny_cfg("env.obs.action_history=1", f"train.init_from={ckpt}"), tmp_path / "c", CsvLogger(tmp_path))
+    assert str(info.value) == (
+        "train.init_from: checkpoint has env.obs.action_history=2, config has 1 "
+        "(a policy can be widened to more commands of history, not narrowed)"
+    )
+
+
 @pytest.mark.parametrize("schedule", ["linear", "constant"])
 def test_learning_rate_schedule(tmp_path, schedule):
     """linear: lr (1 − (1 − f) frames / total), down to f · lr at the end; constant: lr."""

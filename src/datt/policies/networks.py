@@ -260,3 +260,23 @@ class _Args(nn.Module):
 
 def _inv_softplus(y: float) -> float:
     return math.log(math.expm1(y))
+
+
+def widen_command_history(state_dict: dict, old_history: int, new_history: int) -> dict:
+    """A policy's (actor's or critic's) weights for ``new_history`` commands of history, from
+    weights trained with ``old_history <= new_history``: the first layer of every
+    :class:`TrackingNet` gains zero columns for the older commands the old policy never saw, so the
+    widened network computes exactly the old function until training changes it.
+
+    Layout of the MLP's input (``TrackingNet.forward``): ``[state 13, commands oldest..newest
+    (4 each), ref embedding, d_hat]``; the old commands are the newest, so the new columns go
+    right after the 13 state entries."""
+    if not 0 <= old_history <= new_history:
+        raise ValueError(f"widen_command_history: need 0 <= old ({old_history}) <= new ({new_history})")
+    extra = 4 * (new_history - old_history)
+    out = dict(state_dict)
+    for key, weight in state_dict.items():
+        if key.endswith("mlp.0.weight") and extra:
+            zeros = weight.new_zeros(weight.shape[0], extra)
+            out[key] = torch.cat((weight[:, :STATE_DIM], zeros, weight[:, STATE_DIM:]), dim=1)
+    return out

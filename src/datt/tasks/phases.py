@@ -4,10 +4,12 @@ each a number of steps and the values it changes; phase k starts from phase k-1'
 A phase is a whole PPO run in ``<run>/phase<k>_<name>/`` (its own config, learning curve, lr
 schedule from ``algo.lr`` down to ``algo.lr x algo.lr_final_frac`` over its steps, a fresh
 optimiser) started with ``train.init_from`` = the previous phase's ``last.pt``, exactly what a
-chain of ``train.init_from`` commands does. The curriculum's fixed reference flies only in the
-first phase (later phases start with ``curriculum.fixed_ref_steps: 0`` unless they set it). The
-end-of-run evaluation runs once, on the last phase; the run's own ``last.pt`` and ``metrics.json``
-are the last phase's, so ``eval.py checkpoint=<run>/last.pt`` and ``tables.py`` see one run.
+chain of ``train.init_from`` commands does; the first phase starts from the run's own
+``train.init_from`` (null = fresh weights), so a schedule can fine-tune a checkpoint
+(``experiment=deploy``). The curriculum's fixed reference flies only in the first phase (later
+phases start with ``curriculum.fixed_ref_steps: 0`` unless they set it). The end-of-run
+evaluation runs once, on the last phase; the run's own ``last.pt`` and ``metrics.json`` are the
+last phase's, so ``eval.py checkpoint=<run>/last.pt`` and ``tables.py`` see one run.
 
 ``resume=<run>`` (or ``true``) carries a phased run on: finished phases (their ``metrics.json``)
 are kept, the interrupted one resumes from its ``last.pt``, the rest run.
@@ -78,13 +80,13 @@ def phase_plan(cfg: DictConfig) -> list[tuple[str, int, dict[str, Any]]]:
 
 def phase_config(cfg: DictConfig, k: int, plan, init_from: Path | None) -> DictConfig:
     """The whole config of phase ``k`` (0-based): ``cfg`` with the phase's values, its steps and the
-    previous phase's weights; no phases of its own."""
+    previous phase's weights (the first phase: the run's ``train.init_from``); no phases of its own."""
     _, steps, values = plan[k]
     out = OmegaConf.create(OmegaConf.to_container(cfg, resolve=True))
     OmegaConf.update(out, "train.phases", None)
     OmegaConf.update(out, "train.total_steps", steps)
-    OmegaConf.update(out, "train.init_from", None if init_from is None else str(init_from))
     if k > 0:
+        OmegaConf.update(out, "train.init_from", str(init_from))
         OmegaConf.update(out, "curriculum.fixed_ref_steps", 0)
     last = k == len(plan) - 1
     OmegaConf.update(out, "train.eval_at_end", last and bool(cfg.train.eval_at_end))

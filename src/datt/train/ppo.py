@@ -34,7 +34,7 @@ from datt.configuration import instantiate_option, structured
 from datt.envs.factory import make_env
 from datt.errors import ConfigError, TrainingDiverged, TrainingInterrupted
 from datt.paths import resolve_path
-from datt.policies.networks import PolicyParams, make_actor, make_critic
+from datt.policies.networks import PolicyParams, make_actor, make_critic, widen_command_history
 from datt.runs import StopRequest
 from datt.train.loggers import Logger
 from datt.train.schema import CurriculumParams, TrainParams, budget_factor
@@ -169,15 +169,28 @@ class Trainer:
 
     def init_weights(self, path: str | Path) -> None:
         """Start from another run's actor/critic weights (fine-tuning); optimiser, frame count
-        and curriculum start fresh. The horizon and policy shape must match."""
+        and curriculum start fresh. The horizon and policy shape must match, except that a
+        checkpoint with fewer commands of history (``env.obs.action_history``) is widened: the
+        older commands enter with zero weights (:func:`widen_command_history`)."""
         data = load_checkpoint(resolve_path(path), key="train.init_from")
         if int(data["horizon"]) != self.env.horizon:
             raise ConfigError(
                 f"train.init_from: checkpoint has horizon={data['horizon']}, config has {self.env.horizon}"
             )
+        actor, critic = data["actor"], data["critic"]
+        old = int(OmegaConf.select(OmegaConf.create(data["config_yaml"]), "env.obs.action_history", default=0) or 0)
+        new = self.env.params.obs.action_history
+        if old > new:
+            raise ConfigError(
+                f"train.init_from: checkpoint has env.obs.action_history={old}, config has {new} "
+                f"(a policy can be widened to more commands of history, not narrowed)"
+            )
+        if old < new:
+            actor, critic = (widen_command_history(w, old, new) for w in (actor, critic))
+            self.console.print(f"train.init_from: command history widened from {old} to {new} (zero weights)")
         try:
-            self.actor.load_state_dict(data["actor"])
-            self.critic.load_state_dict(data["critic"])
+            self.actor.load_state_dict(actor)
+            self.critic.load_state_dict(critic)
         except RuntimeError as exc:
             raise ConfigError(
                 f"train.init_from: policy shape differs from policy config ({str(exc).splitlines()[0]})"
