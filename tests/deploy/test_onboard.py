@@ -28,7 +28,7 @@ def built(tmp_path_factory):
     spec, controller, merged = export_spec(compose("export", []))
     app_dir = tmp_path_factory.mktemp("app")
     files = write_app(spec, app_dir)
-    return spec, controller, app_dir, files, build_sil_library(app_dir)
+    return spec, controller, app_dir, files, build_sil_library(app_dir), merged
 
 
 def loaded(built, n_points=40, track_steps=20, **params) -> OnboardApp:
@@ -116,7 +116,7 @@ def test_start_is_refused_on_an_incomplete_table_or_bad_parameters(built):
 
 
 def test_one_step_is_the_policy_on_the_table_window_with_the_thrust_map(built):
-    spec, controller, _, _, lib = built
+    spec, controller, _, _, lib, merged = built
     app = loaded(built)
     app.run_request = 1
     pos, vel, quat = [0.3, -0.2, 1.1], [0.5, 0.1, -0.2], [0.9, 0.1, -0.2, 0.3]
@@ -131,12 +131,13 @@ def test_one_step_is_the_policy_on_the_table_window_with_the_thrust_map(built):
     with torch.no_grad():
         d_hat = torch.tensor([list(s.d_hat)])  # one L1 step from the reset (the command sent: hover)
         hover = torch.tensor([[9.81, 0.0, 0.0, 0.0]])
-        hist = ((hover - controller.center) / controller.half).repeat(1, 2)  # the history after a start
+        commands = merged.env.obs.action_history  # the checkpoint's layout (the default export's: 4)
+        hist = ((hover - controller.center) / controller.half).repeat(1, commands)  # the history after a start
         from datt.export import reference_action
 
         want = reference_action(
             controller,
-            compose("export", []).env.obs,
+            merged.env.obs,
             {"pos_m": rel, "vel_mps": torch.tensor([vel]), "quat": torch.tensor([quat], dtype=torch.float32),
              "ref_m": window, "d_hat": d_hat, "cmd_hist": hist},
         )[0].numpy()  # fmt: skip
