@@ -130,7 +130,7 @@ def test_init_from_copies_weights_and_checks_the_shape(tmp_path):
         Trainer(tiny_cfg(f"train.init_from={tmp_path / 'nope.pt'}"), tmp_path / "e", CsvLogger(tmp_path))
 
 
-def test_init_from_widens_the_command_history_and_keeps_the_function(tmp_path):
+def test_init_from_widens_the_command_history_and_keeps_the_function(tmp_path, capsys):
     """A checkpoint with 2 commands of history fine-tuned with 4: the widened actor and critic give
     the old outputs whatever the two older commands are; narrowing is refused in one line."""
     from datt.errors import ConfigError
@@ -150,6 +150,20 @@ def test_init_from_widens_the_command_history_and_keeps_the_function(tmp_path):
     old_net, new_net = source.actor.module[0].module.net, wide.actor.module[0].module.net
     torch.testing.assert_close(new_net(state4, ref, d_hat), old_net(state2, ref, d_hat))
     torch.testing.assert_close(wide.critic.module(state4, ref, d_hat), source.critic.module(state2, ref, d_hat))
+    assert "train.init_from: command history widened from 2 to 4 (zero weights)" in capsys.readouterr().out
+    Trainer(tiny_cfg("env.obs.action_history=2", f"train.init_from={ckpt}"), tmp_path / "same", CsvLogger(tmp_path))
+    assert "widened" not in capsys.readouterr().out
+    # a checkpoint from before the history input (no env.obs.action_history key): widened from 0
+    data = torch.load(ckpt, weights_only=True)
+    data["config_yaml"] = data["config_yaml"].replace("action_history: 2", "removed: 2")
+    assert "action_history" not in data["config_yaml"]
+    old_ckpt = tmp_path / "old.pt"
+    torch.save(data, old_ckpt)
+    with pytest.raises(ConfigError, match=r"^train.init_from: policy shape differs"):  # its weights have 2
+        Trainer(
+            tiny_cfg("env.obs.action_history=4", f"train.init_from={old_ckpt}"), tmp_path / "o", CsvLogger(tmp_path)
+        )
+    assert "widened from 0 to 4" in capsys.readouterr().out
     with pytest.raises(ConfigError) as info:
         Trainer(tiny_cfg("env.obs.action_history=1", f"train.init_from={ckpt}"), tmp_path / "c", CsvLogger(tmp_path))
     assert str(info.value) == (

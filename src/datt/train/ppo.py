@@ -178,7 +178,8 @@ class Trainer:
                 f"train.init_from: checkpoint has horizon={data['horizon']}, config has {self.env.horizon}"
             )
         actor, critic = data["actor"], data["critic"]
-        old = int(OmegaConf.select(OmegaConf.create(data["config_yaml"]), "env.obs.action_history", default=0) or 0)
+        # checkpoints from before the history input have no such key: no commands
+        old = int(OmegaConf.select(OmegaConf.create(data["config_yaml"]), "env.obs.action_history", default=0))
         new = self.env.params.obs.action_history
         if old > new:
             raise ConfigError(
