@@ -54,3 +54,30 @@ def test_env_redraws_the_vehicle_of_each_drone_it_resets():
     env.reset(td)
     assert not torch.equal(env.sim.thrust_scale[:8], scale[:8])
     assert torch.equal(env.sim.thrust_scale[8:], scale[8:])
+
+
+@pytest.mark.parametrize("dtype", ["float32", "float64"])
+def test_measurement_adds_its_own_draws_in_order_and_draws_nothing_when_off(dtype):
+    """``_measure``: pos + σp·n1, vel + σv·n2, quat turned by σa·n3, with n1..n3 the env generator's
+    next draws in that order, in the env's dtype; with every noise off it returns the true tensors
+    and leaves the generator alone (the nominal random stream and the seeded banks stay as they are)."""
+    from datt.sim.frames import quat_exp_rotvec, quat_mul, quat_normalize
+
+    noisy = TrackingEnv(8, Zigzag(), params=EnvParams(num_envs=8, dtype=dtype, obs=ObsParams(
+        pos_noise_std_m=0.02, vel_noise_std_mps=0.05, att_noise_std_rad=0.01)), seed=3)  # fmt: skip
+    s = noisy.sim.state
+    pos, vel, quat = s.pos_m + 0.3, s.vel_mps - 0.2, s.quat
+    replay = torch.Generator().manual_seed(0)
+    replay.set_state(noisy.generator.get_state())
+    mp, mv, mq = noisy._measure(pos, vel, quat)
+    torch.testing.assert_close(mp, pos + 0.02 * torch.randn(pos.shape, generator=replay, dtype=noisy.dtype))
+    torch.testing.assert_close(mv, vel + 0.05 * torch.randn(vel.shape, generator=replay, dtype=noisy.dtype))
+    turn = quat_exp_rotvec(0.01 * torch.randn(vel.shape, generator=replay, dtype=noisy.dtype))
+    torch.testing.assert_close(mq, quat_normalize(quat_mul(quat, turn)))
+    assert mp.dtype == mv.dtype == mq.dtype == noisy.dtype
+
+    clean = TrackingEnv(8, Zigzag(), params=EnvParams(num_envs=8, dtype=dtype), seed=3)
+    before = clean.generator.get_state()
+    out = clean._measure(pos, vel, quat)
+    assert all(a is b for a, b in zip(out, (pos, vel, quat)))
+    assert torch.equal(clean.generator.get_state(), before)

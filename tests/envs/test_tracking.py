@@ -300,6 +300,10 @@ def test_compile_kernels_wires_every_kernel(make_tracking_env):
     compiled = make_tracking_env(overrides, n=8)
     assert compiled.compile_kernels(backend="eager") is compiled
     assert compiled._observe_kernel.__name__ == "compiled_observe_and_cost"
+    from datt.sim.quadrotor import integrate
+
+    assert eager.sim._integrate is integrate and compiled.sim._integrate is not integrate  # sim=True by default
+    assert eager.adaptation._compiled is None and compiled.adaptation._compiled is not None
     a, b = hover_rollout(eager, 20), hover_rollout(compiled, 20)
     for key in ("state", "ref", "reward"):
         assert torch.equal(a["next", key], b["next", key]), key
