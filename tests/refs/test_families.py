@@ -610,3 +610,13 @@ def test_fixed_caches_per_time_grid():
     assert torch.equal(fam.sample(3, T64, gen(9))[0], short[0])
     far = fam.sample(2, other_end, gen())
     assert far.shape == short.shape and not torch.equal(far, short)  # drawn for that grid, not the cached one
+
+
+def test_seeded_and_fixed_default_to_seed_zero():
+    """The curriculum's fixed zigzag and the bank's seeded groups say seed 0 when no seed is given."""
+    from datt.refs.composite import Fixed, Seeded
+
+    t = torch.linspace(0.0, 5.0, 11)
+    for cls in (Seeded, Fixed):
+        default, zero, one = (cls(Zigzag(), *s).sample(3, t, torch.Generator()) for s in ((), (0,), (1,)))
+        assert torch.equal(default, zero) and not torch.equal(default, one)

@@ -145,3 +145,26 @@ def test_a_wider_ring_without_drawn_delays_keeps_the_nominal_latency():
     out = [latency.push(torch.full((2, 1), float(k + 1)))[:, 0].tolist() for k in range(7)]
     assert out == [[0.0, 0.0], [0.0, 0.0]] + [[float(k - 1)] * 2 for k in range(2, 7)]
     assert latency.in_flight()[:, 0, 0].tolist() == [6.0, 7.0]
+
+
+def test_randomise_draws_from_the_given_generator_in_a_fixed_order():
+    """gain U(1 ± s_g), then mass U(1 ± s_m), then the latency, then the rate model: each the
+    given generator's next draws (so a seeded env reproduces its vehicles), for the drones asked."""
+    params = QuadrotorParams(
+        mass_spread=0.1, thrust_gain_spread=0.2, latency_steps=1, latency_steps_max=3, rate_model="mixed"
+    )
+    quad = Quadrotor(6, params, dtype="float64")
+    idx = torch.tensor([1, 4, 5])
+    gen = torch.Generator().manual_seed(7)
+    replay = torch.Generator().manual_seed(7)
+    before = quad.thrust_scale.clone()
+    quad.randomise(idx, gen)
+    gain = 1.0 + 0.2 * (2.0 * torch.rand(3, dtype=torch.float64, generator=replay) - 1.0)
+    mass = 1.0 + 0.1 * (2.0 * torch.rand(3, dtype=torch.float64, generator=replay) - 1.0)
+    delay = torch.randint(1, 4, (3,), generator=replay)
+    second = torch.rand(3, generator=replay) < 0.5
+    torch.testing.assert_close(quad.thrust_scale[idx], gain / mass)
+    assert torch.equal(quad.thrust_scale[[0, 2, 3]], before[[0, 2, 3]])
+    assert torch.equal(quad.latency.delay[idx], delay.to(quad.latency.delay.dtype))
+    assert torch.equal(quad.second_order[idx], second)
+    assert torch.equal(gen.get_state(), replay.get_state())  # nothing else drawn

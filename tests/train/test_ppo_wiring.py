@@ -335,3 +335,41 @@ def test_clip_epsilon_bounds_the_ratio_in_the_objective(tmp_path):
         data["advantage"] = torch.ones_like(data["advantage"])
         got = trainer.loss(data)["loss_objective"]
     torch.testing.assert_close(got, torch.tensor(-1.3), rtol=1e-5, atol=1e-5)
+
+
+@pytest.mark.parametrize("section, cls", [("algo", "AlgoParams"), ("policy", "PolicyParams"),
+                                          ("train", "TrainParams"), ("curriculum", "CurriculumParams")])  # fmt: skip
+def test_an_unknown_key_is_named_with_its_section(tmp_path, section, cls):
+    from datt.errors import ConfigError
+
+    with pytest.raises(ConfigError) as info:
+        Trainer(tiny_cfg(f"+{section}.bogus=1"), tmp_path, CsvLogger(tmp_path))
+    assert str(info.value) == f"{section}.bogus: Key 'bogus' not in '{cls}'"
+
+
+@pytest.mark.parametrize("coeff", [0.0, 0.05, 2.0])  # 0.05: not torchrl's default 0.01
+def test_the_entropy_bonus_is_on_exactly_when_its_coefficient_is_positive(tmp_path, coeff):
+    trainer = Trainer(tiny_cfg(f"algo.entropy_coeff={coeff}"), tmp_path, CsvLogger(tmp_path))
+    assert trainer.loss.entropy_bonus == (coeff > 0)
+    if coeff > 0:
+        assert float(trainer.loss.entropy_coeff) == pytest.approx(coeff)
+
+
+def test_the_smallest_budgets_are_accepted(tmp_path):
+    """One step of training and one step of the fixed reference are valid settings."""
+    trainer = Trainer(tiny_cfg("train.total_steps=1", "curriculum.fixed_ref_steps=1"), tmp_path, CsvLogger(tmp_path))
+    assert trainer.total_frames == 1 and trainer.fixed_traj is not None and trainer.phase == "fixed"
+
+
+def test_the_logger_gets_every_row_value_but_the_phase_name(tmp_path):
+    class Capture(CsvLogger):
+        rows: list = []
+
+        def log(self, values, step):
+            self.rows.append(dict(values))
+
+    logger = Capture(tmp_path)
+    trainer = Trainer(tiny_cfg("train.total_steps=2048", "train.eval_at_end=false"), tmp_path, logger)
+    trainer.train()
+    assert logger.rows and all("phase" not in row for row in logger.rows)
+    assert "phase" in trainer.history[-1] and "tracking_error_m" in logger.rows[-1]
