@@ -228,3 +228,11 @@ def test_response_lag_interpolates_and_takes_the_middle_two_of_an_even_count():
         for k in range(start + 2 + delay, n):
             acc[k] = 2.0 * level
     assert response_lag_ticks(exc, acc) == pytest.approx((10 / 3 + 4.0) / 2)
+
+
+def test_a_calibrated_map_with_an_offset_keeps_zero_at_zero():
+    """Hover 50,000 at 1.5e-4 m/s² per unit puts the line's zero at command ~-15,400: a tiny thrust
+    asks for command 0 (not 1), and command 0 is motors off, 0 m/s² (not the line's 2.31)."""
+    tm = ThrustMap(ThrustParams(hover_command=50000.0, slope_mps2_per_command=1.5e-4))
+    assert tm.command(0.001) == 0 and tm.command(-3.0) == 0
+    assert tm.thrust_mps2(0) == 0.0 and tm.thrust_mps2(1) == pytest.approx(9.81 - 1.5e-4 * 49999)

@@ -620,3 +620,20 @@ def test_seeded_and_fixed_default_to_seed_zero():
     for cls in (Seeded, Fixed):
         default, zero, one = (cls(Zigzag(), *s).sample(3, t, torch.Generator()) for s in ((), (0,), (1,)))
         assert torch.equal(default, zero) and not torch.equal(default, one)
+
+
+@pytest.mark.parametrize(
+    "radius_m, points, step", [(0.5, (3, 9), 1), (2.0, (3, 9), 1), (0.5, (4, 5), 3), (2.0, (4, 5), 3)]
+)
+def test_polygons_keep_moving_to_the_end_of_a_long_episode(radius_m, points, step):
+    """Enough vertices are laid out for the shortest side (at the most points for {p/1}, at the
+    fewest for {4/3} vs {5/3}) at the top speed: every drone still moves at its speed in the last second
+    of a 60 s episode, and the centred shape's lead-in defaults to none (the path starts at the
+    origin and leaves it at once)."""
+    t = torch.arange(0.0, 60.0 + 1e-9, 0.02)
+    family = Polygon(*points, step=step, radius_m=radius_m, speed_min_mps=2.5, speed_max_mps=3.0)
+    pos = family.sample(64, t, torch.Generator().manual_seed(0))  # [64, T, 3]
+    speed = (pos[:, 1:] - pos[:, :-1]).norm(dim=-1) / 0.02
+    assert speed[:, -50:].min() > 0.5  # a corner cut inside one 20 ms step shows as less; stuck would be 0
+    centred = Polygon(through_origin=False, random_rotation=False).sample(1, t[:5], torch.Generator())
+    assert torch.equal(centred[0, 0], torch.zeros(3)) and centred[0, 1].norm() > 0.01
