@@ -157,6 +157,12 @@ def test_l1_defaults_follow_the_simulators_actuator():
     params = inspect.signature(L1Adaptation).parameters
     assert params["k_thrust"].default == QuadrotorParams().k_thrust
     assert params["latency_steps"].default == QuadrotorParams().latency_steps
+    # and the rest are conf/adaptation/l1.yaml's: the tuned 0.1 s filter, the raw estimate in the
+    # predictor (as the authors), the actuator model on
+    cfg = compose("sim", ["adaptation=l1"]).adaptation
+    for key in ("a_s", "cutoff_tau_s", "predictor_uses_filtered", "actuator_model"):
+        assert params[key].default == cfg[key], key
+    assert (params["cutoff_tau_s"].default, params["predictor_uses_filtered"].default) == (0.1, False)
 
 
 def test_zero_cutoff_means_no_filter():
