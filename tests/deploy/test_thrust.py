@@ -236,3 +236,17 @@ def test_a_calibrated_map_with_an_offset_keeps_zero_at_zero():
     tm = ThrustMap(ThrustParams(hover_command=50000.0, slope_mps2_per_command=1.5e-4))
     assert tm.command(0.001) == 0 and tm.command(-3.0) == 0
     assert tm.thrust_mps2(0) == 0.0 and tm.thrust_mps2(1) == pytest.approx(9.81 - 1.5e-4 * 49999)
+
+
+def test_response_lag_of_an_instant_response_and_of_a_ramp_by_hand():
+    """An acceleration that jumps in the step's own tick crosses half between the tick before and
+    it: -0.5 ticks. A ramp of 1 per tick from the tick before the step: the default 10-tick window
+    sees a jump of 10, half is 5, reached 5 ticks after the tick before: 4.0 ticks."""
+    from datt.deploy.thrust import response_lag_ticks
+
+    k = 5
+    exc = [0.0] * k + [1.0] * 20
+    assert response_lag_ticks(exc, exc) == -0.5
+    ramp = [max(0.0, float(t - (k - 1))) for t in range(len(exc))]
+    assert response_lag_ticks(exc, ramp) == 4.0
+    assert response_lag_ticks(exc, ramp, window=12) == 5.0  # jump 12, half 6
