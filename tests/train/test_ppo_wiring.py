@@ -373,3 +373,19 @@ def test_the_logger_gets_every_row_value_but_the_phase_name(tmp_path):
     trainer.train()
     assert logger.rows and all("phase" not in row for row in logger.rows)
     assert "phase" in trainer.history[-1] and "tracking_error_m" in logger.rows[-1]
+
+
+def test_crash_rate_is_the_share_of_ended_episodes_that_crashed():
+    from datt.train.ppo import crash_rate
+
+    def flags(*idx):
+        out = torch.zeros(8, 32, 1, dtype=torch.bool)
+        for i in idx:
+            out[i] = True
+        return out
+
+    one_crash = flags((3, 7))
+    assert crash_rate(one_crash, one_crash) == 1.0  # exactly one episode ended, and it crashed
+    assert crash_rate(flags(), flags((0, 31))) == 0.0  # one ended, truncated
+    assert crash_rate(flags((1, 2)), flags((1, 2), (4, 31), (5, 31))) == pytest.approx(1 / 3)
+    assert crash_rate(flags(), flags()) == 0.0  # none ended

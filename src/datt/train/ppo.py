@@ -90,6 +90,12 @@ class AlgoParams:
         )
 
 
+def crash_rate(terminated: torch.Tensor, done: torch.Tensor) -> float:
+    """Share of the episodes that ended in a batch that ended in a crash (``terminated``; the
+    others were truncated at the episode length); 0 when none ended. Both ``[..., 1]`` booleans."""
+    return (terminated.sum() / done.sum().clamp_min(1)).item()
+
+
 class Trainer:
     """Owns env, modules, loss, optimiser and the loop. ``cfg`` is the composed train config."""
 
@@ -317,14 +323,13 @@ class Trainer:
                 self.iteration += 1
                 now = time.perf_counter()
                 err = batch["next", "tracking_error_m"].mean().item()
-                done = batch["next", "done"]
                 row = {
                     "frames": self.frames,
                     "iteration": self.iteration,
                     "tracking_error_m": err,
                     "reward_per_step": ret_per_step,
                     "episode_return_est": ret_per_step * self.env.params.episode_steps,
-                    "crash_rate": (batch["next", "terminated"].sum() / done.sum().clamp_min(1)).item(),
+                    "crash_rate": crash_rate(batch["next", "terminated"], batch["next", "done"]),
                     "steps_per_s": batch.numel() / (now - t_iter),
                     "phase": self.phase,
                     **stats,
