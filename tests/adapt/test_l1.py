@@ -157,12 +157,13 @@ def test_l1_defaults_follow_the_simulators_actuator():
     params = inspect.signature(L1Adaptation).parameters
     assert params["k_thrust"].default == QuadrotorParams().k_thrust
     assert params["latency_steps"].default == QuadrotorParams().latency_steps
-    # and the rest are conf/adaptation/l1.yaml's: the tuned 0.1 s filter, the raw estimate in the
-    # predictor (as the authors), the actuator model on
-    cfg = compose("sim", ["adaptation=l1"]).adaptation
+    # what a bare L1Adaptation() holds: the simulator's actuator, and conf/adaptation/l1.yaml's
+    # tuned 0.1 s filter, raw estimate in the predictor (as the authors), actuator model on
+    bare, cfg = L1Adaptation(), compose("sim", ["adaptation=l1"]).adaptation
+    assert (bare.k_thrust, bare.latency_steps) == (QuadrotorParams().k_thrust, QuadrotorParams().latency_steps)
     for key in ("a_s", "cutoff_tau_s", "predictor_uses_filtered", "actuator_model"):
-        assert params[key].default == cfg[key], key
-    assert (params["cutoff_tau_s"].default, params["predictor_uses_filtered"].default) == (0.1, False)
+        assert getattr(bare, key) == cfg[key], key
+    assert (bare.cutoff_tau_s, bare.predictor_uses_filtered, bare.actuator_model) == (0.1, False, True)
 
 
 def test_zero_cutoff_means_no_filter():
