@@ -147,7 +147,7 @@ def test_l1_parameter_edges_are_allowed(kwargs):
     L1Adaptation(**kwargs)  # no filter, an instant actuator, no latency, a fast predictor
 
 
-def test_l1_defaults_follow_the_simulators_actuator():
+def test_a_bare_l1_has_the_simulators_actuator_and_the_configs_defaults():
     """``adaptation=l1`` takes k_thrust and latency_steps from ``env.quad``: the Python defaults
     are the simulator's own, so ``L1Adaptation()`` in a notebook models the same actuator."""
     import inspect
