@@ -252,6 +252,7 @@ def test_hover_calibration_finds_the_true_hover_command_and_slope(tmp_path):
     assert abs(fit["slope_mps2_per_command"] - true_slope) / true_slope < 0.15
 
 
+@pytest.mark.slow  # two calibration flights, ~22 s of real time
 def test_calibration_measures_the_radio_latency(tmp_path):
     """The command-to-response latency the calibration reports grows with the radio's: 60 ms
     more round trip (10 -> 70 ms) shows as 60 ms more, within a tick and a half (30 ms) each way:
