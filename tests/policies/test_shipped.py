@@ -33,16 +33,16 @@ def test_deploy_grade_checkpoint_is_the_output_of_experiment_deploy():
     """``checkpoints/datt_h10_deploy.pt`` came from ``python train.py experiment=deploy`` as it is
     configured now: its last phase's whole config (env, policy, algo, references, disturbance,
     adaptation) is the one the experiment composes, and it starts from the shipped checkpoint."""
-    import torch
     from omegaconf import OmegaConf
 
+    from datt.checkpoint import load_checkpoint
     from datt.tasks.phases import phase_config, phase_plan
 
     cfg = compose("train", ["experiment=deploy"])
     assert cfg.train.init_from == "checkpoints/datt_h10.pt"
     plan = phase_plan(cfg)
     expected = OmegaConf.to_container(phase_config(cfg, len(plan) - 1, plan, "previous/last.pt"), resolve=True)
-    data = torch.load(resolve_path("checkpoints/datt_h10_deploy.pt"), weights_only=True)
+    data = load_checkpoint(resolve_path("checkpoints/datt_h10_deploy.pt"))
     trained = OmegaConf.to_container(OmegaConf.create(data["config_yaml"]), resolve=True)
     for key in ("env", "policy", "algo", "traj", "disturbance", "adaptation", "horizon", "seed"):
         assert trained[key] == expected[key], key

@@ -354,4 +354,5 @@ def test_the_logger_gets_numbers_only(tmp_path):
     logger = KeySpy(tmp_path)
     history = _trainer(tmp_path, f"train.total_steps={2 * BATCH}", logger=logger).train()
     assert logger.keys and all("phase" not in keys for keys in logger.keys)
+    assert all("tracking_error_m" in keys for keys in logger.keys)
     assert all(row["phase"] in ("fixed", "main") for row in history)

@@ -31,7 +31,7 @@ from torchrl.objectives.value import GAE
 
 from datt.checkpoint import load_checkpoint, save_checkpoint
 from datt.configuration import instantiate_option, structured
-from datt.envs.factory import make_env
+from datt.envs.factory import env_params_from_cfg, make_env
 from datt.errors import ConfigError, TrainingDiverged, TrainingInterrupted
 from datt.paths import resolve_path
 from datt.policies.networks import PolicyParams, make_actor, make_critic, widen_command_history
@@ -184,8 +184,8 @@ class Trainer:
                 f"train.init_from: checkpoint has horizon={data['horizon']}, config has {self.env.horizon}"
             )
         actor, critic = data["actor"], data["critic"]
-        # checkpoints from before the history input have no such key: no commands
-        old = int(OmegaConf.select(OmegaConf.create(data["config_yaml"]), "env.obs.action_history", default=0))
+        # the checkpoint's layout as load_actor reads it (no key: ObsParams' default, no commands)
+        old = env_params_from_cfg(OmegaConf.create(data["config_yaml"]).env).obs.action_history
         new = self.env.params.obs.action_history
         if old > new:
             raise ConfigError(
