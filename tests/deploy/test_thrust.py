@@ -195,6 +195,21 @@ def test_response_lag_of_one_step_up_or_down_by_hand(direction):
         response_lag_ticks(exc[:13], acc[:13])
 
 
+@pytest.mark.parametrize("tail", ["held", "back_at_window_end"])
+def test_response_lag_needs_a_crossing_from_below_after_the_step(tail):
+    """The acceleration already sits at half of its jump at the tick before the step (-1, 0, 1
+    around base 0, then 2): that step has no measurable lag, whether the acceleration holds or
+    drops back by the end of the window, so a record with only that step has none."""
+    from datt.deploy.thrust import response_lag_ticks
+
+    exc = [0.0] * 3 + [1.0] * 15
+    acc = [-1.0, 0.0, 1.0] + [2.0] * 15
+    if tail == "back_at_window_end":
+        acc[12:] = [0.0] * 6
+    with pytest.raises(ValueError, match="^latency: needs"):
+        response_lag_ticks(exc, acc)
+
+
 def test_response_lag_is_the_median_over_steps():
     """Three steps (up, down, up) whose acceleration jumps 1 + delay samples later, delays 1, 2
     and 4: lags 1.5, 2.5 and 4.5 ticks; the median is 2.5 (the mean would be 2.83)."""

@@ -185,6 +185,19 @@ def test_mixed_draws_per_drone_with_weights():
         Mixed(fams, weights={"nope": 1.0})
 
 
+def test_mixed_weights_default_to_one_and_must_have_a_positive_sum():
+    fams = {"zigzag": Zigzag(), "poly": Poly(), "star": Polygon(**STAR)}
+    assert Mixed(fams).probs.tolist() == pytest.approx([1 / 3] * 3)
+    assert Mixed(fams, weights={"zigzag": 4.0}).probs.tolist() == pytest.approx([4 / 6, 1 / 6, 1 / 6])
+    for bad in ({"zigzag": 0.0, "poly": 0.0, "star": 0.0}, {"zigzag": -1.0}):
+        with pytest.raises(ValueError) as info:
+            Mixed(fams, weights=bad)
+        assert str(info.value) == "traj.weights: must be >= 0 with a positive sum"
+    with pytest.raises(ValueError) as info:
+        Mixed({})
+    assert str(info.value) == "traj.families: needs at least one family"
+
+
 def write_csv(path, rows, header="t,x,y,z"):
     path.write_text(header + "\n" + "\n".join(",".join(str(v) for v in r) for r in rows) + "\n")
     return path
@@ -393,6 +406,22 @@ def test_poly_peak_is_found_on_a_fine_grid_in_float64():
     assert table.dtype == torch.float32
 
 
+def test_poly_cap_is_exact_on_its_own_grid():
+    """The cap is measured on 2001 float64 points of [0, duration_s]: on that grid every capped
+    draw peaks at exactly max_amplitude_m, the others below it (amplitudes under 1 m too)."""
+    fam = Poly(duration_s=2.0, vel_max_mps=0.5, acc_max_mps2=0.5, max_amplitude_m=0.15)
+    knot_t, coeffs = fam.sample_pieces(200, gen(6), torch.zeros((), dtype=torch.float64))
+    unscaled = Poly(duration_s=2.0, vel_max_mps=0.5, acc_max_mps2=0.5, max_amplitude_m=1e9)
+    _, raw = unscaled.sample_pieces(200, gen(6), torch.zeros((), dtype=torch.float64))
+    grid = torch.linspace(0, 2.0, 2001, dtype=torch.float64)
+    peak = eval_pieces(knot_t, coeffs, grid).abs().amax(dim=(1, 2))
+    raw_peak = eval_pieces(knot_t, raw, grid).abs().amax(dim=(1, 2))
+    capped = raw_peak > 0.15
+    assert 10 < capped.sum() < 190 and raw_peak.max() < 1
+    assert torch.equal(coeffs[~capped], raw[~capped])
+    assert torch.allclose(peak[capped], torch.full_like(peak[capped], 0.15), rtol=0, atol=1e-15)
+
+
 def test_mixed_draws_only_from_its_generator():
     """The family choice and every member's draw use the generator passed in: the global RNG
     state does not change the references."""
@@ -418,6 +447,47 @@ def test_piecewise_linear_by_hand():
     assert torch.isfinite(out).all() and out[1, :, 0].tolist() == [1.0, 1.0, 1.5, 2.0, 3.0, 5.0, 5.0]
     f32 = piecewise_linear(knot_t, knot_p, t.float())
     assert f32.dtype == torch.float64 and torch.equal(f32, out)  # computed in the knots' dtype
+    for bad in (knot_p[:, :2], knot_p[:1]):  # a knot without a value, a drone without knots
+        with pytest.raises(ValueError) as info:
+            piecewise_linear(knot_t, bad, t)
+        assert str(info.value) == f"piecewise_linear: knot times (2, 3) and values {tuple(bad.shape)} disagree"
+
+
+@pytest.mark.parametrize("through_origin", [True, False], ids=["through_origin", "lead_in"])
+def test_polygon_visits_its_vertices_at_their_times(through_origin):
+    """A triangle at 1 m/s from a known phase: between two vertices the reference is their chord
+    at constant speed; the centred shape starts at the origin and reaches the first vertex after
+    lead_in_s (0.1 s: not a float32 number, so float64 tables must not round it). The table has
+    the dtype of the time grid."""
+    r, lead = 0.5, 0.1
+    fam = Polygon(
+        points_min=3,
+        points_max=3,
+        step=1,
+        radius_m=r,
+        speed_min_mps=1.0,
+        speed_max_mps=1.0,
+        phase_deg=90.0,
+        random_rotation=False,
+        through_origin=through_origin,
+        lead_in_s=lead,
+    )
+    ang = [math.pi / 2 + 2 * math.pi * i / 3 for i in range(4)]
+    vertex = torch.tensor([[r * math.cos(a), r * math.sin(a)] for a in ang], dtype=torch.float64)
+    side = 2 * r * math.sin(math.pi / 3)
+    start = 0.0 if through_origin else lead
+    if through_origin:
+        vertex = vertex - vertex[0]
+    t = torch.tensor([start + side * (k + f) for k in range(3) for f in (0.0, 0.25, 0.5)], dtype=torch.float64)
+    want = torch.stack([vertex[k] + f * (vertex[k + 1] - vertex[k]) for k in range(3) for f in (0.0, 0.25, 0.5)])
+    got = fam.sample(2, t, gen())
+    assert got.dtype == torch.float64 and got.shape == (2, 9, 3)
+    assert torch.allclose(got[..., :2], want.expand(2, -1, -1), rtol=0, atol=1e-12) and got[..., 2].abs().max() == 0
+    if not through_origin:
+        mid_lead = fam.sample(1, torch.tensor([0.0, lead / 4], dtype=torch.float64), gen())[0, :, :2]
+        want_lead = torch.stack((torch.zeros(2, dtype=torch.float64), vertex[0] / 4))
+        assert torch.allclose(mid_lead, want_lead, rtol=0, atol=1e-12)
+    assert fam.sample(2, t.float(), gen()).dtype == torch.float32
 
 
 def test_zigzag_waypoint_laws():

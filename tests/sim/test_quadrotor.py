@@ -194,3 +194,21 @@ def test_commands_in_flight_are_the_last_ones_sent_oldest_first(steps):
     for k in range(6, 9):  # the head passes every slot: the order holds at each
         latency.push(torch.full((2, 4), float(k)))
         assert [row[0, 0].item() for row in latency.in_flight()] == [float(j) for j in range(k + 1 - steps, k + 1)]
+
+
+def test_compile_passes_its_options_to_torch_compile(monkeypatch):
+    """``compile(**options)`` hands the integrator and the options to ``torch.compile`` (through
+    ``compile_or_eager``) and returns the simulator."""
+    from datt.sim.quadrotor import integrate
+
+    seen = {}
+
+    def fake_compile(fn, **kwargs):
+        seen.update(fn=fn, **kwargs)
+        return lambda *args: fn(*args)
+
+    monkeypatch.setattr("datt.compile.compile_or_eager", fake_compile)
+    quad = Quadrotor(2)
+    assert quad.compile(backend="eager", mode="reduce-overhead") is quad
+    assert seen == {"fn": integrate, "backend": "eager", "mode": "reduce-overhead"}
+    assert quad._integrate is not integrate

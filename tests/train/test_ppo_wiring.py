@@ -173,9 +173,10 @@ def test_init_from_widens_the_command_history_and_keeps_the_function(tmp_path, c
     )
 
 
-@pytest.mark.parametrize("schedule", ["linear", "constant"])
+@pytest.mark.parametrize("schedule", ["linear", "constant", "exponential"])
 def test_learning_rate_schedule(tmp_path, schedule):
-    """linear: lr (1 − (1 − f) frames / total), down to f · lr at the end; constant: lr."""
+    """linear: lr (1 − (1 − f) frames / total), down to f · lr at the end; exponential:
+    lr · f^(frames / total), the same end; constant: lr."""
     trainer = Trainer(
         tiny_cfg(f"algo.lr_schedule={schedule}", "algo.lr=0.002", "algo.lr_final_frac=0.25", "train.total_steps=4000"),
         tmp_path,
@@ -187,6 +188,8 @@ def test_learning_rate_schedule(tmp_path, schedule):
         seen.append(trainer._lr())
     if schedule == "constant":
         assert seen == [0.002] * 4
+    elif schedule == "exponential":
+        assert seen == pytest.approx([0.002, 0.002 * 0.25**0.25, 0.0005, 0.0005])
     else:
         assert seen == pytest.approx([0.002, 0.002 * (1 - 0.75 * 0.25), 0.0005, 0.0005])
 

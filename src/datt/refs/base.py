@@ -38,6 +38,9 @@ def piecewise_linear(knot_t: Tensor, knot_p: Tensor, t_s: Tensor) -> Tensor:
     hold the end values.
     """
     n, m = knot_t.shape
+    if knot_p.shape[:2] != knot_t.shape:
+        shapes = f"knot times {tuple(knot_t.shape)} and values {tuple(knot_p.shape)}"
+        raise ValueError(f"piecewise_linear: {shapes} disagree")
     t = t_s.to(knot_t.dtype).expand(n, -1).contiguous()
     seg = torch.searchsorted(knot_t.contiguous(), t, right=True).clamp(1, m - 1) - 1  # [N, T]
     t0 = knot_t.gather(1, seg)

@@ -49,7 +49,9 @@ class AlgoParams:
     epochs: int = 4
     minibatch_size: int = 2048
     lr: float = 1e-3
-    lr_schedule: str = "linear"  # constant | linear (to lr_final_frac * lr)
+    # constant | linear | exponential: to lr_final_frac * lr along a straight line, or
+    # geometrically (the same factor every frame, so more of the run at low lr)
+    lr_schedule: str = "linear"
     lr_final_frac: float = 0.05
     gamma: float = 0.99
     lmbda: float = 0.95
@@ -77,9 +79,14 @@ class AlgoParams:
         need(0 <= self.lr_final_frac <= 1, "lr_final_frac", f"must be in [0, 1], got {self.lr_final_frac}")
         need(self.reward_scale > 0, "reward_scale", f"must be > 0, got {self.reward_scale}")
         need(
-            self.lr_schedule in ("constant", "linear"),
+            self.lr_schedule in ("constant", "linear", "exponential"),
             "lr_schedule",
-            f"unknown value {self.lr_schedule!r}; allowed: constant, linear",
+            f"unknown value {self.lr_schedule!r}; allowed: constant, linear, exponential",
+        )
+        need(
+            self.lr_schedule != "exponential" or self.lr_final_frac > 0,
+            "lr_final_frac",
+            "must be > 0 with lr_schedule=exponential (a geometric decay never reaches 0)",
         )
         need(0 < self.gamma <= 1, "gamma", f"must be in (0, 1], got {self.gamma}")
         need(0 <= self.lmbda <= 1, "lmbda", f"must be in [0, 1], got {self.lmbda}")
@@ -234,6 +241,8 @@ class Trainer:
         if algo.lr_schedule == "constant":
             return algo.lr
         frac = min(1.0, self.frames / self.total_frames)
+        if algo.lr_schedule == "exponential":
+            return algo.lr * algo.lr_final_frac**frac
         return algo.lr * (1.0 - (1.0 - algo.lr_final_frac) * frac)
 
     def _check_finite(self, name: str, value: torch.Tensor) -> None:
