@@ -113,10 +113,11 @@ def test_poly_boundary_derivatives_are_the_sampled_ones():
 
 
 def test_chained_poly_nodes_at_origin_and_c3_continuous():
-    fam = ChainedPoly()
+    fam = ChainedPoly()  # the paper's pieces: U(1.5, 4.0) s
     knot_t, coeffs = fam.sample_pieces(32, 10.54, gen(), T64)
     h = knot_t.diff(dim=1)
-    assert h.min() >= 1.5 and h.max() <= 4.0
+    assert h.min() >= 1.5 and h.max() <= 4.0 and h.min() < 1.6 and h.max() > 3.9
+    assert h.shape[1] == math.ceil(10.54 / 1.5)
     n, m = h.shape
     for order in range(4):
         # left limit: piece k-1 at its end; right limit: piece k at its start
@@ -551,6 +552,8 @@ def test_family_parameter_edges_are_allowed():
     Polygon(points_min=3, points_max=3, step=1, speed_min_mps=1.0, speed_max_mps=1.0, lead_in_s=0.0)
     ChainedPoly(piece_min_s=2.0, piece_max_s=2.0)
     Poly(vel_max_mps=0.0, acc_max_mps2=0.0)
+    ChainedPoly(piece_min_s=0.01, piece_max_s=0.01)  # any positive lengths and durations
+    Poly(duration_s=0.01)
 
 
 def test_polygon_draws_and_timing():

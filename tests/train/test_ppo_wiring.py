@@ -379,3 +379,41 @@ def test_crash_rate_is_the_share_of_ended_episodes_that_crashed():
     assert crash_rate(flags(), flags((0, 31))) == 0.0  # one ended, truncated
     assert crash_rate(flags((1, 2)), flags((1, 2), (4, 31), (5, 31))) == pytest.approx(1 / 3)
     assert crash_rate(flags(), flags()) == 0.0  # none ended
+
+
+ALGO_BAD = [
+    ("num_envs", 0, "must be >= 1, got 0"),
+    ("rollout_steps", 0, "must be >= 1, got 0"),
+    ("epochs", 0, "must be >= 1, got 0"),
+    ("minibatch_size", 0, "must be >= 1, got 0"),
+    ("lr", 0.0, "must be > 0, got 0.0"),
+    ("lr_final_frac", -0.1, "must be in [0, 1], got -0.1"),
+    ("lr_final_frac", 1.5, "must be in [0, 1], got 1.5"),
+    ("reward_scale", 0.0, "must be > 0, got 0.0"),
+    ("gamma", 0.0, "must be in (0, 1], got 0.0"),
+    ("gamma", 1.01, "must be in (0, 1], got 1.01"),
+    ("lmbda", -0.1, "must be in [0, 1], got -0.1"),
+    ("lmbda", 1.01, "must be in [0, 1], got 1.01"),
+    ("loss_critic_type", "huber", "unknown value 'huber'; allowed: l1, l2, smooth_l1"),
+]
+
+
+@pytest.mark.parametrize("key, value, message", ALGO_BAD, ids=[f"{k}_{i}" for i, (k, _, _) in enumerate(ALGO_BAD)])
+def test_each_algo_bound_names_its_key_and_rule(key, value, message):
+    from datt.errors import ConfigError
+    from datt.train.ppo import AlgoParams
+
+    with pytest.raises(ConfigError) as info:
+        AlgoParams(**{key: value}).validate()
+    assert str(info.value) == f"algo.{key}: {message}"
+
+
+def test_the_algo_bounds_themselves_are_allowed():
+    from datt.train.ppo import AlgoParams
+
+    AlgoParams(
+        num_envs=1, rollout_steps=1, epochs=1, minibatch_size=1, lr_final_frac=0.0, gamma=1.0, lmbda=0.0
+    ).validate()
+    AlgoParams(lr_final_frac=1.0, lmbda=1.0, lr_schedule="exponential").validate()
+    for critic in ("l1", "l2", "smooth_l1"):
+        AlgoParams(loss_critic_type=critic).validate()
