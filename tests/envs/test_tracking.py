@@ -144,6 +144,60 @@ def test_ring_buffer_matches_table_through_steps_and_partial_resets(make_trackin
         assert torch.equal(w, direct_refs(env)), k
 
 
+def test_ring_buffer_matches_table_up_to_the_last_step_of_an_episode(make_tracking_env):
+    """Without the automatic reset the final, truncated step is observed too: its window reads
+    the table's last row (the table is exactly episode_steps + window rows long)."""
+    env = make_tracking_env(["traj=zigzag", "env.episode_steps=30"], n=3)
+    td = env.reset()
+    assert env.table_len == 30 + env.window
+    for k in range(30):
+        td["action"] = env.hover_action
+        td = env.step(td)["next"]
+        w = env.ref_window.index_select(0, (env._head + env.ref_offsets) % env.window).transpose(0, 1)
+        assert torch.equal(w, direct_refs(env)), k
+    assert td["truncated"].all() and torch.equal(w[:, -1], env.ref_table[:, -1])
+
+
+def _hover_at(env, pos_m):
+    """Reset, place every drone level and at rest at ``pos_m [N, 3]``, hover one step."""
+    td = env.reset()
+    env.sim.state.pos_m = pos_m.clone()
+    env.sim.state.vel_mps = torch.zeros_like(pos_m)
+    td["action"] = env.hover_action
+    return env.step(td)["next"]
+
+
+def test_a_drone_on_the_face_of_the_safety_box_is_still_inside(make_tracking_env):
+    """Leaving the box means |p| > half-extent: at exactly the face (x = 3 m, the lateral position
+    unchanged by a level hover step) the drone flies on; 1 mm further out it is terminated."""
+    env = make_tracking_env(["env.safety_box_m=[3.0,3.0,2.0]", "env.init_pos_range_m=0"], n=2)
+    pos = torch.tensor([[3.0, 0.0, 0.0], [3.001, 0.0, 0.0]])
+    out = _hover_at(env, pos)
+    assert env.sim.state.pos_m[0, 0].item() == 3.0
+    assert out["terminated"][:, 0].tolist() == [False, True]
+
+
+def test_the_tracking_error_limit_adds_to_the_box(make_tracking_env):
+    """With ``max_tracking_error_m`` set, leaving the box still terminates (the two conditions are
+    or-ed), an error above the limit terminates inside the box, and an error of exactly the limit
+    does not. The reference is the origin (a zigzag of range 0), so the errors are exact."""
+    env = make_tracking_env(
+        [
+            "traj=zigzag",
+            "traj.range_m=0",
+            "env.safety_box_m=[1.0,3.0,2.0]",
+            "env.init_pos_range_m=0",
+            "env.max_tracking_error_m=2.5",
+        ],
+        n=4,
+    )
+    pos = torch.tensor([[1.2, 0.0, 0.0], [0.0, 2.5, 0.0], [0.0, 2.6, 0.0], [0.5, 0.0, 0.0]])
+    out = _hover_at(env, pos)
+    assert env.reference_now_m().abs().max() == 0
+    assert (env.sim.state.pos_m - pos).abs()[:, :2].max() == 0  # a level hover step moves no drone sideways
+    assert out["terminated"][:, 0].tolist() == [True, False, True, False]
+
+
 def test_partial_reset_only_resets_done_drones(make_tracking_env):
     env = make_tracking_env(["disturbance=brownian"], n=5)
     td = env.reset()
