@@ -198,6 +198,19 @@ def test_the_tracking_error_limit_adds_to_the_box(make_tracking_env):
     assert out["terminated"][:, 0].tolist() == [True, False, True, False]
 
 
+def test_a_non_finite_state_ends_the_episode_with_exactly_the_crash_penalty(make_tracking_env):
+    """A drone whose position is NaN or infinite has a NaN or infinite cost; its step is
+    terminated with reward −crash_penalty exactly (the cost counts as 0, so neither NaN nor ±inf
+    reaches GAE), while a finite drone's reward is its cost."""
+    env = make_tracking_env(["env.init_pos_range_m=0"], n=3)
+    pos = torch.tensor([[float("nan"), 0.0, 0.0], [float("inf"), 0.0, 0.0], [0.0, 0.0, 0.0]])
+    out = _hover_at(env, pos)
+    penalty = env.params.reward.crash_penalty
+    assert out["terminated"][:, 0].tolist() == [True, True, False]
+    assert out["reward"][:2, 0].tolist() == [-penalty, -penalty]
+    assert torch.isfinite(out["reward"]).all() and -1.0 < out["reward"][2, 0] < 0
+
+
 def test_partial_reset_only_resets_done_drones(make_tracking_env):
     env = make_tracking_env(["disturbance=brownian"], n=5)
     td = env.reset()

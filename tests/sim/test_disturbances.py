@@ -46,6 +46,16 @@ def test_brownian_variance_grows_linearly():
     assert model.current_mps2.mean(0).abs().max() < 4 * math.sqrt(expect / n)
 
 
+def test_brownian_without_a_walk_is_the_constant_start():
+    """sigma2 = 0 is allowed: the walk's steps are 0, so the start holds (a ConstantForce)."""
+    model, quad = bound(Brownian(max_mps2=2.0, sigma2=0.0), 5)
+    d0 = model.current_mps2.clone()
+    assert d0.abs().max() > 0
+    for _ in range(20):
+        model.update(quad.state)
+    assert torch.equal(model.current_mps2, d0)
+
+
 def test_brownian_starts_uniform():
     model, _ = bound(Brownian(max_mps2=3.5), 20000)
     var = model.current_mps2.var(0)
