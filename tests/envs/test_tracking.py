@@ -211,6 +211,26 @@ def test_a_non_finite_state_ends_the_episode_with_exactly_the_crash_penalty(make
     assert torch.isfinite(out["reward"]).all() and -1.0 < out["reward"][2, 0] < 0
 
 
+def test_staggered_first_episodes_are_uniform_over_one_to_the_episode_length(make_tracking_env):
+    """``stagger_episodes``: at the next full reset each drone's first episode gets a length drawn
+    from U{1, ..., episode_steps} with the env's generator (the global RNG plays no part); later
+    resets give the full length again."""
+
+    def lengths(global_seed):
+        env = make_tracking_env(["env.episode_steps=4"], n=4000, seed=7)
+        torch.manual_seed(global_seed)
+        env.stagger_episodes()
+        env.reset()
+        return env, env.episode_len.clone()
+
+    env, first = lengths(0)
+    counts = torch.bincount(first, minlength=6).tolist()
+    assert counts[0] == 0 and counts[5] == 0 and all(850 < c < 1150 for c in counts[1:5]), counts
+    assert torch.equal(first, lengths(1)[1])
+    env.reset()
+    assert (env.episode_len == 4).all()
+
+
 def test_partial_reset_only_resets_done_drones(make_tracking_env):
     env = make_tracking_env(["disturbance=brownian"], n=5)
     td = env.reset()
