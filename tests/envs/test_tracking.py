@@ -231,6 +231,22 @@ def test_staggered_first_episodes_are_uniform_over_one_to_the_episode_length(mak
     assert (env.episode_len == 4).all()
 
 
+def test_a_partial_reset_computes_only_the_reset_drones(make_tracking_env):
+    """``_reset`` with a ``_reset`` mask observes only those drones (TorchRL keeps the previous
+    observation of the others): their rows equal a full observation, the other rows are zero."""
+    env = make_tracking_env(["traj=zigzag"], n=4)
+    td = env.reset()
+    for _ in range(5):
+        td["action"] = env.hover_action
+        td = env.step(td)["next"]
+    mask = torch.tensor([[False], [True], [False], [True]])
+    out = env._reset(td.clone().set("_reset", mask))
+    full = env.observe()
+    for key in ("state", "ref"):
+        assert torch.equal(out[key][[1, 3]], full[key][[1, 3]]), key
+        assert out[key][[0, 2]].abs().max() == 0, key
+
+
 def test_partial_reset_only_resets_done_drones(make_tracking_env):
     env = make_tracking_env(["disturbance=brownian"], n=5)
     td = env.reset()
