@@ -461,18 +461,8 @@ def test_polygon_visits_its_vertices_at_their_times(through_origin):
     lead_in_s (0.1 s: not a float32 number, so float64 tables must not round it). The table has
     the dtype of the time grid."""
     r, lead = 0.5, 0.1
-    fam = Polygon(
-        points_min=3,
-        points_max=3,
-        step=1,
-        radius_m=r,
-        speed_min_mps=1.0,
-        speed_max_mps=1.0,
-        phase_deg=90.0,
-        random_rotation=False,
-        through_origin=through_origin,
-        lead_in_s=lead,
-    )
+    triangle = dict(points_min=3, points_max=3, step=1, radius_m=r, phase_deg=90.0, lead_in_s=lead)
+    fam = Polygon(**{**STAR, **triangle, "through_origin": through_origin})  # at 1 m/s, not rotated
     ang = [math.pi / 2 + 2 * math.pi * i / 3 for i in range(4)]
     vertex = torch.tensor([[r * math.cos(a), r * math.sin(a)] for a in ang], dtype=torch.float64)
     side = 2 * r * math.sin(math.pi / 3)
