@@ -247,6 +247,18 @@ def test_a_partial_reset_computes_only_the_reset_drones(make_tracking_env):
         assert out[key][[0, 2]].abs().max() == 0, key
 
 
+def test_a_bare_tracking_env_has_the_papers_horizon_and_seed_zero():
+    """``TrackingEnv(n, family)`` in a notebook: H = 10 and the references of seed 0."""
+    from datt.envs.tracking import TrackingEnv
+    from datt.refs import Zigzag
+
+    bare = TrackingEnv(3, Zigzag())
+    seeded = TrackingEnv(3, Zigzag(), horizon=10, seed=0)
+    assert bare.horizon == 10 and bare.reset()["ref"].shape[-2:] == (10, 3)
+    seeded.reset()
+    assert torch.equal(bare.ref_table, seeded.ref_table)
+
+
 def test_partial_reset_only_resets_done_drones(make_tracking_env):
     env = make_tracking_env(["disturbance=brownian"], n=5)
     td = env.reset()
