@@ -254,9 +254,24 @@ def test_a_bare_tracking_env_has_the_papers_horizon_and_seed_zero():
 
     bare = TrackingEnv(3, Zigzag())
     seeded = TrackingEnv(3, Zigzag(), horizon=10, seed=0)
+    unseeded = TrackingEnv(3, Zigzag(), seed=None)  # None means 0 too
     assert bare.horizon == 10 and bare.reset()["ref"].shape[-2:] == (10, 3)
     seeded.reset()
-    assert torch.equal(bare.ref_table, seeded.ref_table)
+    unseeded.reset()
+    assert torch.equal(bare.ref_table, seeded.ref_table) and torch.equal(bare.ref_table, unseeded.ref_table)
+
+
+def test_tracking_env_arguments_reach_the_simulator_and_are_checked():
+    from datt.envs.params import EnvParams
+    from datt.envs.tracking import TrackingEnv
+    from datt.errors import ConfigError
+    from datt.refs import Zigzag
+
+    env = TrackingEnv(2, Zigzag(), params=EnvParams(dt_s=0.01))
+    assert env.dt_s == env.sim.dt_s == 0.01
+    with pytest.raises(ConfigError) as info:
+        TrackingEnv(0, Zigzag())
+    assert str(info.value) == "env.num_envs: must be >= 1, got 0"
 
 
 def test_partial_reset_only_resets_done_drones(make_tracking_env):
