@@ -274,6 +274,17 @@ def test_tracking_env_arguments_reach_the_simulator_and_are_checked():
     assert str(info.value) == "env.num_envs: must be >= 1, got 0"
 
 
+def test_the_reference_table_is_the_family_at_exact_multiples_of_dt(make_tracking_env):
+    """Row k of the table is p_d(k dt) with k dt computed in float64 (the star: deterministic)."""
+    from hydra.utils import instantiate
+
+    env = make_tracking_env(["traj=star", "env.dtype=float64"], n=2)
+    env.reset()
+    t_s = torch.arange(env.table_len, dtype=torch.float64) * env.dt_s
+    want = instantiate(compose("sim", ["traj=star"]).traj).sample(1, t_s, torch.Generator())[0]
+    assert env.ref_table.dtype == torch.float64 and torch.equal(env.ref_table[1], want)
+
+
 def test_partial_reset_only_resets_done_drones(make_tracking_env):
     env = make_tracking_env(["disturbance=brownian"], n=5)
     td = env.reset()
