@@ -285,6 +285,25 @@ def test_the_reference_table_is_the_family_at_exact_multiples_of_dt(make_trackin
     assert env.ref_table.dtype == torch.float64 and torch.equal(env.ref_table[1], want)
 
 
+def test_a_float64_env_keeps_every_tensor_in_float64(make_tracking_env):
+    """No silent float32 rounding in a float64 env: action bounds and spec, command history,
+    safety box and the observation all carry the env's dtype."""
+    env = make_tracking_env(["env.dtype=float64", "env.obs.action_history=2"], n=2)
+    td = env.reset()
+    td["action"] = env.hover_action
+    out = env.step(td)["next"]
+    tensors = {
+        "action_low": env.action_low,
+        "action_high": env.action_high,
+        "action_spec": env.action_spec,
+        "cmd_history": env.cmd_history,
+        "box_m": env.box_m,
+        "state": out["state"],
+        "ref": out["ref"],
+    }
+    assert {k: v.dtype for k, v in tensors.items()} == dict.fromkeys(tensors, torch.float64)
+
+
 def test_partial_reset_only_resets_done_drones(make_tracking_env):
     env = make_tracking_env(["disturbance=brownian"], n=5)
     td = env.reset()
