@@ -22,8 +22,9 @@ from __future__ import annotations
 
 import json
 import os
-import re
 from pathlib import PurePosixPath
+
+from tools.mutation_report import module_of
 
 _durations: dict[str, float] | None = None
 
@@ -42,7 +43,7 @@ def _load() -> dict[str, float]:
 def nearness(nodeid: str, mutant: str) -> int:
     """0: a test file named after the mutant's module; 1: the module's package's tests; 2: other.
     ``mutant`` is a mutmut name (``datt.<package>.<module>.x…``); "" gives 2 for every test."""
-    parts = re.split(r"\.x[_ǁ]", mutant, maxsplit=1)[0].split(".")
+    parts = module_of(mutant).split(".")
     if len(parts) < 3:
         return 2
     package, module = parts[1], parts[-1]
@@ -56,5 +57,5 @@ def pytest_collection_modifyitems(config, items) -> None:
     durations = _load()
     mutant = os.environ.get("MUTANT_UNDER_TEST", "")
     unknown = float("inf")
-    order = {id(item): i for i, item in enumerate(items)}
-    items.sort(key=lambda item: (nearness(item.nodeid, mutant), durations.get(item.nodeid, unknown), order[id(item)]))
+    # list.sort is stable: tests that tie keep pytest's order
+    items.sort(key=lambda item: (nearness(item.nodeid, mutant), durations.get(item.nodeid, unknown)))
