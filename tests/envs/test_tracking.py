@@ -41,6 +41,42 @@ def test_rollout_reproducible_with_seed(make_tracking_env):
     assert not torch.equal(a["next", "state"], c["next", "state"])
 
 
+def test_the_randomised_vehicles_come_from_the_envs_seed(make_tracking_env):
+    """Domain randomisation draws from the env's generator: the same seed gives the same vehicles,
+    whatever the global RNG did in between."""
+
+    def vehicles(seed):
+        env = make_tracking_env(["env.quad.mass_spread=0.05", "env.quad.latency_steps_max=3"], n=16, seed=seed)
+        torch.rand(7)  # the global RNG moves between the two builds
+        return env.sim.thrust_scale.clone(), env.sim.latency.delay.clone()
+
+    (scale_a, delay_a), (scale_b, delay_b), (scale_c, _) = vehicles(3), vehicles(3), vehicles(4)
+    assert torch.equal(scale_a, scale_b) and torch.equal(delay_a, delay_b)
+    assert not torch.equal(scale_a, scale_c)
+
+
+def test_drones_start_at_rest_at_independent_points_of_the_start_cube(make_tracking_env):
+    """Each drone draws its own start, uniform in ±init_pos_range_m per axis (0.5 m here), drawn
+    in the env's dtype (a float64 env's starts are not float32 numbers)."""
+    env = make_tracking_env(["env.dtype=float64"], n=64)
+    pos = env.sim.state.pos_m
+    assert pos.abs().max() <= 0.5 and pos.abs().max() > 0.4
+    assert len(torch.unique(pos[:, 0])) == 64 and torch.equal(
+        env.sim.state.vel_mps, torch.zeros(64, 3, dtype=torch.float64)
+    )
+    assert not torch.equal(pos, pos.float().double())
+
+
+def test_the_done_entries_are_binary_specs_of_one_flag_per_drone(make_tracking_env):
+    from torchrl.data import Categorical
+
+    env = make_tracking_env([], n=3)
+    binary = Categorical(2, shape=(3, 1), dtype=torch.bool)
+    assert {k: env.full_done_spec[k] for k in ("done", "terminated", "truncated")} == dict.fromkeys(
+        ("done", "terminated", "truncated"), binary
+    )
+
+
 def hover_rollout(env, steps):
     td = env.reset()
     out = []
@@ -302,6 +338,15 @@ def test_a_float64_env_keeps_every_tensor_in_float64(make_tracking_env):
         "ref": out["ref"],
     }
     assert {k: v.dtype for k, v in tensors.items()} == dict.fromkeys(tensors, torch.float64)
+
+
+def test_a_float64_envs_action_bounds_are_the_configs_numbers_exactly(make_tracking_env):
+    """g + thrust offsets and the rate bounds, computed in float64 (no float32 rounding on the way)."""
+    env = make_tracking_env(["env.dtype=float64", "env.rate_bounds_radps=[20.1,19.9,2.1]"], n=2)
+    p = env.params
+    g, (lo_t, hi_t) = p.quad.gravity_mps2, p.thrust_offset_bounds_mps2
+    assert env.action_low.tolist() == [g + lo_t, -20.1, -19.9, -2.1]
+    assert env.action_high.tolist() == [g + hi_t, 20.1, 19.9, 2.1]
 
 
 def test_partial_reset_only_resets_done_drones(make_tracking_env):

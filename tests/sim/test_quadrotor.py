@@ -108,6 +108,14 @@ def test_thrust_clipped_to_physical_range():
     assert quad.state.thrust_mps2.tolist() == [0.0, quad.params.max_thrust_mps2]
 
 
+def test_body_rates_are_capped_in_norm_per_drone():
+    """The rate cap scales each drone's rate vector to ``max_rate_radps`` (direction kept); a drone
+    under the cap is untouched by another drone above it."""
+    quad = Quadrotor(2, QuadrotorParams(latency_steps=0, k_rate=1.0, max_rate_radps=10.0), dtype="float64")
+    quad.step(torch.tensor([[G, 30.0, 40.0, 0.0], [G, 3.0, 0.0, -4.0]], dtype=torch.float64))
+    assert quad.state.rate_radps.tolist() == [pytest.approx([6.0, 8.0, 0.0], abs=1e-12), [3.0, 0.0, -4.0]]
+
+
 def test_batch_is_independent_per_drone():
     commands = torch.tensor([[G + 2, 0.5, -0.3, 0.1], [G - 1, -1.0, 0.2, 0.0], [G, 0.0, 0.0, 1.0]])
     batch = Quadrotor(3)

@@ -70,8 +70,8 @@ def test_a_step_in_rate_reaches_the_body_after_the_drawn_latency():
     assert seen == [[0.0, 0.0], [2.0, 0.0], [2.0, 0.0], [2.0, 2.0]]
 
 
-def test_second_order_rate_model_follows_the_authors_recurrence():
-    kw, kt = 0.4, 0.6
+@pytest.mark.parametrize("kw, kt", [(0.4, 0.6), (0.3, 0.5)])  # the authors' gains, and others
+def test_second_order_rate_model_follows_the_authors_recurrence(kw, kt):
     quad = Quadrotor(
         1, QuadrotorParams(latency_steps=0, rate_model="second_order", kw_rate=kw, kt_rate=kt), dtype="float64"
     )
