@@ -69,6 +69,32 @@ def test_exp_of_rotation_vector():
     assert torch.allclose(tiny, torch.tensor([[1.0, 5e-8, 0.0, 0.0]], dtype=torch.float64), atol=1e-15)
 
 
+def test_quat_mul_is_the_hamilton_product():
+    """The unit table (i² = j² = k² = ijk = −1) and, for random unit quaternions, R(a ⊗ b) = R(a) R(b)."""
+    one, i, j, k = torch.eye(4, dtype=torch.float64)
+    table = {
+        (i, i): -one, (j, j): -one, (k, k): -one,
+        (i, j): k, (j, k): i, (k, i): j,
+        (j, i): -k, (k, j): -i, (i, k): -j,
+        (one, j): j, (k, one): k,
+    }  # fmt: skip
+    for (a, b), want in table.items():
+        assert torch.equal(quat_mul(a, b), want)
+    a, b = random_quats(64, seed=1), random_quats(64, seed=2)
+    assert torch.allclose(quat_to_rotmat(quat_mul(a, b)), quat_to_rotmat(a) @ quat_to_rotmat(b), atol=1e-12)
+    assert torch.allclose(quat_mul(a, b).norm(dim=-1), torch.ones(64, dtype=torch.float64), atol=1e-12)
+
+
+def test_exp_of_a_small_rotation_vector_is_the_exact_map_to_float64_precision():
+    """Under 1e-4 rad the Taylor branch stands in for sin(θ/2)/θ: it must agree to ~1 ulp."""
+    for angle in (1e-7, 5e-5, 9.9e-5, 1e-4, 2e-4):
+        v = torch.tensor([[0.6, -0.8, 0.0]], dtype=torch.float64) * angle
+        exact = torch.cat(
+            (torch.cos(torch.tensor([[angle / 2]], dtype=torch.float64)), v * (math.sin(angle / 2) / angle)), -1
+        )
+        assert torch.allclose(quat_exp_rotvec(v), exact, rtol=1e-15, atol=0), angle
+
+
 def test_wrap_angle_range():
     a = torch.tensor([0.0, math.pi, -math.pi, 3 * math.pi, -3.5 * math.pi, 7.0])
     w = wrap_angle(a)

@@ -133,11 +133,28 @@ def test_partial_reset_touches_only_selected_drones():
     quad = Quadrotor(3)
     for _ in range(20):
         quad.step(cmd(3, G + 3.0, (0.5, 0.0, 0.0)))
-    before = quad.state.pos_m.clone()
+    before, sent = quad.state.pos_m.clone(), quad.latency.in_flight().clone()
+    assert quad.params.latency_steps == 1 and torch.equal(sent, cmd(3, G + 3.0, (0.5, 0.0, 0.0)).unsqueeze(0))
     quad.reset(torch.tensor([1]), torch.tensor([[1.0, 2.0, 3.0]]))
     assert torch.equal(quad.state.pos_m[[0, 2]], before[[0, 2]])
+    # the commands still in flight to the other drones stay; drone 1's are hover
+    assert torch.equal(quad.latency.in_flight()[:, [0, 2]], sent[:, [0, 2]])
+    assert torch.equal(quad.latency.in_flight()[:, 1], cmd(1, G))
     assert quad.state.pos_m[1].tolist() == [1.0, 2.0, 3.0]
     assert quad.state.vel_mps[1].abs().sum() == 0 and quad.state.thrust_mps2[1] == pytest.approx(G)
+
+
+def test_a_full_reset_without_positions_puts_every_drone_at_rest_at_the_origin():
+    quad = Quadrotor(3, QuadrotorParams(rate_model="second_order"))
+    for _ in range(20):
+        quad.step(cmd(3, G + 3.0, (0.5, -0.2, 0.1)))
+    quad.reset()
+    s = quad.state
+    assert torch.equal(s.pos_m, torch.zeros(3, 3)) and torch.equal(s.vel_mps, torch.zeros(3, 3))
+    assert torch.equal(s.quat, torch.tensor([[1.0, 0.0, 0.0, 0.0]]).expand(3, 4))
+    assert torch.equal(s.rate_radps, torch.zeros(3, 3)) and torch.equal(quad.rate_torque, torch.zeros(3, 3))
+    assert torch.equal(s.thrust_mps2, torch.full((3,), G)) and torch.equal(quad.last_applied_cmd, cmd(3, G))
+    assert torch.equal(quad.latency.in_flight(), cmd(3, G).expand(quad.params.latency_steps, 3, 4))
 
 
 @pytest.mark.parametrize(
