@@ -144,11 +144,16 @@ def test_partial_reset_touches_only_selected_drones():
     assert quad.state.vel_mps[1].abs().sum() == 0 and quad.state.thrust_mps2[1] == pytest.approx(G)
 
 
-def test_a_full_reset_without_positions_puts_every_drone_at_rest_at_the_origin():
+def test_new_drones_and_a_full_reset_without_positions_are_at_rest_at_the_origin():
     quad = Quadrotor(3, QuadrotorParams(rate_model="second_order"))
+    assert_at_rest_at_the_origin_with_hover_in_flight(quad)
     for _ in range(20):
         quad.step(cmd(3, G + 3.0, (0.5, -0.2, 0.1)))
     quad.reset()
+    assert_at_rest_at_the_origin_with_hover_in_flight(quad)
+
+
+def assert_at_rest_at_the_origin_with_hover_in_flight(quad):
     s = quad.state
     assert torch.equal(s.pos_m, torch.zeros(3, 3)) and torch.equal(s.vel_mps, torch.zeros(3, 3))
     assert torch.equal(s.quat, torch.tensor([[1.0, 0.0, 0.0, 0.0]]).expand(3, 4))
@@ -166,9 +171,11 @@ def test_bad_params_raise_config_error_naming_key(kwargs, key):
         Quadrotor(1, QuadrotorParams(**kwargs))
 
 
-def test_negative_dt_rejected():
-    with pytest.raises(ConfigError, match="dt_s"):
-        Quadrotor(1, dt_s=-0.01)
+@pytest.mark.parametrize("dt_s", [-0.01, 0.0])
+def test_a_step_that_is_not_positive_is_rejected(dt_s):
+    with pytest.raises(ConfigError) as info:
+        Quadrotor(1, dt_s=dt_s)
+    assert str(info.value) == f"env.dt_s: must be > 0, got {dt_s}"
 
 
 def test_unknown_dtype_rejected():
