@@ -1,10 +1,12 @@
-"""The mutation-testing helper plugin (tools/mutmut_fastest_first.py): order only, never the set."""
+"""The mutation-testing helpers: the plugin (tools/mutmut_fastest_first.py) orders only, never the
+set; tools/check_by_hand.py applies a mutant exactly where mutmut made it."""
 
 import json
 from types import SimpleNamespace
 
 import pytest
 
+from tools import check_by_hand
 from tools import mutmut_fastest_first as plugin
 
 
@@ -57,3 +59,42 @@ def test_a_mutants_own_module_tests_come_first_then_its_package_then_the_rest(in
     assert plugin.nearness("tests/train/test_ppo_wiring.py::t", "datt.train.ppo.x_crash_rate__mutmut_1") == 0
     assert plugin.nearness("tests/train/test_rma.py::t", "datt.train.ppo.x_crash_rate__mutmut_1") == 1
     assert plugin.nearness("tests/sim/test_frames.py::t", "") == 2
+
+
+SHOWN = """# datt.sim.quadrotor.xǁQuadrotorParamsǁvalidate__mutmut_22: survived
+--- src/datt/sim/quadrotor.py
++++ src/datt/sim/quadrotor.py
+@@ -7,4 +7,4 @@
+         raise ConfigError(f"{prefix}.latency_steps: must be >= 0, got {self.latency_steps}")
+-    if not self.max_thrust_mps2 > 0:
++    if not self.max_thrust_mps2 >= 0:
+         raise ConfigError(f"{prefix}.max_thrust_mps2: must be > 0, got {self.max_thrust_mps2}")
+"""
+
+METHOD = """class P:
+    def validate(self):
+        if self.latency_steps < 0:
+            raise ConfigError(f"{prefix}.latency_steps: must be >= 0, got {self.latency_steps}")
+        if not self.max_thrust_mps2 > 0:
+            raise ConfigError(f"{prefix}.max_thrust_mps2: must be > 0, got {self.max_thrust_mps2}")
+        if not self.max_rate_radps > 0:
+            raise ConfigError(f"{prefix}.max_thrust_mps2: must be > 0, got {self.max_thrust_mps2}")
+"""
+
+
+def test_a_shown_mutant_is_applied_at_its_place_with_the_files_indentation():
+    file, old, new = check_by_hand.parse_diff(SHOWN)
+    assert file == "src/datt/sim/quadrotor.py" and len(old) == len(new) == 3
+    got = check_by_hand.apply(METHOD, old, new)
+    assert got == METHOD.replace("if not self.max_thrust_mps2 > 0:", "if not self.max_thrust_mps2 >= 0:")
+    # the same line twice with different context: the context picks the place; none or two: refused
+    with pytest.raises(ValueError, match="matches 0 places"):
+        check_by_hand.apply(METHOD.replace("max_thrust_mps2 > 0", "max_thrust > 0"), old, new)
+    with pytest.raises(ValueError, match="matches 2 places"):
+        check_by_hand.apply(METHOD + METHOD, old, new)
+
+
+def test_the_by_hand_list_names_a_test_for_every_mutant():
+    listed = [line for line in check_by_hand.BY_HAND.read_text().splitlines() if line and not line.startswith("#")]
+    got = check_by_hand.entries()
+    assert len(got) == len(listed) and all(e.test.startswith("tests/") and "::" in e.test for e in got)

@@ -162,13 +162,57 @@ def assert_at_rest_at_the_origin_with_hover_in_flight(quad):
     assert torch.equal(quad.latency.in_flight(), cmd(3, G).expand(quad.params.latency_steps, 3, 4))
 
 
-@pytest.mark.parametrize(
-    "kwargs, key",
-    [({"k_thrust": 0.0}, "k_thrust"), ({"k_rate": 1.5}, "k_rate"), ({"latency_steps": -1}, "latency_steps")],
-)
-def test_bad_params_raise_config_error_naming_key(kwargs, key):
-    with pytest.raises(ConfigError, match=key):
+IN_0_1 = "must be in (0, 1], got"
+HALF_WIDTH = "must be in [0, 1) (a relative half-width), got"
+LATENCY_MAX = "must be null or an integer >= latency_steps (1), got"
+REFUSED_PARAMS = [
+    ({"k_thrust": 0.0}, f"k_thrust: {IN_0_1} 0.0"),
+    ({"k_thrust": 1.01}, f"k_thrust: {IN_0_1} 1.01"),
+    ({"k_rate": 0.0}, f"k_rate: {IN_0_1} 0.0"),
+    ({"k_rate": 1.5}, f"k_rate: {IN_0_1} 1.5"),
+    ({"latency_steps": -1}, "latency_steps: must be >= 0, got -1"),
+    ({"max_thrust_mps2": 0.0}, "max_thrust_mps2: must be > 0, got 0.0"),
+    ({"max_rate_radps": 0.0}, "max_rate_radps: must be > 0, got 0.0"),
+    ({"mass_spread": -0.1}, f"mass_spread: {HALF_WIDTH} -0.1"),
+    ({"mass_spread": 1.0}, f"mass_spread: {HALF_WIDTH} 1.0"),
+    ({"thrust_gain_spread": -0.01}, f"thrust_gain_spread: {HALF_WIDTH} -0.01"),
+    ({"thrust_gain_spread": 1.0}, f"thrust_gain_spread: {HALF_WIDTH} 1.0"),
+    ({"latency_steps_max": 0}, f"latency_steps_max: {LATENCY_MAX} 0"),
+    ({"latency_steps_max": 2.5}, f"latency_steps_max: {LATENCY_MAX} 2.5"),
+    ({"latency_steps_max": True}, f"latency_steps_max: {LATENCY_MAX} True"),
+    (
+        {"rate_model": "third_order"},
+        "rate_model: unknown value 'third_order'; allowed: first_order, second_order, mixed",
+    ),
+    ({"kw_rate": 0.0}, f"kw_rate: {IN_0_1} 0.0"),
+    ({"kw_rate": 1.2}, f"kw_rate: {IN_0_1} 1.2"),
+    ({"kt_rate": 0.0}, f"kt_rate: {IN_0_1} 0.0"),
+    ({"kt_rate": 1.2}, f"kt_rate: {IN_0_1} 1.2"),
+]
+
+
+@pytest.mark.parametrize("kwargs, message", REFUSED_PARAMS, ids=[f"case{i}" for i in range(len(REFUSED_PARAMS))])
+def test_each_bad_param_is_refused_in_one_line_naming_its_key_and_rule(kwargs, message):
+    with pytest.raises(ConfigError) as info:
         Quadrotor(1, QuadrotorParams(**kwargs))
+    assert str(info.value) == f"env.quad.{message}"
+    with pytest.raises(ConfigError) as info:
+        QuadrotorParams(**kwargs).validate("deploy.quad")
+    assert str(info.value) == f"deploy.quad.{message}"
+
+
+def test_the_params_at_the_edges_of_their_rules_are_accepted():
+    edges = [
+        {"k_thrust": 1.0, "k_rate": 1.0, "kw_rate": 1.0, "kt_rate": 1.0, "latency_steps": 0},
+        {"max_thrust_mps2": 0.5, "max_rate_radps": 0.5},
+        {"mass_spread": 0.0, "thrust_gain_spread": 0.0},
+        {"mass_spread": 0.99, "thrust_gain_spread": 0.99},
+        {"latency_steps": 1, "latency_steps_max": 1},
+        {"latency_steps": 1, "latency_steps_max": 3.0},
+        *({"rate_model": m} for m in ("first_order", "second_order", "mixed")),
+    ]
+    for kwargs in edges:
+        QuadrotorParams(**kwargs).validate()
 
 
 @pytest.mark.parametrize("dt_s", [-0.01, 0.0])
