@@ -6,7 +6,7 @@ from types import SimpleNamespace
 
 import pytest
 
-from tools import check_by_hand
+from tools import check_by_hand, mutation_report
 from tools import mutmut_fastest_first as plugin
 
 
@@ -98,3 +98,21 @@ def test_the_by_hand_list_names_a_test_for_every_mutant():
     listed = [line for line in check_by_hand.BY_HAND.read_text().splitlines() if line and not line.startswith("#")]
     got = check_by_hand.entries()
     assert len(got) == len(listed) and all(e.test.startswith("tests/") and "::" in e.test for e in got)
+
+
+def test_the_report_scores_by_hand_kills_as_killed_and_leaves_equivalents_out():
+    found = {
+        "datt.sim.frames.x_a__mutmut_1": "killed",
+        "datt.sim.frames.x_a__mutmut_2": "survived",  # equivalent
+        "datt.sim.frames.x_a__mutmut_3": "survived",  # killed by hand
+        "datt.sim.frames.x_a__mutmut_4": "segfault",  # killed by hand
+        "datt.sim.frames.x_a__mutmut_5": "timeout",
+        "datt.sim.frames.x_a__mutmut_6": "survived",
+        "datt.sim.frames.x_a__mutmut_7": "not checked",
+        "datt.sim.frames.x_a__mutmut_8": "timeout",  # equivalent (a loaded machine)
+    }
+    equiv = {"datt.sim.frames.x_a__mutmut_2": "why", "datt.sim.frames.x_a__mutmut_8": "why"}
+    by_hand = {"datt.sim.frames.x_a__mutmut_3": "t", "datt.sim.frames.x_a__mutmut_4": "t"}
+    rows = mutation_report.table(found, equiv, by_hand)
+    # 8 mutants, 7 checked, 3 killed, 1 survived, 2 equivalent, 1 timeout: (3 + 1) / (7 - 2) = 80 %
+    assert rows[2] == "| datt.sim.frames | 8 | 7 | 3 | 1 | 2 | 0 | 1 | 80.0 % |"
