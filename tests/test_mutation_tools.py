@@ -116,3 +116,11 @@ def test_the_report_scores_by_hand_kills_as_killed_and_leaves_equivalents_out():
     rows = mutation_report.table(found, equiv, by_hand)
     # 8 mutants, 7 checked, 3 killed, 1 survived, 2 equivalent, 1 timeout: (3 + 1) / (7 - 2) = 80 %
     assert rows[2] == "| datt.sim.frames | 8 | 7 | 3 | 1 | 2 | 0 | 1 | 80.0 % |"
+
+
+def test_check_by_hand_says_what_it_needs_without_mutmuts_directory(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)  # no mutants/ here
+    assert check_by_hand.main([]) == 2
+    assert capsys.readouterr().err == (
+        "check_by_hand: needs mutmut on PATH and its mutants/ directory here (docs/mutation.md)\n"
+    )

@@ -16,6 +16,7 @@ listed test fails on its mutant, 1 otherwise (each failure to kill, or to apply,
 from __future__ import annotations
 
 import argparse
+import os
 import re
 import shutil
 import subprocess
@@ -96,7 +97,10 @@ def pytest(test: str, work: Path) -> subprocess.CompletedProcess:
 
 def check(entry: Entry, tree: Path, work: Path) -> str | None:
     """None when the test fails on the mutant (a kill); otherwise what went wrong."""
-    file, old, new = parse_diff(show(entry.mutant))
+    try:
+        file, old, new = parse_diff(show(entry.mutant))
+    except (subprocess.CalledProcessError, StopIteration, IndexError):
+        return "mutmut show gave no diff for it (a renamed function? run from the mutmut directory)"
     target = work / file
     original = (tree / file).read_text()
     try:
@@ -114,8 +118,6 @@ def check(entry: Entry, tree: Path, work: Path) -> str | None:
 
 
 def _env() -> dict[str, str]:
-    import os
-
     return {k: v for k, v in os.environ.items() if k not in ("PYTEST_PLUGINS", "PYTHONPATH")}
 
 
@@ -124,6 +126,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--tree", type=Path, default=ROOT, help="checkout whose src/ and tests/ are copied")
     parser.add_argument("--only", default="", help="check only mutants whose name contains this")
     args = parser.parse_args(argv)
+    if shutil.which("mutmut") is None or not Path("mutants").is_dir():
+        print("check_by_hand: needs mutmut on PATH and its mutants/ directory here (docs/mutation.md)", file=sys.stderr)
+        return 2
     todo = [e for e in entries() if args.only in e.mutant]
     failed = 0
     with tempfile.TemporaryDirectory(prefix="by_hand_") as tmp:
