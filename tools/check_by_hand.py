@@ -25,8 +25,9 @@ import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-BY_HAND = ROOT / "docs" / "mutation-by-hand.txt"
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run as a script: the repository root
+from tools.mutation_report import BY_HAND, ROOT, equivalent  # noqa: E402
+
 TEST_ID = re.compile(r"(tests/\S+?\.py::[\w\[\]\-.]+)")
 
 
@@ -39,15 +40,7 @@ class Entry:
 def entries(path: Path = BY_HAND) -> list[Entry]:
     """The (mutant, test node id) pairs of the by-hand list; the test is the first node id in the
     line's comment."""
-    out = []
-    for line in path.read_text().splitlines():
-        if line.startswith("#") or "#" not in line:
-            continue
-        name, _, comment = line.partition("#")
-        match = TEST_ID.search(comment)
-        if name.strip() and match:
-            out.append(Entry(name.strip(), match.group(1)))
-    return out
+    return [Entry(name, match.group(1)) for name, note in equivalent(path).items() if (match := TEST_ID.search(note))]
 
 
 def parse_diff(diff: str) -> tuple[str, list[str], list[str]]:
