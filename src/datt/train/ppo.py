@@ -150,6 +150,9 @@ class Trainer:
             {k for k in self.loss.in_keys if isinstance(k, str)}
             | {keys.advantage, keys.value_target, keys.value, keys.sample_log_prob, keys.action}
         )
+        # the checkpoints this run's weights descend from, oldest first: each one's whole config
+        # and frames, so a chain of fine-tunes stays reproducible after its files are gone
+        self.lineage: list[dict] = []
         if train_params.init_from:
             self.init_weights(train_params.init_from)
         self.frames_per_batch = algo.num_envs * algo.rollout_steps
@@ -175,6 +178,7 @@ class Trainer:
             "rng_env": self.env.generator.get_state(),
             "history": self.history,
             "train_wall_s": self.train_wall_s,
+            "lineage": self.lineage,
         }
 
     def save(self, name: str = "last.pt") -> Path:
@@ -209,6 +213,8 @@ class Trainer:
             raise ConfigError(
                 f"train.init_from: policy shape differs from policy config ({str(exc).splitlines()[0]})"
             ) from None
+        parent = {"checkpoint": str(path), "frames": int(data["frames"]), "config_yaml": data["config_yaml"]}
+        self.lineage = [*(dict(entry) for entry in data.get("lineage", [])), parent]
 
     def load(self, path: str | Path) -> None:
         data = load_checkpoint(path, key="resume")
@@ -223,6 +229,7 @@ class Trainer:
         torch.set_rng_state(data["rng_torch"])
         self.env.generator.set_state(data["rng_env"])
         self.history = [dict(row) for row in data.get("history", [])]
+        self.lineage = [dict(entry) for entry in data.get("lineage", [])]
         self.train_wall_s = float(data.get("train_wall_s", 0.0))
         self._update_phase()
 
