@@ -18,7 +18,7 @@ from pathlib import Path
 from omegaconf import OmegaConf
 
 from datt.checkpoint import load_checkpoint
-from datt.configuration import compose
+from datt.configuration import compose, flat_leaves
 
 # keys that name where a run came from or how it was carried on, not what it trained
 IGNORED = (
@@ -30,16 +30,6 @@ IGNORED = (
     "logger.",
     "eval.",
 )
-
-
-def flat(tree, prefix: str = "") -> dict[str, object]:
-    """A nested config as ``{dotted.key: leaf value}``."""
-    if isinstance(tree, dict):
-        out: dict[str, object] = {}
-        for key, value in tree.items():
-            out.update(flat(value, f"{prefix}{key}."))
-        return out
-    return {prefix[:-1]: tree}
 
 
 def config_changes(before: dict[str, object], after: dict[str, object]) -> list[str]:
@@ -65,7 +55,7 @@ def steps(path: Path) -> list[tuple[str, int, dict[str, object]]]:
         (
             str(entry["checkpoint"]),
             int(entry["frames"]),
-            flat(OmegaConf.to_container(OmegaConf.create(entry["config_yaml"]), resolve=True)),
+            flat_leaves(OmegaConf.to_container(OmegaConf.create(entry["config_yaml"]), resolve=True)),
         )
         for entry in chain
     ]
@@ -78,7 +68,7 @@ def main() -> None:
     chain = steps(args.checkpoint)
     if len(chain) == 1 and chain[0][2].get("train.init_from"):
         print(f"{args.checkpoint}: fine-tuned from {chain[0][2]['train.init_from']}, whose config it did not record")
-    previous = flat(OmegaConf.to_container(compose("train"), resolve=True))
+    previous = flat_leaves(OmegaConf.to_container(compose("train"), resolve=True))
     total = 0
     for k, (where, frames, cfg) in enumerate(chain, start=1):
         total += frames

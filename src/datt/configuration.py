@@ -122,6 +122,16 @@ def structured(cls, node, key: str):
     return obj
 
 
+def flat_leaves(tree: Any, prefix: str = "") -> dict[str, object]:
+    """A nested config container (dicts of dicts) as ``{"dotted.key": leaf value}``."""
+    if isinstance(tree, dict):
+        out: dict[str, object] = {}
+        for key, value in tree.items():
+            out.update(flat_leaves(value, f"{prefix}{key}."))
+        return out
+    return {prefix[:-1]: tree}
+
+
 def check_horizon(horizon: Any) -> int:
     """The policy horizon H (number of future reference points)."""
     if isinstance(horizon, bool) or not isinstance(horizon, int) or horizon < 1:

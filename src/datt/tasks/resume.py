@@ -14,6 +14,7 @@ import yaml
 from omegaconf import DictConfig, OmegaConf
 
 from datt.checkpoint import load_checkpoint
+from datt.configuration import flat_leaves
 from datt.errors import ConfigError
 from datt.paths import original_cwd, resolve_path
 from datt.runs import is_locked
@@ -63,15 +64,6 @@ def _resumable(key: str) -> bool:
     return any(key == k or (k.endswith(".") and key.startswith(k)) for k in RESUMABLE)
 
 
-def _leaves(node, prefix: str = "") -> dict[str, object]:
-    if isinstance(node, dict):
-        out: dict[str, object] = {}
-        for k, v in node.items():
-            out.update(_leaves(v, f"{prefix}{k}."))
-        return out
-    return {prefix[:-1]: node}
-
-
 def _saved_choices(run_dir: Path) -> dict[str, str] | None:
     path = run_dir / ".hydra" / "hydra.yaml"
     if not path.is_file():
@@ -91,7 +83,7 @@ def resume_config(cfg: DictConfig, run_dir: Path, groups: set[str]) -> DictConfi
         saved = OmegaConf.create(load_checkpoint(run_dir / "last.pt", key="resume")["config_yaml"])
     now = OmegaConf.to_container(cfg, resolve=True)
     before = OmegaConf.to_container(saved, resolve=True)
-    now_leaves, before_leaves = _leaves(now), _leaves(before)
+    now_leaves, before_leaves = flat_leaves(now), flat_leaves(before)
     overrides = command_overrides()
     changed: list[str] = []
     if overrides is None:  # called as a library: every key that differs was asked for
