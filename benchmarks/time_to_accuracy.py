@@ -8,8 +8,9 @@ every ``--eval-every`` frames, flies the policy deterministically on the evaluat
 zigzags (``conf/bank/default.yaml``: the authors' generator, seed 1000, 10 references; no
 disturbance, d̂ = 0). The training clock excludes those evaluations. Stops when every threshold
 is reached, at ``--max-minutes`` of training, or at the total. Prints the table and writes
-``benchmarks/results/time_to_accuracy_<label>.json`` (every evaluation, and per threshold the
-first frames and training minutes at which the error was at or below it; null = not reached).
+``benchmarks/results/time_to_accuracy_<label>.json`` (every evaluation with the last training
+iteration's lr, KL estimate, training error and policy std, and per threshold the first frames
+and training minutes at which the error was at or below it; null = not reached).
 
 Run it alone on the machine: the wall times are the figures.
 """
@@ -63,10 +64,15 @@ class AccuracyClock(Logger):
         zig = groups["zigzag"]
         error_m = zig["mean_m"] if math.isfinite(zig["mean_m"]) else None  # None: every episode crashed
         point = {"frames": frames, "train_min": train_s / 60, "zigzag_m": error_m, "crashes": zig["crashes"]}
+        if self.trainer.history:  # the training iteration just done: its lr, KL estimate, training error
+            last = self.trainer.history[-1]
+            keep = ("lr", "kl_approx", "tracking_error_m")
+            point |= {k: v for k, v in last.items() if k in keep or k.startswith("policy_std")}
         self.points.append(point)
         print(
             f"{frames / 1e6:7.2f} M steps  {point['train_min']:6.1f} min  zigzag {zig['mean_m']:.4f} m"
-            f"  crashes {zig['crashes']}",
+            f"  crashes {zig['crashes']}  lr {point.get('lr', math.nan):.2e}"
+            f"  kl {point.get('kl_approx', math.nan):.4f}",
             flush=True,
         )
         for t in self.thresholds:

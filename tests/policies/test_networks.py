@@ -64,6 +64,31 @@ def test_bad_policy_params(kwargs, key):
         PolicyParams(**kwargs).validate()
 
 
+@pytest.mark.parametrize("min_std", [0.0, 0.05, 0.2])
+def test_the_std_floor_must_be_positive_and_below_the_initial_std(min_std):
+    with pytest.raises(ConfigError) as info:
+        PolicyParams(min_std=min_std, init_std=[0.15, 0.15, 0.05, 0.15]).validate()
+    assert str(info.value) == f"policy.min_std: must be > 0 and below every policy.init_std (0.05), got {min_std}"
+    PolicyParams(min_std=0.049, init_std=[0.15, 0.15, 0.05, 0.15]).validate()
+
+
+@pytest.mark.parametrize("min_std", [1e-4, 0.01])
+def test_the_policy_std_never_falls_below_its_floor(min_std):
+    """A head that asks for a vanishing std (its std outputs driven to -50) gets exactly the
+    floor; the location is untouched by it."""
+    env = make_env(compose("sim"), num_envs=5)
+    actor = make_actor(10, env.action_low, env.action_high, PolicyParams(min_std=min_std))
+    td = env.reset()
+    loc_before = actor(td.clone())["loc"]
+    with torch.no_grad():
+        head = actor.module[0].module.net.head
+        head.weight[4:].zero_()
+        head.bias[4:] = -50.0
+    out = actor(td.clone())
+    assert torch.equal(out["scale"], torch.full((5, 4), min_std))
+    torch.testing.assert_close(out["loc"], loc_before)
+
+
 def test_error_scale_multiplies_exactly_the_error_inputs():
     """error_scale = s equals the unscaled net fed s x (feedback error, feedforward errors) and
     the other inputs unchanged (position, velocity, quaternion, d_hat)."""

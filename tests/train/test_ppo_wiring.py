@@ -205,7 +205,13 @@ def test_update_scales_rewards_and_reports_the_losses_it_optimised(tmp_path):
     """One epoch, one minibatch, a negligible lr: the returned losses are the loss of the batch
     as it went in (rewards × reward_scale before GAE), the lr is the scheduled one."""
     trainer = Trainer(
-        tiny_cfg("algo.epochs=1", "algo.minibatch_size=100000", "algo.lr=1e-12", "algo.reward_scale=2.0"),
+        tiny_cfg(
+            "algo.epochs=1",
+            "algo.minibatch_size=100000",
+            "algo.lr=1e-12",
+            "algo.lr_schedule=constant",
+            "algo.reward_scale=2.0",
+        ),  # fmt: skip
         tmp_path,
         CsvLogger(tmp_path),
     )
@@ -270,7 +276,13 @@ def test_update_reports_the_mean_over_every_minibatch_of_every_epoch(tmp_path):
     """Two epochs of four minibatches at a negligible lr: the reported losses are the mean of the
     eight minibatch losses (same permutations, replayed from the same seed)."""
     trainer = Trainer(
-        tiny_cfg("algo.epochs=2", "algo.minibatch_size=128", "algo.lr=1e-12", "algo.reward_scale=1.0"),
+        tiny_cfg(
+            "algo.epochs=2",
+            "algo.minibatch_size=128",
+            "algo.lr=1e-12",
+            "algo.lr_schedule=constant",
+            "algo.reward_scale=1.0",
+        ),  # fmt: skip
         tmp_path,
         CsvLogger(tmp_path),
     )
@@ -395,6 +407,8 @@ ALGO_BAD = [
     ("lmbda", -0.1, "must be in [0, 1], got -0.1"),
     ("lmbda", 1.01, "must be in [0, 1], got 1.01"),
     ("loss_critic_type", "huber", "unknown value 'huber'; allowed: l1, l2, smooth_l1"),
+    ("desired_kl", 0.0, "must be > 0, got 0.0"),
+    ("lr_min", 0.0, "must be > 0, got 0.0"),
 ]
 
 
@@ -415,5 +429,82 @@ def test_the_algo_bounds_themselves_are_allowed():
         num_envs=1, rollout_steps=1, epochs=1, minibatch_size=1, lr_final_frac=0.0, gamma=1.0, lmbda=0.0
     ).validate()
     AlgoParams(lr_final_frac=1.0, lmbda=1.0, lr_schedule="exponential").validate()
+    AlgoParams(lr_schedule="adaptive_kl", lr=1e-5, lr_min=1e-5, lr_max=1e-5).validate()
     for critic in ("l1", "l2", "smooth_l1"):
         AlgoParams(loss_critic_type=critic).validate()
+
+
+@pytest.mark.parametrize("lr", [1e-6, 0.02])
+def test_adaptive_kl_needs_a_starting_lr_within_its_bounds(lr):
+    from datt.errors import ConfigError
+    from datt.train.ppo import AlgoParams
+
+    with pytest.raises(ConfigError) as info:
+        AlgoParams(lr_schedule="adaptive_kl", lr=lr, lr_max=0.01).validate()
+    assert str(info.value) == (
+        f"algo.lr: must be in [lr_min, lr_max] = [1e-05, 0.01] with lr_schedule=adaptive_kl, got {lr}"
+    )
+    AlgoParams(lr_schedule="constant", lr=lr, lr_max=0.01).validate()  # the bounds belong to adaptive_kl alone
+    if lr > 0.01:  # lr_max null: the starting lr is the cap, so any lr above lr_min is valid
+        AlgoParams(lr_schedule="adaptive_kl", lr=lr).validate()
+        assert AlgoParams(lr=lr).lr_cap == lr
+
+
+def test_adapt_lr_is_the_rsl_rl_rule():
+    """÷ 1.5 above 2 × desired, × 1.5 below desired / 2 (a KL estimate <= 0 changes nothing),
+    unchanged in between and at both edges, clamped to [lr_min, lr_max]."""
+    from datt.train.ppo import AlgoParams, adapt_lr
+
+    algo = AlgoParams(lr_schedule="adaptive_kl", desired_kl=0.01, lr_min=1e-4, lr_max=1e-3)
+    assert adapt_lr(9e-4, 1e-6, AlgoParams(lr=9e-4, lr_min=1e-4)) == 9e-4  # lr_max null: the start caps
+    assert adapt_lr(6e-4, 0.0201, algo) == pytest.approx(4e-4)
+    assert adapt_lr(4e-4, 0.0049, algo) == pytest.approx(6e-4)
+    for kl in (0.02, 0.005, 0.01, 0.0, -0.003):
+        assert adapt_lr(4e-4, kl, algo) == 4e-4
+    assert adapt_lr(1.2e-4, 1.0, algo) == 1e-4
+    assert adapt_lr(9e-4, 1e-6, algo) == 1e-3
+
+
+def test_adaptive_kl_steers_each_step_by_the_kl_of_the_step_before_it(tmp_path, monkeypatch):
+    """The lr of every gradient step is the rule applied to that minibatch's KL estimate
+    (``kl_approx`` of the loss), starting from the lr the last update left; the optimiser runs
+    at it, the reported lr is the last one and the reported KL the mean. A checkpoint keeps it."""
+    from datt.train import ppo
+
+    trainer = Trainer(
+        tiny_cfg("algo.lr_schedule=adaptive_kl", "algo.lr=1e-3", "algo.desired_kl=0.01", "algo.lr_max=1e-2",
+                 "algo.epochs=2", "algo.minibatch_size=128"),
+        tmp_path,
+        CsvLogger(tmp_path),
+    )  # fmt: skip
+    kls = iter([0.03, 0.03, 0.001, 0.01, 0.03, 0.001, 0.001, 0.001])  # 2 epochs x 4 minibatches
+    real_loss = trainer.loss.forward
+    used_lrs = []
+
+    def fake_kl(td):
+        out = real_loss(td)
+        out.set("kl_approx", torch.tensor(next(kls)))
+        return out
+
+    real_step = trainer.optim.step
+
+    def record_step(*args, **kwargs):
+        used_lrs.append(trainer.optim.param_groups[0]["lr"])
+        return real_step(*args, **kwargs)
+
+    monkeypatch.setattr(trainer.loss, "forward", fake_kl)
+    monkeypatch.setattr(trainer.optim, "step", record_step)
+    stats = trainer.update(_rollout_batch(trainer))  # 512 frames: 4 minibatches of 128
+    expect, lr = [], 1e-3
+    for kl in [0.03, 0.03, 0.001, 0.01, 0.03, 0.001, 0.001, 0.001]:
+        lr = ppo.adapt_lr(lr, kl, trainer.algo)
+        expect.append(lr)
+    assert used_lrs == pytest.approx(expect)
+    assert expect[-1] != pytest.approx(1e-3)
+    assert stats["lr"] == pytest.approx(expect[-1]) == trainer._lr()
+    assert stats["kl_approx"] == pytest.approx(sum([0.03, 0.03, 0.001, 0.01, 0.03, 0.001, 0.001, 0.001]) / 8)
+    trainer.save()
+    fresh = Trainer(trainer.cfg, tmp_path / "fresh", CsvLogger(tmp_path / "fresh"))
+    assert fresh._lr() == 1e-3
+    fresh.load(tmp_path / "last.pt")
+    assert fresh._lr() == pytest.approx(expect[-1])

@@ -105,7 +105,10 @@ def test_each_row_describes_its_batch(tmp_path):
         assert row["episode_return_est"] == pytest.approx(reward * trainer.env.params.episode_steps)
         assert row["crash_rate"] == pytest.approx(crashed / max(done, 1))
         assert row["steps_per_s"] > 0
-        assert {"loss_objective", "loss_critic", "grad_norm", "lr"} <= row.keys()
+        assert {"loss_objective", "loss_critic", "grad_norm", "lr", "kl_approx"} <= row.keys()
+        std = batch["scale"].reshape(-1, 4).mean(0)
+        got = [row[f"policy_std_{a}"] for a in ("thrust", "wx", "wy", "wz")]
+        assert got == pytest.approx(std.tolist())
     crash_rates = [row["crash_rate"] for row in history]
     assert all(0.0 < rate < 1.0 for rate in crash_rates), crash_rates  # both kinds of episode end
 

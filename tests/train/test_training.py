@@ -149,7 +149,7 @@ def test_nan_guard_stops_with_last_good_checkpoint(tmp_path):
 def test_bad_train_values_are_config_errors():
     with pytest.raises(ConfigError, match="algo.num_envs: must be >= 1"):
         Trainer(tiny_cfg("algo.num_envs=0"), "/tmp/unused", CsvLogger("/tmp"))
-    allowed = "allowed: constant, linear, exponential"
+    allowed = "allowed: constant, linear, exponential, adaptive_kl"
     with pytest.raises(ConfigError, match=f"algo.lr_schedule: unknown value 'cosine'; {allowed}"):
         Trainer(tiny_cfg("algo.lr_schedule=cosine"), "/tmp/unused", CsvLogger("/tmp"))
     with pytest.raises(ConfigError, match="algo.lr_final_frac: must be > 0 with lr_schedule=exponential"):

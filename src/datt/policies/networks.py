@@ -51,6 +51,12 @@ class PolicyParams:
     # within ~1 s, so every early episode crashes); 0.05 ≈ 1 rad/s, the SB3 default std.
     # A single number applies to all four.
     init_std: Any = field(default_factory=lambda: [0.15, 0.15, 0.15, 0.15])
+    # Floor of the pre-tanh std, every action: scale = softplus(head + b) + min_std (tensordict's
+    # biased softplus, b = inv_softplus(1 − min_std)). 0.01 is the floor every earlier policy was
+    # trained with (tensordict's default), so checkpoints without this key keep their function.
+    # Without entropy bonus PPO shrinks the std as far as it helps the return: the shipped policy
+    # sits at the floor on every action (docs/training.md).
+    min_std: float = 0.01
     # Fixed gain on the tracking-error inputs (feedback and feedforward, metres) before the net.
     # Tracking errors are O(0.01-0.1 m) while the other inputs are O(1): unscaled, a 2 cm error
     # moves the first layer by ~1e-3, and PPO (Adam steps of ~lr per weight) takes a long time to
@@ -75,6 +81,11 @@ class PolicyParams:
         if len(self.init_std) != 4 or not all(s > 0 for s in self.init_std):
             raise ConfigError(
                 f"policy.init_std: must be four values > 0 (thrust, wx, wy, wz), got {list(self.init_std)}"
+            )
+        if not 0 < self.min_std < min(self.init_std):
+            lowest = min(self.init_std)
+            raise ConfigError(
+                f"policy.min_std: must be > 0 and below every policy.init_std ({lowest}), got {self.min_std}"
             )
 
 
@@ -160,9 +171,11 @@ def make_actor(
         net.head.weight.mul_(0.01)
         net.head.bias.zero_()
         net.head.bias[:4] = torch.atanh(((hover - center) / half).clamp(-0.99, 0.99))
-        # NormalParamExtractor: scale = softplus(x + b) with b chosen so softplus(b) = 1
+        # scale = softplus(x + b) + min_std with softplus(b) = 1 − min_std; this bias (b's
+        # shift left out) starts the std at init_std + ~min_std, as every earlier policy started
         net.head.bias[4:] = torch.tensor([_inv_softplus(s) - _inv_softplus(1.0) for s in p.init_std])
-    module = nn.Sequential(net, NormalParamExtractor(scale_lb=1e-4))
+    extractor = NormalParamExtractor(scale_mapping=f"biased_softplus_1.0_{p.min_std}", scale_lb=p.min_std)
+    module = nn.Sequential(net, extractor)
     td_module = TensorDictModule(_Args(module), in_keys=OBS_KEYS, out_keys=["loc", "scale"])
     return ProbabilisticActor(
         td_module,

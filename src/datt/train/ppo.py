@@ -39,6 +39,19 @@ from datt.runs import StopRequest
 from datt.train.loggers import Logger
 from datt.train.schema import CurriculumParams, TrainParams, budget_factor
 
+LR_SCHEDULES = ("constant", "linear", "exponential", "adaptive_kl")
+KL_STEP = 1.5  # adaptive_kl: factor of one lr change (rsl_rl's)
+
+
+def adapt_lr(lr: float, kl: float, algo: AlgoParams) -> float:
+    """The next step's lr under ``lr_schedule=adaptive_kl`` from the current lr and the
+    minibatch's KL estimate (``kl_approx`` of the PPO loss, nats)."""
+    if kl > 2.0 * algo.desired_kl:
+        return max(lr / KL_STEP, algo.lr_min)
+    if 0.0 < kl < 0.5 * algo.desired_kl:
+        return min(lr * KL_STEP, algo.lr_cap)
+    return lr
+
 
 @dataclass
 class AlgoParams:
@@ -50,9 +63,17 @@ class AlgoParams:
     minibatch_size: int = 2048
     lr: float = 1e-3
     # constant | linear | exponential: to lr_final_frac * lr along a straight line, or
-    # geometrically (the same factor every frame, so more of the run at low lr)
+    # geometrically (the same factor every frame, so more of the run at low lr); adaptive_kl:
+    # start at lr and, before every gradient step, divide it by 1.5 when the minibatch's KL from
+    # the policy that collected the batch exceeds 2 x desired_kl, multiply it by 1.5 when the KL
+    # is below desired_kl / 2, within [lr_min, lr_max] (the rule of rsl_rl's PPO; lr_max null =
+    # lr: the schedule only ever lowers the configured lr). The step size then follows the
+    # policy's own sensitivity instead of the frame count.
     lr_schedule: str = "linear"
     lr_final_frac: float = 0.05
+    desired_kl: float = 0.05
+    lr_min: float = 1e-5
+    lr_max: float | None = None
     gamma: float = 0.99
     lmbda: float = 0.95
     clip_epsilon: float = 0.2
@@ -79,9 +100,16 @@ class AlgoParams:
         need(0 <= self.lr_final_frac <= 1, "lr_final_frac", f"must be in [0, 1], got {self.lr_final_frac}")
         need(self.reward_scale > 0, "reward_scale", f"must be > 0, got {self.reward_scale}")
         need(
-            self.lr_schedule in ("constant", "linear", "exponential"),
+            self.lr_schedule in LR_SCHEDULES,
             "lr_schedule",
-            f"unknown value {self.lr_schedule!r}; allowed: constant, linear, exponential",
+            f"unknown value {self.lr_schedule!r}; allowed: {', '.join(LR_SCHEDULES)}",
+        )
+        need(self.desired_kl > 0, "desired_kl", f"must be > 0, got {self.desired_kl}")
+        need(self.lr_min > 0, "lr_min", f"must be > 0, got {self.lr_min}")
+        need(
+            self.lr_schedule != "adaptive_kl" or self.lr_min <= self.lr <= self.lr_cap,
+            "lr",
+            f"must be in [lr_min, lr_max] = [{self.lr_min}, {self.lr_cap}] with lr_schedule=adaptive_kl, got {self.lr}",
         )
         need(
             self.lr_schedule != "exponential" or self.lr_final_frac > 0,
@@ -95,6 +123,22 @@ class AlgoParams:
             "loss_critic_type",
             f"unknown value {self.loss_critic_type!r}; allowed: l1, l2, smooth_l1",
         )
+
+    @property
+    def lr_cap(self) -> float:
+        """adaptive_kl's upper bound: ``lr_max``, or the starting lr when it is null."""
+        return self.lr if self.lr_max is None else self.lr_max
+
+
+ACTION_NAMES = ("thrust", "wx", "wy", "wz")
+
+
+def policy_std(scale: torch.Tensor) -> dict[str, float]:
+    """Mean pre-tanh std of the policy per action over a batch (``scale [..., 4]``), as
+    ``policy_std_<action>``: the exploration left, and the policy's sensitivity (a KL of a given
+    size is a smaller change of the mean when the std is small)."""
+    mean = scale.reshape(-1, scale.shape[-1]).mean(0)
+    return {f"policy_std_{name}": value.item() for name, value in zip(ACTION_NAMES, mean, strict=True)}
 
 
 def crash_rate(terminated: torch.Tensor, done: torch.Tensor) -> float:
@@ -161,6 +205,7 @@ class Trainer:
         self.best_error = math.inf
         self.history: list[dict] = []  # one row per iteration, kept in the checkpoint (whole learning curve)
         self.train_wall_s = 0.0  # training time summed over every segment of the run
+        self.adaptive_lr = algo.lr  # lr_schedule=adaptive_kl: the lr the last gradient step left
 
     # -- checkpoints -------------------------------------------------------------------------
     def state(self) -> dict:
@@ -179,6 +224,7 @@ class Trainer:
             "history": self.history,
             "train_wall_s": self.train_wall_s,
             "lineage": self.lineage,
+            "adaptive_lr": self.adaptive_lr,
         }
 
     def save(self, name: str = "last.pt") -> Path:
@@ -231,6 +277,7 @@ class Trainer:
         self.history = [dict(row) for row in data.get("history", [])]
         self.lineage = [dict(entry) for entry in data.get("lineage", [])]
         self.train_wall_s = float(data.get("train_wall_s", 0.0))
+        self.adaptive_lr = float(data.get("adaptive_lr", self.algo.lr))
         self._update_phase()
 
     # -- loop -------------------------------------------------------------------------------
@@ -247,6 +294,8 @@ class Trainer:
         algo = self.algo
         if algo.lr_schedule == "constant":
             return algo.lr
+        if algo.lr_schedule == "adaptive_kl":
+            return self.adaptive_lr
         frac = min(1.0, self.frames / self.total_frames)
         if algo.lr_schedule == "exponential":
             return algo.lr * algo.lr_final_frac**frac
@@ -273,7 +322,8 @@ class Trainer:
         lr = self._lr()
         for group in self.optim.param_groups:
             group["lr"] = lr
-        stats = {"loss_objective": 0.0, "loss_critic": 0.0, "grad_norm": 0.0}
+        stats = {"loss_objective": 0.0, "loss_critic": 0.0, "grad_norm": 0.0, "kl_approx": 0.0}
+        adaptive = algo.lr_schedule == "adaptive_kl"
         count = 0
         for _ in range(algo.epochs):
             for idx in torch.randperm(data.shape[0]).split(algo.minibatch_size):
@@ -282,6 +332,11 @@ class Trainer:
                 if "loss_entropy" in losses.keys():
                     total = total + losses["loss_entropy"]
                 self._check_finite("loss", total.detach())
+                kl = losses["kl_approx"].item()
+                if adaptive:
+                    lr = self.adaptive_lr = adapt_lr(lr, kl, algo)
+                    for group in self.optim.param_groups:
+                        group["lr"] = lr
                 self.optim.zero_grad(set_to_none=True)
                 total.backward()
                 # Clip actor and critic separately: the critic's gradient (returns of order
@@ -293,9 +348,10 @@ class Trainer:
                 stats["loss_objective"] += losses["loss_objective"].item()
                 stats["loss_critic"] += losses["loss_critic"].item()
                 stats["grad_norm"] += grad.item()
+                stats["kl_approx"] += kl
                 count += 1
         out = {k: v / count for k, v in stats.items()}
-        out["lr"] = lr
+        out["lr"] = lr  # adaptive_kl: the lr after the iteration's last step
         return out
 
     def train(self) -> list[dict]:
@@ -348,6 +404,7 @@ class Trainer:
                     "crash_rate": crash_rate(batch["next", "terminated"], batch["next", "done"]),
                     "steps_per_s": batch.numel() / (now - t_iter),
                     "phase": self.phase,
+                    **policy_std(batch["scale"]),
                     **stats,
                 }
                 t_iter = now
