@@ -82,8 +82,8 @@ class PolicyParams:
             raise ConfigError(
                 f"policy.init_std: must be four values > 0 (thrust, wx, wy, wz), got {list(self.init_std)}"
             )
-        if not 0 < self.min_std < min(self.init_std):
-            lowest = min(self.init_std)
+        lowest = min(self.init_std)
+        if not 0 < self.min_std < lowest:
             raise ConfigError(
                 f"policy.min_std: must be > 0 and below every policy.init_std ({lowest}), got {self.min_std}"
             )

@@ -301,6 +301,10 @@ class Trainer:
             return algo.lr * algo.lr_final_frac**frac
         return algo.lr * (1.0 - (1.0 - algo.lr_final_frac) * frac)
 
+    def _set_lr(self, lr: float) -> None:
+        for group in self.optim.param_groups:
+            group["lr"] = lr
+
     def _check_finite(self, name: str, value: torch.Tensor) -> None:
         if not torch.isfinite(value).all():
             last = self.run_dir / "last.pt"
@@ -320,8 +324,7 @@ class Trainer:
         # each gradient step. The ("next", ...) entries were needed by GAE only.
         data = batch.reshape(-1).select(*self._loss_keys, strict=False)
         lr = self._lr()
-        for group in self.optim.param_groups:
-            group["lr"] = lr
+        self._set_lr(lr)
         stats = {"loss_objective": 0.0, "loss_critic": 0.0, "grad_norm": 0.0, "kl_approx": 0.0}
         adaptive = algo.lr_schedule == "adaptive_kl"
         count = 0
@@ -335,8 +338,7 @@ class Trainer:
                 kl = losses["kl_approx"].item()
                 if adaptive:
                     lr = self.adaptive_lr = adapt_lr(lr, kl, algo)
-                    for group in self.optim.param_groups:
-                        group["lr"] = lr
+                    self._set_lr(lr)
                 self.optim.zero_grad(set_to_none=True)
                 total.backward()
                 # Clip actor and critic separately: the critic's gradient (returns of order
