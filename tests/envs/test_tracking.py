@@ -21,6 +21,7 @@ from datt.sim.frames import quat_from_euler, quat_rotate_inverse
         ["traj=fixed", "env.obs.body_frame=false", "env.obs.feedback=false", "horizon=20"],
         ["traj=polygon", "disturbance=constant", "env.dtype=float64", "env.quad.latency_steps=0"],
         ["traj=zigzag", "env.obs.action_history=3"],
+        ["traj=zigzag", "env.obs.critic_ref_points=4", "env.obs.body_frame=false"],
     ],
 )
 def test_check_env_specs(make_tracking_env, overrides):
@@ -164,6 +165,35 @@ def test_action_history_holds_the_last_commands_scaled_and_restarts_at_hover(mak
     out = env.reset(td)
     assert torch.allclose(out["state"][0, 13:], hover.repeat(2))
     torch.testing.assert_close(env.cmd_history[1:, 1], torch.tensor([[1.0, -1.0, 0.2, 0.0]]).expand(2, 4))
+
+
+@pytest.mark.parametrize("body_frame", [True, False])
+def test_critic_ref_is_the_reference_beyond_the_window(make_tracking_env, body_frame):
+    """``obs.critic_ref_points=K``: ``critic_ref`` holds R^T (p − p_d(t + kΔc)), k = 1..K, from
+    the true state (raw p_d(t + kΔc) without the body frame), through steps, partial resets and
+    the end of the episode's table; the policy's keys are the plain env's."""
+    over = ["traj=zigzag", "env.episode_steps=60", "disturbance=constant", f"env.obs.body_frame={body_frame}"]
+    env = make_tracking_env([*over, "env.obs.critic_ref_points=6", "env.obs.critic_ref_spacing_s=0.3"], n=5)
+    plain = make_tracking_env(over, n=5)
+    assert env.observation_spec["critic_ref"].shape == (5, 6, 3)
+    assert set(env.observation_spec.keys()) - set(plain.observation_spec.keys()) == {"critic_ref"}
+    assert env.table_len == 60 + 6 * 15 + 1  # reaches p_d(t + 1.8 s) at the last step
+    td = env.reset()
+    gen = torch.Generator().manual_seed(1)
+    for k in range(140):  # beyond two episodes: truncations and resets on the way
+        td["action"] = env.hover_action + 2.0 * torch.randn(5, 4, generator=gen) * torch.tensor([1.0, 0.3, 0.3, 0.1])
+        td = env.step(td)["next"]
+        s = env.sim.state
+        steps = (env.step_idx.unsqueeze(1) + torch.arange(1, 7) * 15).clamp_max(env.table_len - 1)
+        points = env.ref_table[torch.arange(5).unsqueeze(1), steps]  # [N, K, 3]
+        expected = quat_rotate_inverse(s.quat.unsqueeze(1), s.pos_m.unsqueeze(1) - points) if body_frame else points
+        torch.testing.assert_close(td["critic_ref"], expected)
+        assert not torch.equal(td["critic_ref"][:, 0], td["critic_ref"][:, -1])
+        done = td["done"].reshape(-1) | (torch.arange(5) == k % 5) & (k % 23 == 7)
+        if done.any():
+            td["_reset"] = done.unsqueeze(-1)
+            td = env.reset(td)
+            torch.testing.assert_close(td["critic_ref"][done], env._critic_ref()[done])
 
 
 def test_ring_buffer_matches_table_through_steps_and_partial_resets(make_tracking_env):
@@ -473,6 +503,9 @@ def test_disturbance_moves_the_drone(make_tracking_env):
         (["env.ref_spacing_s=0.05"], "env.ref_spacing_s: must be a whole multiple of env.dt_s"),
         (["env.dtype=float16"], "env.dtype: unknown value 'float16'; allowed: float32, float64"),
         (["env.obs.action_history=-1"], "env.obs.action_history: must be an integer >= 0"),
+        (["env.obs.critic_ref_points=-1"], "env.obs.critic_ref_points: must be an integer >= 0"),
+        (["env.obs.critic_ref_spacing_s=0.05"], "env.obs.critic_ref_spacing_s: must be a whole multiple > 0"),
+        (["env.obs.critic_ref_spacing_s=0"], "env.obs.critic_ref_spacing_s: must be a whole multiple > 0"),
         (["env.quad.k_thrust=2"], "env.quad.k_thrust: must be in (0, 1]"),
         (["env.safety_box_m=[1,1]"], "env.safety_box_m"),
         (["env.colour=red"], "env.colour: no such key"),

@@ -50,6 +50,24 @@ def test_d_hat_input_can_be_disabled():
         assert same is (not use)
 
 
+def test_the_asymmetric_critic_reads_critic_ref_and_the_actor_does_not():
+    """``env.obs.critic_ref_points=K``: the critic's first layer is 3K wider and its value moves
+    with ``critic_ref``; the actor's distribution ignores it."""
+    env = make_env(compose("sim", ["env.obs.critic_ref_points=7"]), num_envs=4)
+    td = env.reset()
+    torch.manual_seed(0)
+    critic = make_critic(10, PolicyParams(), env.state_dim, critic_points=7)
+    plain = make_critic(10, PolicyParams(), env.state_dim)
+    assert critic.module.mlp[0].in_features == plain.module.mlp[0].in_features + 21
+    assert critic.in_keys == ["state", "ref", "d_hat", "critic_ref"] and plain.in_keys == ["state", "ref", "d_hat"]
+    actor = make_actor(10, env.action_low, env.action_high, PolicyParams(), env.state_dim)
+    changed = td.clone()
+    changed["critic_ref"] = changed["critic_ref"] + 1.0
+    assert not torch.allclose(critic(td.clone())["state_value"], critic(changed.clone())["state_value"])
+    with set_exploration_type(ExplorationType.DETERMINISTIC):
+        assert torch.equal(actor(td.clone())["action"], actor(changed)["action"])
+
+
 @pytest.mark.parametrize(
     "kwargs, key",
     [

@@ -32,8 +32,12 @@ def test_shipped_policy_evaluates_to_its_recorded_numbers(tmp_path, monkeypatch)
 # Config keys added after checkpoints/datt_h10_deploy.pt was trained -> the values that reproduce
 # what the code did before they existed (the adaptive_kl keys do nothing under a linear schedule).
 ADDED_SINCE = {
-    "policy": {"min_std": (0.01,)},
-    "algo": {"desired_kl": (0.01, 0.05), "lr_min": (1e-5,), "lr_max": (None,)},
+    "policy.min_std": (0.01,),
+    "algo.desired_kl": (0.01, 0.05),
+    "algo.lr_min": (1e-5,),
+    "algo.lr_max": (None,),
+    "env.obs.critic_ref_points": (0,),  # 0: no critic_ref, the plain critic
+    "env.obs.critic_ref_spacing_s": (0.1,),
 }
 
 
@@ -52,13 +56,14 @@ def test_deploy_grade_checkpoint_is_the_output_of_experiment_deploy():
     expected = OmegaConf.to_container(phase_config(cfg, len(plan) - 1, plan, "previous/last.pt"), resolve=True)
     data = load_checkpoint(resolve_path("checkpoints/datt_h10_deploy.pt"))
     trained = OmegaConf.to_container(OmegaConf.create(data["config_yaml"]), resolve=True)
+    # keys added after the checkpoint was trained, at values that keep its behaviour
+    for path, values in ADDED_SINCE.items():
+        *parents, name = path.split(".")
+        have, want = trained, expected
+        for part in parents:
+            have, want = have[part], want[part]
+        assert name not in have and want.pop(name) in values, path
     for key in ("env", "policy", "algo", "traj", "disturbance", "adaptation", "horizon", "seed"):
-        if isinstance(expected[key], dict):
-            # keys added after the checkpoint was trained, at values that keep its behaviour
-            for section, added in ADDED_SINCE.items():
-                if key == section:
-                    for name, value in added.items():
-                        assert name not in trained[key] and expected[key].pop(name) in value, (key, name)
         assert trained[key] == expected[key], key
     batch = cfg.algo.num_envs * cfg.algo.rollout_steps
     assert data["frames"] == -(-plan[-1][1] // batch) * batch  # the last phase's steps, in whole batches

@@ -239,6 +239,25 @@ def test_update_moves_the_critic_toward_its_targets(tmp_path):
     assert last < 0.8 * first, (first, last)
 
 
+def test_the_asymmetric_critic_learns_from_critic_ref(tmp_path):
+    """``env.obs.critic_ref_points``: the trainer's critic reads ``critic_ref`` from the rollout
+    (GAE and the loss), its weights on it are trained, and the fit improves."""
+    trainer = Trainer(
+        tiny_cfg("env.obs.critic_ref_points=5", "algo.epochs=8", "algo.lr=3e-3"), tmp_path, CsvLogger(tmp_path)
+    )
+    assert "critic_ref" in trainer.critic.in_keys and "critic_ref" in trainer._loss_keys
+    first_layer = trainer.critic.module.mlp[0].weight
+    cols = slice(first_layer.shape[1] - 15, None)  # critic_ref enters last
+    before = first_layer[:, cols].detach().clone()
+    batch = _rollout_batch(trainer, steps=16)
+    assert batch["critic_ref"].shape == (64, 16, 5, 3)
+    first = trainer.update(batch.clone())["loss_critic"]
+    for _ in range(6):
+        last = trainer.update(batch.clone())["loss_critic"]
+    assert last < 0.8 * first, (first, last)
+    assert not torch.equal(first_layer[:, cols], before)
+
+
 def test_entropy_bonus_enters_the_loss(tmp_path):
     """With entropy_coeff > 0 the optimised total includes the entropy term (a policy that can
     only raise its entropy does so)."""

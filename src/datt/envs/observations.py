@@ -7,6 +7,8 @@ Keys and shapes (body frame unless ``ObsParams.body_frame`` is False):
 * ``ref [N, H, 3]``: R^T (p − p_d(t + i Δ)) for i = 0..H−1, Δ = ``ref_spacing_s`` (own minus
   reference, as the authors; i = 0 repeats the feedback term, matching the paper's h_t)
 * ``d_hat [N, 3]``: disturbance input, world frame
+* ``critic_ref [N, K, 3]`` (only with ``ObsParams.critic_ref_points`` = K > 0; the critic's
+  input, never the policy's): the entries of ``ref`` at t + k Δc, k = 1..K
 
 Ablations change only what is written here, as the authors defined them
 (``learning/tasks/trajectory_fbff.py``): ``body_frame=False`` drops the rotations (the quaternion
@@ -53,6 +55,15 @@ def build_observation(
         p_b = torch.zeros_like(p_b)
     state = torch.cat((p_b, v_b, quat, err[0]), dim=-1)
     return state, feedforward.transpose(0, 1).contiguous()
+
+
+def critic_reference(pos_m: Tensor, quat: Tensor, points_m: Tensor, body_frame: bool = True) -> Tensor:
+    """``critic_ref [N, K, 3]`` from the reference points ``points_m [N, K, 3]`` (world): own
+    minus reference in the body frame, as ``ref``; without the body frame the raw points."""
+    if not body_frame:
+        return points_m.clone()
+    err = pos_m.unsqueeze(1) - points_m
+    return quat_rotate_inverse(quat.unsqueeze(1), err)
 
 
 def observe_and_cost(

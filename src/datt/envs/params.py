@@ -50,7 +50,12 @@ class ObsParams:
     ``action_history``: append the last k commands sent (each scaled to [-1, 1] by the action
     bounds, oldest first) to ``state``; 0 = the paper's inputs. Not in the paper: with a one-step
     command latency and first-order actuators, the commands in flight are state the policy
-    otherwise cannot see."""
+    otherwise cannot see.
+    ``critic_ref_points``: K > 0 adds ``critic_ref [N, K, 3]``, the same kind of feedforward
+    entries as ``ref`` (errors R^T (p − p_d), or the raw positions without the body frame) at
+    t + k ``critic_ref_spacing_s`` for k = 1..K. Only the critic reads it (an asymmetric critic:
+    the return depends on the reference beyond the policy's window, which the policy's own
+    inputs cannot explain); the policy's inputs and a checkpoint's policy are unchanged."""
 
     body_frame: bool = True
     feedback: bool = True
@@ -58,6 +63,8 @@ class ObsParams:
     vel_noise_std_mps: float = 0.0
     att_noise_std_rad: float = 0.0
     action_history: int = 0
+    critic_ref_points: int = 0
+    critic_ref_spacing_s: float = 0.1
 
 
 @dataclass
@@ -132,6 +139,18 @@ class EnvParams:
             isinstance(k, int) and not isinstance(k, bool) and k >= 0,
             "obs.action_history",
             f"must be an integer >= 0, got {k!r}",
+        )
+        k = self.obs.critic_ref_points
+        need(
+            isinstance(k, int) and not isinstance(k, bool) and k >= 0,
+            "obs.critic_ref_points",
+            f"must be an integer >= 0, got {k!r}",
+        )
+        ratio = self.obs.critic_ref_spacing_s / self.dt_s
+        need(
+            self.obs.critic_ref_spacing_s > 0 and abs(ratio - round(ratio)) < 1e-6,
+            "obs.critic_ref_spacing_s",
+            f"must be a whole multiple > 0 of env.dt_s={self.dt_s}, got {self.obs.critic_ref_spacing_s}",
         )
         self.quad.validate("env.quad")
         need(self.reward.crash_penalty >= 0, "reward.crash_penalty", f"must be >= 0, got {self.reward.crash_penalty}")

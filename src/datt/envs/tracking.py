@@ -25,7 +25,7 @@ from torchrl.envs import EnvBase
 from datt.adapt.base import Adaptation, Privileged
 from datt.compile import compile_or_eager
 from datt.configuration import check_horizon
-from datt.envs.observations import observe_and_cost, state_width
+from datt.envs.observations import critic_reference, observe_and_cost, state_width
 from datt.envs.params import EnvParams
 from datt.errors import ConfigError
 from datt.refs.base import RefFamily
@@ -51,7 +51,7 @@ class TrackingEnv(EnvBase):
     """Batched trajectory-tracking env (``batch_size = [num_envs]``).
 
     Observation keys: ``state [N, 13 + 4k]`` (k = ``obs.action_history``), ``ref [N, horizon, 3]``,
-    ``d_hat [N, 3]`` (see
+    ``d_hat [N, 3]``, with ``obs.critic_ref_points`` = K > 0 also ``critic_ref [N, K, 3]`` (see
     :mod:`datt.envs.observations`) and ``tracking_error_m [N, 1]`` (‖p − p_d(t)‖, true
     position; for logging and metrics). Action ``[N, 4]``: thrust (m/s², mass-normalised,
     bounds ``g + thrust_offset_bounds_mps2``) and body rates (rad/s, ± ``rate_bounds_radps``).
@@ -104,7 +104,12 @@ class TrackingEnv(EnvBase):
         spacing = round(params.ref_spacing_s / params.dt_s)
         self.ref_offsets = torch.arange(horizon, device=device) * spacing  # [H] steps ahead
         self.window = int(self.ref_offsets[-1]) + 1
-        self.table_len = params.episode_steps + self.window
+        # the critic's points (obs.critic_ref_points = K): t + k Δc, k = 1..K, read from the table
+        obs = params.obs
+        critic_spacing = round(obs.critic_ref_spacing_s / params.dt_s)
+        self.critic_offsets = torch.arange(1, obs.critic_ref_points + 1, device=device) * critic_spacing
+        reach = int(self.critic_offsets[-1]) + 1 if obs.critic_ref_points else 0
+        self.table_len = params.episode_steps + max(self.window, reach)
         # float64 grid: float32 times drift by ~1e-6 s at 10 s; the table is cast to `dtype`.
         self.t_grid_s = torch.arange(self.table_len, device=device, dtype=torch.float64) * params.dt_s
         self.ref_table = torch.zeros(num_envs, self.table_len, 3, **kw)
@@ -144,6 +149,10 @@ class TrackingEnv(EnvBase):
             shape=(n,),
             device=dev,
         )
+        if len(self.critic_offsets):
+            self.observation_spec["critic_ref"] = Unbounded(
+                shape=(n, len(self.critic_offsets), 3), device=dev, dtype=dt
+            )
         self.action_spec = Bounded(
             low=self.action_low.expand(n, 4), high=self.action_high.expand(n, 4), shape=(n, 4), device=dev, dtype=dt
         )
@@ -291,6 +300,8 @@ class TrackingEnv(EnvBase):
             hist = self.cmd_history if idx is None else self.cmd_history[idx]
             state = torch.cat((state, hist.flatten(1)), dim=-1)
         values = {"state": state, "ref": ref, "d_hat": self.adaptation.d_hat.clone(), "tracking_error_m": err_m}
+        if len(self.critic_offsets):
+            values["critic_ref"] = self._critic_ref(idx)
         if idx is not None:
             values["d_hat"] = values["d_hat"][idx]
             full = {}
@@ -301,6 +312,16 @@ class TrackingEnv(EnvBase):
         # values are built here with the right shapes and device: skip TensorDict's checks
         td = TensorDict._new_unsafe(values, batch_size=self.batch_size, device=self.device)
         return td, err_m, cost
+
+    def _critic_ref(self, idx: torch.Tensor | None = None) -> torch.Tensor:
+        """``critic_ref [N, K, 3]`` (or its rows ``idx``) from the true state: the critic is
+        trained only in simulation, so it may read what the sensors do not give the policy."""
+        s = self.sim.state
+        rows = self._all_idx if idx is None else idx
+        steps = (self.step_idx[rows].unsqueeze(1) + self.critic_offsets).clamp_max(self.table_len - 1)
+        flat = (self._row_base[rows].unsqueeze(1) + steps).reshape(-1)
+        points = self.ref_table.view(-1, 3).index_select(0, flat).view(len(rows), -1, 3)
+        return critic_reference(s.pos_m[rows], s.quat[rows], points, self.params.obs.body_frame)
 
     def _measure(self, pos: torch.Tensor, vel: torch.Tensor, quat: torch.Tensor):
         """The state the policy observes: ``(pos, vel, quat)`` with the observation noise of

@@ -131,9 +131,12 @@ class RefEncoder(nn.Module):
 
 
 class TrackingNet(nn.Module):
-    """``(state, ref, d_hat) -> [*, out_dim]`` : encoder + MLP."""
+    """``(state, ref, d_hat[, critic_ref]) -> [*, out_dim]`` : encoder + MLP. ``critic_points``
+    K > 0: the MLP also reads ``critic_ref [*, K, 3]`` flattened (the asymmetric critic)."""
 
-    def __init__(self, horizon: int, out_dim: int, p: PolicyParams, state_dim: int = STATE_DIM) -> None:
+    def __init__(
+        self, horizon: int, out_dim: int, p: PolicyParams, state_dim: int = STATE_DIM, critic_points: int = 0
+    ) -> None:
         super().__init__()
         self.use_d_hat = p.use_d_hat
         self.error_scale = float(p.error_scale)
@@ -142,17 +145,22 @@ class TrackingNet(nn.Module):
         state_scale[FEEDBACK] = self.error_scale  # the feedback error R^T (p − p_d(t))
         self.register_buffer("state_scale", state_scale, persistent=False)
         self.encoder = RefEncoder(horizon, p)
-        dims = [state_dim + self.encoder.out_dim + (3 if p.use_d_hat else 0), *p.hidden]
+        self.critic_points = critic_points
+        dims = [state_dim + self.encoder.out_dim + (3 if p.use_d_hat else 0) + 3 * critic_points, *p.hidden]
         layers: list[nn.Module] = []
         for a, b in zip(dims[:-1], dims[1:]):
             layers += [nn.Linear(a, b), nn.ReLU()]
         self.mlp = nn.Sequential(*layers)
         self.head = nn.Linear(dims[-1], out_dim)
 
-    def forward(self, state: torch.Tensor, ref: torch.Tensor, d_hat: torch.Tensor) -> torch.Tensor:
+    def forward(
+        self, state: torch.Tensor, ref: torch.Tensor, d_hat: torch.Tensor, critic_ref: torch.Tensor | None = None
+    ) -> torch.Tensor:
         if self.error_scale != 1.0:
             state, ref = state * self.state_scale, ref * self.error_scale
         parts = [state, self.encoder(ref)] + ([d_hat] if self.use_d_hat else [])
+        if self.critic_points:
+            parts.append(critic_ref.flatten(-2))
         return self.head(self.mlp(torch.cat(parts, dim=-1)))
 
 
@@ -186,9 +194,12 @@ def make_actor(
     )
 
 
-def make_critic(horizon: int, p: PolicyParams, state_dim: int = STATE_DIM) -> ValueOperator:
+def make_critic(horizon: int, p: PolicyParams, state_dim: int = STATE_DIM, critic_points: int = 0) -> ValueOperator:
+    """V(s) over the policy's inputs; with ``critic_points`` K > 0 also over the env's
+    ``critic_ref [*, K, 3]`` (``env.obs.critic_ref_points``)."""
     p.validate()
-    return ValueOperator(TrackingNet(horizon, 1, p, state_dim), in_keys=OBS_KEYS)
+    in_keys = OBS_KEYS + (["critic_ref"] if critic_points else [])
+    return ValueOperator(TrackingNet(horizon, 1, p, state_dim, critic_points), in_keys=in_keys)
 
 
 class InferenceNet(nn.Module):
