@@ -107,6 +107,33 @@ def test_the_policy_std_never_falls_below_its_floor(min_std):
     torch.testing.assert_close(out["loc"], loc_before)
 
 
+def test_a_std_ceiling_bounds_the_std_on_both_sides_and_starts_at_init_std():
+    """``policy.max_std``: the std starts at ``init_std`` exactly and stays within
+    [min_std, max_std] for any head output (driven to ±50); the location is untouched by it."""
+    env = make_env(compose("sim"), num_envs=5)
+    p = PolicyParams(min_std=0.01, max_std=0.4, init_std=[0.15, 0.1, 0.1, 0.05])
+    actor = make_actor(10, env.action_low, env.action_high, p)
+    td = env.reset()
+    out = actor(td.clone())
+    torch.testing.assert_close(out["scale"], torch.tensor([[0.15, 0.1, 0.1, 0.05]]).expand(5, 4), atol=2e-3, rtol=0)
+    head = actor.module[0].module.net.head
+    for bias, bound in ((50.0, 0.4), (-50.0, 0.01)):
+        with torch.no_grad():
+            head.weight[4:].zero_()
+            head.bias[4:] = bias
+        moved = actor(td.clone())
+        torch.testing.assert_close(moved["scale"], torch.full((5, 4), bound))
+        torch.testing.assert_close(moved["loc"], out["loc"])
+
+
+@pytest.mark.parametrize("max_std", [0.15, 0.1])
+def test_the_std_ceiling_must_be_above_the_initial_std(max_std):
+    with pytest.raises(ConfigError) as info:
+        PolicyParams(max_std=max_std, init_std=[0.15, 0.15, 0.05, 0.15]).validate()
+    assert str(info.value) == f"policy.max_std: must be null or above every policy.init_std (0.15), got {max_std}"
+    PolicyParams(max_std=0.151, init_std=[0.15, 0.15, 0.05, 0.15]).validate()
+
+
 def test_error_scale_multiplies_exactly_the_error_inputs():
     """error_scale = s equals the unscaled net fed s x (feedback error, feedforward errors) and
     the other inputs unchanged (position, velocity, quaternion, d_hat)."""

@@ -33,6 +33,7 @@ def test_shipped_policy_evaluates_to_its_recorded_numbers(tmp_path, monkeypatch)
 # what the code did before they existed (the adaptive_kl keys do nothing under a linear schedule).
 ADDED_SINCE = {
     "policy.min_std": (0.01,),
+    "policy.max_std": (None,),
     "algo.desired_kl": (0.01, 0.05),
     "algo.lr_min": (1e-5,),
     "algo.lr_max": (None,),

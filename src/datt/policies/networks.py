@@ -57,6 +57,11 @@ class PolicyParams:
     # Without entropy bonus PPO shrinks the std as far as it helps the return: the shipped policy
     # sits at the floor on every action (docs/training.md).
     min_std: float = 0.01
+    # Ceiling of the pre-tanh std, every action; null = none (the mapping above). With a ceiling
+    # the std is min_std + (max_std − min_std) · sigmoid(head), bounded on both sides. Without
+    # one, training at γ = 0.95 let the std of the yaw rate and thrust grow to 5.7 and 0.5 in
+    # some states (bang-bang noise: crashes, slower steps; docs/training.md).
+    max_std: float | None = None
     # Fixed gain on the tracking-error inputs (feedback and feedforward, metres) before the net.
     # Tracking errors are O(0.01-0.1 m) while the other inputs are O(1): unscaled, a 2 cm error
     # moves the first layer by ~1e-3, and PPO (Adam steps of ~lr per weight) takes a long time to
@@ -86,6 +91,11 @@ class PolicyParams:
         if not 0 < self.min_std < lowest:
             raise ConfigError(
                 f"policy.min_std: must be > 0 and below every policy.init_std ({lowest}), got {self.min_std}"
+            )
+        highest = max(self.init_std)
+        if self.max_std is not None and not float(self.max_std) > highest:
+            raise ConfigError(
+                f"policy.max_std: must be null or above every policy.init_std ({highest}), got {self.max_std}"
             )
 
 
@@ -179,10 +189,17 @@ def make_actor(
         net.head.weight.mul_(0.01)
         net.head.bias.zero_()
         net.head.bias[:4] = torch.atanh(((hover - center) / half).clamp(-0.99, 0.99))
-        # scale = softplus(x + b) + min_std with softplus(b) = 1 − min_std; this bias (b's
-        # shift left out) starts the std at init_std + ~min_std, as every earlier policy started
-        net.head.bias[4:] = torch.tensor([_inv_softplus(s) - _inv_softplus(1.0) for s in p.init_std])
-    extractor = NormalParamExtractor(scale_mapping=f"biased_softplus_1.0_{p.min_std}", scale_lb=p.min_std)
+        if p.max_std is None:
+            # scale = softplus(x + b) + min_std with softplus(b) = 1 − min_std; this bias (b's
+            # shift left out) starts the std at init_std + ~min_std, as every earlier policy started
+            net.head.bias[4:] = torch.tensor([_inv_softplus(s) - _inv_softplus(1.0) for s in p.init_std])
+        else:  # the std starts at init_std exactly
+            share = torch.tensor([(s - p.min_std) / (p.max_std - p.min_std) for s in p.init_std])
+            net.head.bias[4:] = torch.logit(share)
+    if p.max_std is None:
+        extractor = NormalParamExtractor(scale_mapping=f"biased_softplus_1.0_{p.min_std}", scale_lb=p.min_std)
+    else:
+        extractor = BoundedNormalParams(p.min_std, float(p.max_std))
     module = nn.Sequential(net, extractor)
     td_module = TensorDictModule(_Args(module), in_keys=OBS_KEYS, out_keys=["loc", "scale"])
     return ProbabilisticActor(
@@ -192,6 +209,19 @@ def make_actor(
         distribution_kwargs={"low": low, "high": high},
         return_log_prob=True,
     )
+
+
+class BoundedNormalParams(nn.Module):
+    """``[*, 2A] -> (loc [*, A], scale [*, A])`` with scale = lo + (hi − lo) · sigmoid(x):
+    a std bounded on both sides (``policy.max_std``)."""
+
+    def __init__(self, lo: float, hi: float) -> None:
+        super().__init__()
+        self.lo, self.span = lo, hi - lo
+
+    def forward(self, tensor: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        loc, raw = tensor.chunk(2, -1)
+        return loc, self.lo + self.span * torch.sigmoid(raw)
 
 
 def make_critic(horizon: int, p: PolicyParams, state_dim: int = STATE_DIM, critic_points: int = 0) -> ValueOperator:
