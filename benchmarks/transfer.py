@@ -1,7 +1,7 @@
 """Sim-to-real transfer test: fly policies against the strict simulated Crazyflie made worse than
 the controller assumes, and compare with ``eval.py`` on the same reference.
 
-    python benchmarks/transfer.py [--flights 3] [--checkpoints checkpoints/datt_h10.pt ...]
+    python benchmarks/transfer.py [--flights 3] [--checkpoints checkpoints/datt_h10_iid.pt ...]
 
 Per checkpoint: ``eval.py``'s star error (DATT + L1, nominal simulator), then ``--flights``
 flights of ``deploy.py`` (takeoff, the star, land; DATT + L1 as deployed) under the transfer

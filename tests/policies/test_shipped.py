@@ -52,7 +52,7 @@ def test_deploy_grade_checkpoint_is_the_output_of_experiment_deploy():
     from datt.tasks.phases import phase_config, phase_plan
 
     cfg = compose("train", ["experiment=deploy"])
-    assert cfg.train.init_from == "checkpoints/datt_h10.pt"
+    assert cfg.train.init_from == "checkpoints/datt_h10_iid.pt"
     plan = phase_plan(cfg)
     expected = OmegaConf.to_container(phase_config(cfg, len(plan) - 1, plan, "previous/last.pt"), resolve=True)
     data = load_checkpoint(resolve_path("checkpoints/datt_h10_deploy.pt"))
@@ -68,3 +68,22 @@ def test_deploy_grade_checkpoint_is_the_output_of_experiment_deploy():
         assert trained[key] == expected[key], key
     batch = cfg.algo.num_envs * cfg.algo.rollout_steps
     assert data["frames"] == -(-plan[-1][1] // batch) * batch  # the last phase's steps, in whole batches
+
+
+def test_shipped_checkpoint_is_the_output_of_python_train_py():
+    """``checkpoints/datt_h10.pt`` is what ``python train.py`` trains with today's defaults: its
+    whole config (env, policy, algo, references, curriculum, disturbance, adaptation, budget) is
+    the one the defaults compose, it has no parent, and it ran the whole budget."""
+    from omegaconf import OmegaConf
+
+    from datt.checkpoint import load_checkpoint
+
+    cfg = OmegaConf.to_container(compose("train"), resolve=True)
+    data = load_checkpoint(resolve_path("checkpoints/datt_h10.pt"))
+    trained = OmegaConf.to_container(OmegaConf.create(data["config_yaml"]), resolve=True)
+    for key in ("env", "policy", "algo", "traj", "curriculum", "disturbance", "adaptation", "horizon", "seed", "budget"):
+        assert trained[key] == cfg[key], key
+    assert trained["train"] == cfg["train"]
+    assert data["lineage"] == [] and trained["train"]["init_from"] is None
+    batch = cfg["algo"]["num_envs"] * cfg["algo"]["rollout_steps"]
+    assert data["frames"] == -(-cfg["train"]["total_steps"] // batch) * batch

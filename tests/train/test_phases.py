@@ -1,4 +1,4 @@
-"""A schedule in phases from one command (``train.phases``, ``experiment=shipped``): what each
+"""A schedule in phases from one command (``train.phases``, ``experiment=shipped_iid``): what each
 phase trains with, that phase k starts from phase k-1's weights, resume, and every bad schedule's
 error."""
 
@@ -43,7 +43,7 @@ def phased_cfg(phases=TWO_PHASES, total=2048, *extra):
 def test_shipped_experiment_is_the_five_phase_schedule():
     from datt.configuration import compose
 
-    cfg = compose("train", ["experiment=shipped"])
+    cfg = compose("train", ["experiment=shipped_iid"])
     plan = phase_plan(cfg)
     assert [name for name, _, _ in plan] == [
         "phase1_mix",
@@ -165,6 +165,6 @@ def test_bad_schedules_are_refused_before_anything_is_written(tmp_path, phases, 
 def test_a_bad_schedule_on_the_command_line_is_one_line(tmp_path, monkeypatch, capsys):
     from ..test_faults import TINY, one_line, run_cli
 
-    result = run_cli("train", [*TINY, "experiment=shipped", "train.total_steps=1000"], tmp_path, monkeypatch, capsys)
+    result = run_cli("train", [*TINY, "experiment=shipped_iid", "train.total_steps=1000"], tmp_path, monkeypatch, capsys)
     one_line(result, "error: train.phases: the phases add up to 64,000,000 steps but train.total_steps is 1,000; ")
     assert not (tmp_path / "outputs").exists() or not list((tmp_path / "outputs").rglob("*.pt"))
