@@ -24,7 +24,9 @@ def test_deploy_grade_policy_lands_off_board(tmp_path):
 
 
 @pytest.mark.parametrize(
-    "checkpoint", ["checkpoints/datt_h10_iid.pt", "checkpoints/datt_h10_deploy.pt"], ids=["former_shipped", "deploy_grade"]
+    "checkpoint",
+    ["checkpoints/datt_h10_iid.pt", "checkpoints/datt_h10_deploy.pt"],
+    ids=["former_shipped", "deploy_grade"],
 )
 def test_onboard_after_a_calibration_flight_passes(tmp_path, checkpoint):
     """The deploy procedure (calibration flight, then the policy in the vehicle's app) under the

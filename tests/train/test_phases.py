@@ -165,6 +165,7 @@ def test_bad_schedules_are_refused_before_anything_is_written(tmp_path, phases, 
 def test_a_bad_schedule_on_the_command_line_is_one_line(tmp_path, monkeypatch, capsys):
     from ..test_faults import TINY, one_line, run_cli
 
-    result = run_cli("train", [*TINY, "experiment=shipped_iid", "train.total_steps=1000"], tmp_path, monkeypatch, capsys)
+    args = [*TINY, "experiment=shipped_iid", "train.total_steps=1000"]
+    result = run_cli("train", args, tmp_path, monkeypatch, capsys)
     one_line(result, "error: train.phases: the phases add up to 64,000,000 steps but train.total_steps is 1,000; ")
     assert not (tmp_path / "outputs").exists() or not list((tmp_path / "outputs").rglob("*.pt"))

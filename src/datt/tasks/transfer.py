@@ -19,7 +19,8 @@ from datt.configuration import compose
 from datt.tasks.deploy import run_deploy
 from datt.tasks.eval import run_eval
 
-CHECKPOINTS = ["checkpoints/datt_h10_iid.pt", "checkpoints/datt_h10_deploy.pt"]  # what benchmarks/transfer.py flies by default
+# what benchmarks/transfer.py flies by default: the former shipped policy and the deploy-grade one
+CHECKPOINTS = ["checkpoints/datt_h10_iid.pt", "checkpoints/datt_h10_deploy.pt"]
 MASS_KG = 0.034  # deploy.thrust.mass_kg's default: what the controller believes
 CONDITIONS = {
     "deploy.server.radio_latency_s": 0.02,  # each way: 40 ms round trip
