@@ -135,18 +135,10 @@ class EnvParams:
         for key in OBS_NOISE_KEYS:
             val = getattr(self.obs, key)
             need(val >= 0, f"obs.{key}", f"must be >= 0, got {val}")
-        k = self.obs.action_history
-        need(
-            isinstance(k, int) and not isinstance(k, bool) and k >= 0,
-            "obs.action_history",
-            f"must be an integer >= 0, got {k!r}",
-        )
-        k = self.obs.critic_ref_points
-        need(
-            isinstance(k, int) and not isinstance(k, bool) and k >= 0,
-            "obs.critic_ref_points",
-            f"must be an integer >= 0, got {k!r}",
-        )
+        for key in ("action_history", "critic_ref_points"):
+            k = getattr(self.obs, key)
+            whole = isinstance(k, int) and not isinstance(k, bool) and k >= 0
+            need(whole, f"obs.{key}", f"must be an integer >= 0, got {k!r}")
         ratio = self.obs.critic_ref_spacing_s / self.dt_s
         need(
             self.obs.critic_ref_spacing_s > 0 and abs(ratio - round(ratio)) < 1e-6,

@@ -54,13 +54,13 @@ class PolicyParams:
     # Floor of the pre-tanh std, every action: scale = softplus(head + b) + min_std (tensordict's
     # biased softplus, b = inv_softplus(1 − min_std)). 0.01 is the floor every earlier policy was
     # trained with (tensordict's default), so checkpoints without this key keep their function.
-    # Without entropy bonus PPO shrinks the std as far as it helps the return: the shipped policy
-    # sits at the floor on every action (docs/training.md).
+    # Without entropy bonus PPO shrinks the std as far as it helps the return: the former shipped
+    # policy (datt_h10_iid.pt) sits at the floor on every action (docs/training.md).
     min_std: float = 0.01
     # Ceiling of the pre-tanh std, every action; null = none (the mapping above). With a ceiling
     # the std is min_std + (max_std − min_std) · sigmoid(head), bounded on both sides. Without
-    # one, training at γ = 0.95 let the std of the yaw rate and thrust grow to 5.7 and 0.5 in
-    # some states (bang-bang noise: crashes, slower steps; docs/training.md).
+    # one, training at γ = 0.95 let the yaw-rate and thrust std grow without bound in some
+    # states (bang-bang noise: crashes, slower steps; docs/training.md).
     max_std: float | None = None
     # Fixed gain on the tracking-error inputs (feedback and feedforward, metres) before the net.
     # Tracking errors are O(0.01-0.1 m) while the other inputs are O(1): unscaled, a 2 cm error
