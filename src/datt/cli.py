@@ -17,7 +17,7 @@ from pathlib import Path
 from omegaconf import DictConfig
 
 from datt.configuration import CONF_PACKAGE, available_options, conf_dir, config_groups, root_from_uri
-from datt.errors import ConfigError, FlightAborted, TrainingDiverged, TrainingInterrupted, one_line
+from datt.errors import ConfigError, FlightAborted, FlightStopped, TrainingDiverged, TrainingInterrupted, one_line
 from datt.runs import ignore_stop_signals, read_failure, record_failure
 
 
@@ -234,6 +234,9 @@ def hydra_main(config_name: str, task: Callable[[DictConfig], object]) -> Callab
         except TrainingInterrupted as exc:
             ignore_stop_signals()
             _fail(f"interrupted by {exc}", 130)  # the user stops the whole sweep too
+        except FlightStopped as exc:
+            ignore_stop_signals()
+            _fail(f"flight {exc}", 130)
         except KeyboardInterrupt:
             ignore_stop_signals()
             _fail("interrupted", 130)

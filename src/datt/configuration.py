@@ -8,8 +8,10 @@ user's options are found everywhere a group is listed or loaded.
 
 from __future__ import annotations
 
+import math
 import re
 import secrets
+from dataclasses import dataclass, field, fields
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -105,6 +107,64 @@ def with_options(cfg: DictConfig, **choices) -> DictConfig:
     for group, choice in choices.items():
         out[group] = load_option(group, choice) if isinstance(choice, str) else choice
     return out
+
+
+@dataclass(frozen=True)
+class Range:
+    """The values a numeric schema field accepts: finite, within ``low``..``high`` (each bound
+    open or closed); ``optional``: None is accepted too. Declared once per field with
+    :func:`ranged`, checked by :func:`check_ranges` (list fields: every element)."""
+
+    low: float = -math.inf
+    high: float = math.inf
+    low_open: bool = False
+    high_open: bool = False
+    optional: bool = False
+
+    def accepts(self, value: Any) -> bool:
+        if value is None:
+            return self.optional
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            return False
+        above = value > self.low if self.low_open else value >= self.low
+        below = value < self.high if self.high_open else value <= self.high
+        return above and below
+
+    def text(self) -> str:
+        bounds = []
+        if self.low > -math.inf:
+            bounds.append(f"{'>' if self.low_open else '>='} {self.low:g}")
+        if self.high < math.inf:
+            bounds.append(f"{'<' if self.high_open else '<='} {self.high:g}")
+        return (
+            "a finite number" + (" " + " and ".join(bounds) if bounds else "") + (" or null" if self.optional else "")
+        )
+
+
+def ranged(default: Any, rng: Range, **kwargs: Any) -> Any:
+    """A dataclass field whose values must lie in ``rng`` (a list default: each element)."""
+    if isinstance(default, list):
+        return field(default_factory=lambda: list(default), metadata={"range": rng}, **kwargs)
+    return field(default=default, metadata={"range": rng}, **kwargs)
+
+
+def check_ranges(obj: Any, key: str) -> None:
+    """Every field of the dataclass ``obj`` declared with :func:`ranged` holds allowed values;
+    else one ConfigError naming the key, the value and the allowed range."""
+    for f in fields(obj):
+        rng = f.metadata.get("range")
+        if rng is None:
+            continue
+        value = getattr(obj, f.name)
+        items = value if isinstance(value, (list, tuple)) else [value]
+        if not items or not all(rng.accepts(v) for v in items):
+            what = f"a list, each element {rng.text()}" if isinstance(value, (list, tuple)) else rng.text()
+            raise ConfigError(f"{key}.{f.name}: must be {what}, got {value!r}")
+
+
+POSITIVE = Range(0.0, low_open=True)
+NON_NEGATIVE = Range(0.0)
+FINITE = Range()
 
 
 def structured(cls, node, key: str):

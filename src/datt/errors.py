@@ -26,6 +26,16 @@ class FlightAborted(RuntimeError):
     is written. The entry points exit with 4."""
 
 
+class FlightStopped(RuntimeError):
+    """A stop signal before arming: the flight ended with nothing armed; the log is written. The
+    entry points exit with 130."""
+
+
+class LinkError(RuntimeError):
+    """The radio link to the vehicle failed: it could not connect, or the vehicle did not answer
+    or refused a setting (``datt.deploy.link``)."""
+
+
 def one_line(exc: BaseException) -> str:
     """Collapse an exception (and Hydra/OmegaConf wrappers) to its innermost one-line message."""
     while exc.__cause__ is not None:

@@ -110,11 +110,13 @@ def _fly(tmp_path, *overrides):
 def test_connect_selects_kalman_and_rate_mode_and_close_restores_angle_mode(tmp_path):
     summary, server, _ = _fly(tmp_path)
     assert summary["outcome"] == "landed"
-    assert server.params["stabilizer.estimator"] == 2
+    estimators = [text for _, text in server.events if text.startswith("param stabilizer.estimator")]
+    assert estimators == ["param stabilizer.estimator = 2", "param stabilizer.estimator = 1"]  # set, then restored
+    assert server.params["stabilizer.estimator"] == 1  # as it booted (no positioning deck: complementary)
     modes = [text for _, text in server.events if text.startswith("param flightmode.stabMode")]
     # rate mode for the flight, angle mode restored on close (for whoever flies it next)
     assert modes[:2] == ["param flightmode.stabModeRoll = 0", "param flightmode.stabModePitch = 0"]
-    assert modes[-2:] == ["param flightmode.stabModeRoll = 1", "param flightmode.stabModePitch = 1"]
+    assert modes[-2:] == ["param flightmode.stabModePitch = 1", "param flightmode.stabModeRoll = 1"]
     assert server.yaw_aligned  # the default simulated vehicle booted 25 deg off the mocap x axis
 
 

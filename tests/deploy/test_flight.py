@@ -44,9 +44,18 @@ def fly(tmp_path, overrides=(), hook=None, estop=None):
     return summary, server
 
 
-def after(seconds, fn):
-    t = threading.Timer(seconds, fn)
-    t.daemon = True
+def after(seconds, fn, runner, phase="TRACK"):
+    """``fn()`` ``seconds`` after the flight enters ``phase`` (flight time, not wall time since
+    the start: connecting and the preflight take as long as they take)."""
+
+    def wait():
+        while runner.phase != phase and runner.phase != "DISARM":
+            time.sleep(0.005)
+        if runner.phase == phase:
+            time.sleep(seconds)
+            fn()
+
+    t = threading.Thread(target=wait, daemon=True)
     t.start()
     return t
 
@@ -72,7 +81,7 @@ def test_nominal_flight_tracks_and_lands(tmp_path):
 
 def test_estop_kills_first(tmp_path):
     estop = threading.Event()
-    summary, server = fly(tmp_path, hook=lambda s, r: after(3.0, estop.set), estop=estop)
+    summary, server = fly(tmp_path, hook=lambda s, r: after(0.5, estop.set, r), estop=estop)
     assert summary["outcome"] == "killed: operator e-stop"
     assert server.emergency_stopped and motors_stopped(server)
     kill = next(e for e in summary["events"] if e["kind"] == "KILL")
@@ -87,7 +96,7 @@ def test_geofence_breach(tmp_path):
             with server._lock:
                 server.quad.state.pos_m[0, 0] = 1.2
 
-        after(2.5, move)
+        after(0.2, move, runner)
 
     summary, server = fly(
         tmp_path, ["deploy.safety.geofence_max_m=[0.9,0.9,2.5]", "deploy.safety.geofence_margin_m=0.05"], hook=push
@@ -112,7 +121,7 @@ def test_mocap_dropout_lands(tmp_path):
 
 
 def test_server_killed_mid_flight(tmp_path):
-    summary, server = fly(tmp_path, hook=lambda s, r: after(3.0, s.kill))
+    summary, server = fly(tmp_path, hook=lambda s, r: after(0.5, s.kill, r))
     assert summary["outcome"].startswith("killed:"), summary["outcome"]
     assert any(word in summary["outcome"] for word in ("stale", "link lost"))
 
@@ -121,7 +130,7 @@ def test_wedged_radio_library_kills_instead_of_hanging(tmp_path):
     # cflib's failure mode when a link dies mid-send: Crazyflie._send_lock stays held and every
     # later send blocks forever. The runner must not block with it: KILL, log, return.
     def wedge(server, runner):
-        after(3.0, lambda: runner.link.cf._send_lock.acquire())
+        after(0.5, lambda: runner.link.cf._send_lock.acquire(), runner)
 
     summary, server = fly(tmp_path, hook=wedge)
     assert summary["outcome"] == "killed: link lost"
@@ -173,7 +182,7 @@ def test_link_loss_stops_the_motors_through_the_estop_watchdog(tmp_path):
     climb, and motors off only at 2 s)."""
 
     def cut_the_radio(server, runner):
-        after(3.0, lambda: runner.link.cf._send_lock.acquire())
+        after(0.5, lambda: runner.link.cf._send_lock.acquire(), runner)
 
     summary, server = fly(tmp_path, hook=cut_the_radio)
     assert summary["outcome"] == "killed: link lost"

@@ -32,7 +32,7 @@ def built(tmp_path_factory):
 
 
 def loaded(built, n_points=40, track_steps=20, **params) -> OnboardApp:
-    app = OnboardApp(built[4])
+    app = OnboardApp(built[4], controller_id=6)
     table = [(0.01 * k, -0.02 * k, 0.005 * k) for k in range(n_points)]
     for i in range(0, n_points, 2):
         assert app.receive(onboard.points_packet(i, table[i : i + 2])) == bytes([onboard.PKT_ACK, i & 255, i >> 8, 0])
@@ -68,7 +68,7 @@ def test_the_policy_id_names_the_weights_and_constants(built):
     spec = built[0]
     header = (built[2] / "src" / "datt_policy.h").read_text()
     assert f"#define DATT_POLICY_ID 0x{policy_id(spec):08x}u" in header
-    assert OnboardApp(built[4]).get("policyId") == policy_id(spec)
+    assert OnboardApp(built[4], controller_id=6).get("policyId") == policy_id(spec)
     other = copy.deepcopy(spec)
     other.head[1][0] += 1e-6  # one bias, one ulp-scale change
     assert policy_id(other) != policy_id(spec)
@@ -92,7 +92,7 @@ def test_host_constants_are_the_headers():
 
 
 def test_upload_packets_are_acknowledged_or_refused(built):
-    app = OnboardApp(built[4])
+    app = OnboardApp(built[4], controller_id=6)
     assert app.self_test_ok
     ack = app.receive(onboard.points_packet(7, [(1.0, 2.0, 3.0)]))
     assert onboard.parse_ack(ack) == (7, onboard.ACK_OK) and app.status().n_received == 1
@@ -206,7 +206,7 @@ def test_the_uncertainty_limit_is_a_checked_setting():
     from datt.errors import ConfigError
 
     cfg = compose("deploy", ["deploy.flight.onboard_max_pos_std_m=-1"])
-    with pytest.raises(ConfigError, match="deploy.flight.onboard_max_pos_std_m: must be >= 0"):
+    with pytest.raises(ConfigError, match="deploy.flight.onboard_max_pos_std_m: must be a finite number >= 0"):
         deploy_params(cfg.deploy)
 
 
@@ -221,8 +221,36 @@ def test_the_uncertainty_limit_is_a_checked_setting():
 def test_abort_stops_the_motors(built, pos, quat):
     app = loaded(built)
     app.run_request = 1
+    sp, _ = app.tick([0.0, 0.0, 1.0], [0, 0, 0], LEVEL)
+    assert app.phase == onboard.TRACK and sp.stop == 0
     sp, _ = app.tick(pos, [0, 0, 0], quat)
     assert app.phase == onboard.ABORTED and sp.stop == 1 and sp.thrust == 0
+
+
+@pytest.mark.parametrize(
+    "quat, age_s",
+    [([0.0, 0.0, 0.0, 0.0], 0.0), ([0.9, 0.0, 0.0, 0.0], 0.0), ([1.0, 0.0, 0.0, math.nan], 0.0), (LEVEL, 0.011),
+     (LEVEL, math.inf)],
+    ids=["zero quaternion (never written)", "not unit", "nan", "stale", "hook never ran"],
+)  # fmt: skip
+def test_the_app_refuses_to_start_on_a_state_it_cannot_trust(built, quat, age_s):
+    app = loaded(built)
+    app.run_request = 1
+    sp, _ = app.tick([0.0, 0.0, 1.0], [0, 0, 0], quat, state_age_s=age_s)
+    assert app.phase == onboard.REFUSED and sp is None
+
+
+def test_a_stale_state_in_flight_pushes_no_setpoint(built):
+    """The commander's watchdog then levels the vehicle and stops it; the app does not fly blind."""
+    app = loaded(built)
+    app.run_request = 1
+    sp, _ = app.tick([0.0, 0.0, 1.0], [0, 0, 0], LEVEL, state_age_s=0.0)
+    assert sp is not None and app.phase == onboard.TRACK
+    step = app.status().step
+    sp, _ = app.tick([0.0, 0.0, 1.0], [0, 0, 0], LEVEL, state_age_s=0.05)
+    assert sp is None and app.status().step == step
+    sp, _ = app.tick([0.0, 0.0, 1.0], [0, 0, 0], LEVEL, state_age_s=0.0)
+    assert sp is not None and app.status().step == step + 1
 
 
 def test_a_74_degree_tilt_flies_on(built):

@@ -79,13 +79,17 @@ def test_thrust_params_are_the_deploy_config_defaults():
 @pytest.mark.parametrize(
     "kwargs, message",
     [
-        ({"mass_kg": 0.0}, "deploy.thrust.mass_kg: must be > 0, got 0.0"),
-        ({"thrust_max_n": 0.0}, "deploy.thrust.thrust_max_n: must be > 0, got 0.0"),
+        ({"mass_kg": 0.0}, "deploy.thrust.mass_kg: must be a finite number > 0, got 0.0"),
+        ({"thrust_max_n": 0.0}, "deploy.thrust.thrust_max_n: must be a finite number > 0, got 0.0"),
         ({"max_command": 0}, "deploy.thrust.max_command: must be in (0, 65535], got 0"),
         ({"max_command": 65536}, "deploy.thrust.max_command: must be in (0, 65535], got 65536"),
-        ({"hover_command": 0.0}, "deploy.thrust.hover_command: must be in (0, max_command), got 0.0"),
+        ({"hover_command": 0.0}, "deploy.thrust.hover_command: must be a finite number > 0 or null, got 0.0"),
+        ({"mass_kg": float("inf")}, "deploy.thrust.mass_kg: must be a finite number > 0, got inf"),
         ({"hover_command": 60000.0}, "deploy.thrust.hover_command: must be in (0, max_command), got 60000.0"),
-        ({"slope_mps2_per_command": -1.0}, "deploy.thrust.slope_mps2_per_command: must be > 0 or null, got -1.0"),
+        (
+            {"slope_mps2_per_command": -1.0},
+            "deploy.thrust.slope_mps2_per_command: must be a finite number > 0 or null, got -1.0",
+        ),
         (
             {"mass_kg": 0.05},
             "deploy.thrust: a 50.0 g vehicle needs command 66969 to hover with thrust_max_n=0.12 N, "

@@ -24,21 +24,36 @@ from __future__ import annotations
 import collections
 import math
 import queue
+import struct
 import threading
 import time
 from dataclasses import dataclass
 
+from datt.deploy import firmware
+from datt.deploy.firmware import fact
+from datt.errors import LinkError
 
-class LinkError(RuntimeError):
-    pass
+PARAM_READ_CHANNEL = 1  # param port: read replies are <id:2><status:1><value>; write echoes come on channel 2
+# Off-board flight settings, in the order they are set (and restored in reverse at close): only the
+# PID and INDI controllers fly roll/pitch-rate setpoints; the position/altitude holds of the
+# legacy commander turn thrust and attitude setpoints into velocity commands; rate mode makes
+# roll/pitch rates; the Kalman filter is the estimator that takes external positions.
+OFFBOARD_SETTINGS = (
+    (str(fact("param_controller")), firmware.CONTROLLER_PID),
+    (str(fact("param_althold")), 0),
+    (str(fact("param_poshold")), 0),
+    (str(fact("param_posset")), 0),
+    (str(fact("param_stab_mode_roll")), 0),
+    (str(fact("param_stab_mode_pitch")), 0),
+    (str(fact("param_estimator")), firmware.ESTIMATOR_KALMAN),
+)
+# a write takes effect in the firmware's stabilizer loop (controller and estimator switch there): read
+# back only after this long (at least one cycle of the simulated vehicle's 50 Hz loop, 500 of a real one)
+PARAM_SETTLE_S = 0.05
 
 
-# stabilizer.estimator: 0 any (complementary unless a deck needs Kalman), 1 complementary, 2 Kalman
-KALMAN_ESTIMATOR = 2
 # Decks that give the Kalman filter a position (or flow + height) of its own (firmware deck drivers'
 # requiredEstimator = kalman); without one and without mocap, x and y are unobserved.
-SUPERVISOR_GET_STATE_BITFIELD = 12  # crtp_supervisor.c, info channel
-SUPERVISOR_BIT_LOCKED, SUPERVISOR_BIT_CRASHED, SUPERVISOR_BIT_TUMBLED = 6, 7, 5
 POSITIONING_DECKS = ("deck.bcLighthouse4", "deck.bcDWM1000", "deck.bcLoco", "deck.bcFlow", "deck.bcFlow2")
 
 
@@ -132,6 +147,7 @@ class CrazyflieLink:
         self.variances: collections.deque = collections.deque(maxlen=50)  # (varPX, varPY, varPZ) samples
         self._lock = threading.Lock()
         self.cf = None
+        self.restore: dict[str, float] = {}  # parameters set at connect -> the value they held before
 
     # -- connection ------------------------------------------------------------------------
     def connect(self, external_position: bool = True) -> CrazyflieLink:
@@ -207,43 +223,75 @@ class CrazyflieLink:
                     "deploy.mocap.source: none, and the vehicle has no positioning deck (Lighthouse, Loco, Flow): "
                     "its estimator would not know x and y; set deploy.mocap.source=motioncapture"
                 )
-        for name, value in (
-            ("flightmode.stabModeRoll", 0),
-            ("flightmode.stabModePitch", 0),
-            ("stabilizer.estimator", KALMAN_ESTIMATOR),
-        ):
-            self.set_param_checked(name, value)
+        self.set_params_checked(dict(OFFBOARD_SETTINGS))
 
     def _in_toc(self, name: str) -> bool:
         group, short = name.split(".")
         return short in self.cf.param.toc.toc.get(group, {})
 
     def read_param(self, name: str) -> float:
-        """The value the vehicle holds now (asked for over the link, not cflib's cache)."""
-        group, short = name.split(".")
+        """The value the vehicle holds now: a read request answered on the read channel. Write
+        echoes are ignored (the firmware answers a write with the request itself, and cflib hands
+        both to its update callbacks), and so is cflib's cache."""
+        from cflib.crtp.crtpstack import CRTPPort
+
+        element = self.cf.param.toc.get_element_by_complete_name(name)
+        if element is None:
+            raise LinkError(f"connect: the vehicle has no parameter {name} (firmware too old?)")
+        ident = struct.pack("<H", element.ident)
         got, seen = threading.Event(), []
 
-        def cb(_name, value):
-            seen.append(value)
-            got.set()
+        def cb(pk):
+            data = bytes(pk.data)
+            if pk.channel == PARAM_READ_CHANNEL and data[:2] == ident and len(data) >= 3:
+                seen.append(struct.unpack(element.pytype, data[3:])[0])
+                got.set()
 
-        self.cf.param.add_update_callback(group=group, name=short, cb=cb)
+        self.cf.add_port_callback(CRTPPort.PARAM, cb)
         try:
             self.cf.param.request_param_update(name)
             if not got.wait(self._io.timeout_s * 4):
                 raise LinkError(f"connect: no answer reading {name} from the vehicle")
         finally:
-            self.cf.param.remove_update_callback(group, short, cb)
+            self.cf.remove_port_callback(CRTPPort.PARAM, cb)
         return float(seen[-1])
 
     def set_param_checked(self, name: str, value: float) -> None:
-        """Set ``name`` and read it back; a vehicle that keeps another value is refused."""
-        if not self._in_toc(name):
-            raise LinkError(f"connect: the vehicle has no parameter {name} (firmware too old?)")
-        self.cf.param.set_value(name, value)
-        got = self.read_param(name)
-        if got != float(value):
-            raise LinkError(f"connect: {name} reads back {got:g} after setting {value}")
+        """:meth:`set_params_checked` of one parameter."""
+        self.set_params_checked({name: value})
+
+    def set_params_checked(self, values: dict[str, float]) -> None:
+        """Set each parameter, wait for the firmware's loop to act on them, then read each back
+        fresh; a vehicle that holds another value (a read-only parameter, an id its firmware
+        does not know) is refused. The value each held first is remembered and restored at
+        :meth:`close`."""
+        expected = {}
+        for name, value in values.items():
+            element = self.cf.param.toc.get_element_by_complete_name(name) if self._in_toc(name) else None
+            if element is None:
+                raise LinkError(f"connect: the vehicle has no parameter {name} (firmware too old?)")
+            number = float(value) if element.pytype in ("<f", "<d", "<e") else int(value)
+            expected[name] = float(struct.unpack(element.pytype, struct.pack(element.pytype, number))[0])
+            if name not in self.restore:
+                self.restore[name] = self.read_param(name)
+        for name, value in values.items():
+            self.cf.param.set_value(name, value)
+        time.sleep(PARAM_SETTLE_S)
+        for name, value in values.items():
+            got = self.read_param(name)
+            if got != expected[name]:
+                raise LinkError(f"connect: {name} reads back {got:g} after setting {value}")
+
+    def wait_armed(self, timeout_s: float) -> bool:
+        """True once the supervisor reports the vehicle armed (``supervisor.info`` bit), False
+        if it has not within ``timeout_s`` (the supervisor updates at 25 Hz)."""
+        deadline = time.monotonic() + timeout_s
+        while True:
+            if self.supervisor_bits() & firmware.SUPERVISOR_BIT_ARMED:
+                return True
+            if time.monotonic() >= deadline or self.link_lost.is_set():
+                return False
+            time.sleep(firmware.SUPERVISOR_PERIOD_S / 2)
 
     def _make_cb(self, store: str):
         def cb(timestamp, data, logconf):
@@ -267,22 +315,23 @@ class CrazyflieLink:
             self._on_lost(self.uri, f"{what}: {type(error).__name__}: {error}")
 
     def supervisor_bits(self) -> int:
-        """The supervisor's state bitfield, asked for over the link (bit 1 armed, 3 can fly, 6
-        locked, 7 crashed; ``crtp_supervisor.c``)."""
+        """The supervisor's state bitfield, asked for over the link (``supervisor.info``; the bits
+        in :mod:`datt.deploy.firmware`)."""
         from cflib.crtp.crtpstack import CRTPPacket, CRTPPort
 
         got, seen = threading.Event(), []
 
         def cb(pk):
-            if pk.channel == 0 and len(pk.data) >= 3 and pk.data[0] == 0x80 | SUPERVISOR_GET_STATE_BITFIELD:
+            reply = firmware.SUPERVISOR_CMD_RESPONSE | firmware.SUPERVISOR_CMD_GET_STATE_BITFIELD
+            if pk.channel == fact("supervisor_info_channel") and len(pk.data) >= 3 and pk.data[0] == reply:
                 seen.append(int.from_bytes(bytes(pk.data[1:3]), "little"))
                 got.set()
 
         self.cf.add_port_callback(CRTPPort.SUPERVISOR, cb)
         try:
             pk = CRTPPacket()
-            pk.set_header(CRTPPort.SUPERVISOR, 0)
-            pk.data = bytes([SUPERVISOR_GET_STATE_BITFIELD])
+            pk.set_header(CRTPPort.SUPERVISOR, int(fact("supervisor_info_channel")))
+            pk.data = bytes([firmware.SUPERVISOR_CMD_GET_STATE_BITFIELD])
             self._send("supervisor state", self.cf.send_packet, pk)
             if not got.wait(self._io.timeout_s * 4):
                 raise LinkError("preflight: the vehicle does not answer the supervisor state request (old firmware?)")
@@ -292,15 +341,20 @@ class CrazyflieLink:
 
     def close(self) -> None:
         if self.cf is not None:
-            if not self.link_lost.is_set():  # leave the vehicle in angle mode for the next user (best effort)
-                for name in ("flightmode.stabModeRoll", "flightmode.stabModePitch"):
-                    if self._io.call(self.set_param_checked, name, 1, timeout_s=self._io.timeout_s * 4) is not None:
-                        break
+            if not self.link_lost.is_set() and self.restore:  # the settings changed back as they were (best effort)
+                self._io.call(self._restore_settings, timeout_s=self._io.timeout_s * 8)
             # bounded like the sends; cflib joins its packet thread here (up to 1 s), hence the
             # longer bound. Errors must not mask the flight's outcome.
             error = self._io.call(self.cf.close_link, timeout_s=max(2.0, self._io.timeout_s))
             if isinstance(error, TimeoutError):
                 self._on_lost(self.uri, f"close: {error}")
+
+    def _restore_settings(self) -> None:
+        """Write back the values the parameters set at connect held before, newest first; cflib
+        sends queued writes one at a time, so a read behind them waits until all have landed."""
+        for name, value in reversed(list(self.restore.items())):
+            self.cf.param.set_value(name, value)
+        self.read_param(next(iter(self.restore)))
 
     # -- state -----------------------------------------------------------------------------
     def state(self) -> StateSample | None:

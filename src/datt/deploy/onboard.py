@@ -9,17 +9,20 @@ import struct
 import threading
 import time
 
+from datt.deploy.firmware import APP_CHANNEL_RX_QUEUE
+
 PKT_POINTS, PKT_ACK = 0x01, 0x81
 ACK_OK, ACK_RANGE, ACK_BUSY, ACK_MALFORMED = 0, 1, 2, 3
 POINTS_PER_PACKET = 2  # 4 + 2 * 12 bytes: within the app channel's 30
 TABLE_MAX = 1024  # DATT_TABLE_MAX of the app as exported
 IDLE, TRACK, LAND, DONE, ABORTED, REFUSED = range(6)
-CONTROLLER_OOT = 5  # stabilizer.controller: the out-of-tree controller (the app's state hook)
+READ_ONLY = ("policyId", "controllerId")  # PARAM_RONLY in app_datt.c
 
 # (name, C type, datt_onboard_params field, index or None): the app's parameter group "datt"
 PARAMS = [
     ("run", "uint8_t", None, None),
     ("policyId", "uint32_t", None, None),  # read-only: DATT_POLICY_ID of the policy compiled in
+    ("controllerId", "uint8_t", None, None),  # read-only: ControllerTypeOot of the firmware it was built in
     ("originX", "float", "origin_m", 0),
     ("originY", "float", "origin_m", 1),
     ("originZ", "float", "origin_m", 2),
@@ -89,9 +92,13 @@ class Upload:
             elif index in self.pending:
                 self.errors.append(f"point {index}: the app answered status {status}")
 
-    def run(self, window: int = 16) -> None:
+    def run(self, window: int = APP_CHANNEL_RX_QUEUE) -> None:
         """Send ``window`` packets, wait for their acknowledgements (or ``timeout_s``), repeat;
-        raises RuntimeError when a packet stays unacknowledged or is refused."""
+        raises RuntimeError when a packet stays unacknowledged or is refused. The firmware queues
+        at most :data:`APP_CHANNEL_RX_QUEUE` incoming app-channel packets and drops the rest, so
+        a window never exceeds it."""
+        if not 1 <= window <= APP_CHANNEL_RX_QUEUE:
+            raise ValueError(f"upload window {window}: the app channel queues 1..{APP_CHANNEL_RX_QUEUE} packets")
         while True:
             with self._lock:
                 if self.errors:

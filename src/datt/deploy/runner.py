@@ -24,16 +24,17 @@ import math
 import signal
 import threading
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from datt.deploy import onboard
-from datt.deploy.link import SUPERVISOR_BIT_CRASHED, SUPERVISOR_BIT_LOCKED, SUPERVISOR_BIT_TUMBLED
+from datt.configuration import FINITE, NON_NEGATIVE, POSITIVE, Range, check_ranges, ranged
+from datt.deploy import firmware, onboard
 from datt.deploy.safety import KILL, LAND, OK, BatteryFilter, SafetyParams, check, tilt_deg
 from datt.deploy.thrust import ThrustMap
+from datt.errors import LinkError
 from datt.refs.base import RefFamily
 from datt.runs import stop_signals
 
@@ -56,6 +57,8 @@ class Ramp(RefFamily):
         return (self.start + u * (self.end - self.start)).to(t_s.dtype).expand(n, len(t_s), 3).clone()
 
 
+APP_STALL_S = 0.3  # onboard: the app's step counter still this long while it should fly: the host takes over
+PRE_ARM_PHASES = ("CONNECT", "PREFLIGHT")  # a stop here ends the flight with nothing armed
 LINK_LOST = "LINK_LOST"  # onboard flights: the host lost the vehicle while the app flew on
 
 
@@ -96,30 +99,26 @@ class FlightModel:
 
 @dataclass
 class FlightParams:
-    rate_hz: float = 50.0
-    takeoff_height_m: float = 1.0
-    takeoff_s: float = 2.5
-    hover_s: float = 1.0
-    track_s: float | None = None  # None = the env's episode length
-    land_s: float = 2.5
-    preflight_timeout_s: float = 3.0
-    min_battery_v: float = 3.7
-    late_tick_ms: float = 5.0
+    rate_hz: float = ranged(50.0, POSITIVE)
+    takeoff_height_m: float = ranged(1.0, POSITIVE)
+    takeoff_s: float = ranged(2.5, POSITIVE)
+    hover_s: float = ranged(1.0, NON_NEGATIVE)
+    track_s: float | None = ranged(None, Range(0.0, low_open=True, optional=True))  # None = the env's episode
+    land_s: float = ranged(2.5, POSITIVE)
+    preflight_timeout_s: float = ranged(3.0, POSITIVE)
+    arm_timeout_s: float = ranged(1.0, POSITIVE)  # the supervisor must report "armed" within this
+    min_battery_v: float = ranged(3.7, NON_NEGATIVE)
+    late_tick_ms: float = ranged(5.0, POSITIVE)
     estop_watchdog: bool = True  # send the firmware's e-stop watchdog every tick (motors off 1 s after the last)
-    origin_m: list = field(default_factory=lambda: [0.0, 0.0])  # hover point x, y (z = takeoff_height_m)
-    onboard_max_pos_std_m: float = 0.1  # deploy.onboard: the app lands when its position std exceeds this
+    origin_m: list = ranged([0.0, 0.0], FINITE)  # hover point x, y (z = takeoff_height_m)
+    onboard_max_pos_std_m: float = ranged(0.1, NON_NEGATIVE)  # deploy.onboard: the app lands above this (0: never)
 
     def validate(self) -> None:
         from datt.errors import ConfigError
 
-        if not self.rate_hz > 0:
-            raise ConfigError(f"deploy.flight.rate_hz: must be > 0, got {self.rate_hz}")
-        if not self.takeoff_height_m > 0:
-            raise ConfigError(f"deploy.flight.takeoff_height_m: must be > 0, got {self.takeoff_height_m}")
-        if not self.onboard_max_pos_std_m >= 0:
-            raise ConfigError(
-                f"deploy.flight.onboard_max_pos_std_m: must be >= 0 (0: never), got {self.onboard_max_pos_std_m}"
-            )
+        check_ranges(self, "deploy.flight")
+        if len(self.origin_m) != 2:
+            raise ConfigError(f"deploy.flight.origin_m: need 2 values (x, y), got {self.origin_m!r}")
 
 
 class FlightRunner:
@@ -139,6 +138,8 @@ class FlightRunner:
         console=None,
         onboard: bool = False,
         onboard_policy_id: int | None = None,
+        stop_request=None,
+        summary_extra: dict | None = None,
     ) -> None:
         self.link, self.mocap = link, mocap
         self.make_env, self.track_controller, self.pid_factory = make_env, track_controller, pid_factory
@@ -159,6 +160,9 @@ class FlightRunner:
         self._app: dict = {"samples": {}, "last": None}  # the app's log: step -> its error, latest values
         self._onboard_steps = 0  # TRACK steps the app flies (set when the reference is uploaded)
         self.onboard_policy_id = onboard_policy_id  # the app must carry this policy (datt.export.c_code.policy_id)
+        self.stop_request = stop_request  # datt.runs.StopRequest active while the flight was prepared
+        self.upload_s: float | None = None  # onboard: the reference upload's duration
+        self.summary_extra = dict(summary_extra or {})  # recorded in events.json with the summary
 
     # -- helpers ---------------------------------------------------------------------------
     def _event(self, kind: str, text: str = "", **extra) -> None:
@@ -218,9 +222,12 @@ class FlightRunner:
     def _flight(self, build, airborne) -> dict:
         """CONNECT -> PREFLIGHT -> ``build(start)`` -> ARM -> ``airborne(origin, built)`` -> DISARM;
         the flight log is written whatever happens. Models are built (and the policy traced)
-        before the motors spin, so nothing stalls the control loop mid-flight."""
+        before the motors spin, so nothing stalls the control loop mid-flight. A stop request
+        before arming (also one made while the flight was being prepared: ``stop_request``) ends
+        the flight unarmed; after arming it KILLs."""
         try:
             with stop_signals(_raise_interrupt):
+                self._stop_if_requested()
                 self._set_phase("CONNECT")
                 self.link.connect(external_position=self._has_mocap())
                 if self.mocap is not None:
@@ -229,15 +236,24 @@ class FlightRunner:
                 start = self._preflight()
                 origin = self._origin()
                 built = build(start - origin)
-                self._set_phase("ARM")
-                self.link.arm(True)
-                self.link.send_rates(0.0, 0.0, 0.0, 0)  # unlocks the firmware's thrust lock
-                time.sleep(0.05)
+                self._stop_if_requested()
+                self._arm()
                 airborne(origin, built)
         except _Abort:
             pass
         except KeyboardInterrupt as exc:
-            self._kill(f"operator interrupt ({exc.args[0] if exc.args else 'Ctrl-C'})")
+            why = exc.args[0] if exc.args else "Ctrl-C"
+            if self.phase in PRE_ARM_PHASES:
+                self._stopped(why)
+            else:
+                self._kill(f"operator interrupt ({why})")
+        except LinkError as exc:
+            if self.phase == "CONNECT":
+                raise  # the vehicle could not be reached or refused a setting: the command's error
+            self.outcome = f"link lost: {exc}"
+            self._event("link lost", str(exc))
+            if self.phase not in PRE_ARM_PHASES:
+                self._kill(str(exc))
         finally:
             with stop_signals(signal.SIG_IGN):  # a second Ctrl-C must not cut the disarm or the log short
                 self._set_phase("DISARM")
@@ -257,6 +273,35 @@ class FlightRunner:
                     self._event("close failed", str(exc))
                     summary = self._write()
         return summary
+
+    def _stop_if_requested(self) -> None:
+        """A stop signal that arrived while the flight was being prepared (before the runner
+        took the signals over) ends it here, before anything is armed."""
+        if self.stop_request is not None and self.stop_request.signal is not None:
+            raise KeyboardInterrupt(self.stop_request.signal)
+
+    def _stopped(self, why: str) -> None:
+        self.outcome = f"stopped before arming ({why}): nothing was armed"
+        self._event("stopped", self.outcome)
+
+    def _arm(self) -> None:
+        """Arm, and take off only once the supervisor reports the vehicle armed: a firmware
+        that refuses (or needs longer) would otherwise fly the track on the ground."""
+        self._set_phase("ARM")
+        self.link.arm(True)
+        try:
+            armed = self.link.wait_armed(self.p.arm_timeout_s)
+        except LinkError as exc:
+            armed, why = False, str(exc)
+        else:
+            why = f"the supervisor did not report the vehicle armed within {self.p.arm_timeout_s:g} s"
+        if not armed:
+            self.link.arm(False)
+            self.outcome = f"arming failed: {why} (supervisor.info); nothing flew"
+            self._event("arming failed", self.outcome)
+            raise _Abort(self.outcome)
+        self._event("armed", "the supervisor reports the vehicle armed")
+        self.link.send_rates(0.0, 0.0, 0.0, 0)  # unlocks the firmware's thrust lock
 
     def _takeoff(self, start_rel: np.ndarray) -> tuple:
         model = self._model(self.pid_factory(), Ramp(start_rel, [0.0, 0.0, 0.0], self.p.takeoff_s))
@@ -307,7 +352,7 @@ class FlightRunner:
         return self._flight(build, airborne)
 
     def _onboard_track_steps(self, model: FlightModel) -> int:
-        duration = self.p.track_s or model.env.params.episode_steps * model.env.dt_s
+        duration = self._duration_s(model, self.p.track_s)
         return int(round(duration * self.p.rate_hz))
 
     def _onboard_prepare(self, track: FlightModel) -> None:
@@ -356,10 +401,13 @@ class FlightRunner:
             "maxTiltDeg": self.safety.max_tilt_deg,
             "maxPosStdM": self.p.onboard_max_pos_std_m,
         }
-        self.link.set_param_checked("datt.run", 0)
-        self.link.set_param_checked("stabilizer.controller", onboard.CONTROLLER_OOT)  # the app's state hook
-        for name, value in values.items():
-            self.link.set_param(f"datt.{name}", value)
+        controller = self._app_controller_id()
+        try:  # every setting the onboard flight depends on, read back fresh
+            self.link.set_params_checked({"datt.run": 0, **{f"datt.{name}": value for name, value in values.items()}})
+            self.link.set_param_checked(str(firmware.fact("param_controller")), controller)
+        except LinkError as exc:
+            self._refuse(f"preflight failed: deploy.onboard: {str(exc).removeprefix('connect: ')}")
+        self._event("onboard", f"stabilizer.controller = {controller} (the app's out-of-tree controller), read back")
         upload = onboard.Upload(self.link.send_app_packet, table)
         self.link.on_app_packet(upload.on_packet)
         started = time.monotonic()
@@ -367,9 +415,27 @@ class FlightRunner:
             upload.run()
         except RuntimeError as exc:
             self._refuse(f"preflight failed: the reference upload to the app failed: {exc}")
-        self._event("onboard", f"reference uploaded: {len(table)} points in {time.monotonic() - started:.2f} s")
+        self.upload_s = time.monotonic() - started
+        self._event("onboard", f"reference uploaded: {len(table)} points in {self.upload_s:.2f} s")
         self._onboard_steps = steps
         self.link.log_block("datt", onboard.LOG_BLOCK, self.link.log_period_ms, self._on_app_log)
+
+    def _app_controller_id(self) -> int:
+        """The controller id the app's hook runs under, as the app publishes it
+        (``datt.controllerId``: ``ControllerTypeOot`` of the firmware it was built into)."""
+        if not self.link.has_param("datt.controllerId"):
+            self._refuse(
+                "preflight failed: deploy.onboard: the vehicle's app does not publish datt.controllerId (built by an "
+                "older datt export): rebuild and flash it (datt export format=app; docs/onboard.md)"
+            )
+        controller = int(self.link.read_param("datt.controllerId"))
+        if controller != firmware.CONTROLLER_OOT:
+            self._event(
+                "warning",
+                f"the app runs under controller {controller}, the host's table ({firmware.FIRMWARE_VERSION}) says "
+                f"{firmware.CONTROLLER_OOT}: that firmware numbers its controllers otherwise; the app's id is used",
+            )
+        return controller
 
     def _on_app_log(self, values: dict) -> None:
         phase, step = int(values["datt.phase"]), int(values["datt.step"])
@@ -387,6 +453,7 @@ class FlightRunner:
         budget_s = self._onboard_steps * dt + self.p.land_s + 0.5 + 2.0
         deadline = time.monotonic() + budget_s
         quiet = False
+        stepping = [-1, time.monotonic()]  # the app's last step seen, and when it changed
         next_t = time.monotonic()
         while time.monotonic() < deadline:
             now = time.monotonic()
@@ -406,6 +473,13 @@ class FlightRunner:
                 self.link.set_param("datt.run", 0)
                 self._event("onboard", "the app has landed")
                 return OK
+            if last is not None and phase in (onboard.TRACK, onboard.LAND):
+                if last[1] != stepping[0]:
+                    stepping[:] = [last[1], now]
+                elif now - stepping[1] > APP_STALL_S and not self.link.link_lost.is_set():
+                    self._event("LAND", f"the app stopped stepping at step {last[1]} (its state is stale: no hook)")
+                    self.link.set_param("datt.run", 0)  # the commander back to the radio's setpoints
+                    return LAND
             fresh = state is not None and now - state.t_s < self.safety.max_state_age_s
             if self.link.link_lost.is_set() or not fresh:
                 if not quiet:  # nothing the host can do: the app flies on by itself
@@ -582,17 +656,20 @@ class FlightRunner:
     def _supervisor_checks(self) -> list[str]:
         bits = self.link.supervisor_bits()
         checks = []
-        if bits >> SUPERVISOR_BIT_LOCKED & 1:
+        if bits & firmware.SUPERVISOR_BIT_LOCKED:
             checks.append("vehicle locked (an emergency stop or watchdog timeout earlier): restart it")
-        if bits >> SUPERVISOR_BIT_CRASHED & 1 or bits >> SUPERVISOR_BIT_TUMBLED & 1:
+        if bits & (firmware.SUPERVISOR_BIT_CRASHED | firmware.SUPERVISOR_BIT_TUMBLED):
             checks.append("vehicle crashed or tumbled")
         return checks
 
     def _check_reference_in_geofence(self, model: FlightModel, duration_s: float | None) -> None:
         """Refuse before arming a reference that would leave the geofence (it would be KILLed mid-air)."""
         env = model.env
-        steps = env.params.episode_steps if duration_s is None else int(round(duration_s * self.p.rate_hz))
-        path = env.ref_table[0, : steps + 1].double().numpy() + self._origin()
+        steps = int(round(self._duration_s(model, duration_s) * self.p.rate_hz))
+        table = env.ref_table[0, : steps + 1].double().numpy()
+        if len(table) <= steps:  # a flight longer than the table holds its last point
+            table = np.concatenate((table, np.repeat(table[-1:], steps + 1 - len(table), axis=0)))
+        path = table + self._origin()
         lo, hi = np.asarray(self.safety.geofence_min_m), np.asarray(self.safety.geofence_max_m)
         outside = np.nonzero(((path < lo) | (path > hi)).any(axis=1))[0]
         if len(outside):
@@ -676,11 +753,16 @@ class FlightRunner:
         return model
 
     def _fly_phase(self, model: FlightModel, duration_s: float | None, origin: np.ndarray) -> str:
-        steps = int(round((duration_s or model.env.params.episode_steps * model.env.dt_s) * self.p.rate_hz))
+        steps = int(round(self._duration_s(model, duration_s) * self.p.rate_hz))
         result = self._tick_loop(model, steps, origin)
         if result == LAND:
             self._land(origin)
         return result
+
+    @staticmethod
+    def _duration_s(model: FlightModel, duration_s: float | None) -> float:
+        """A phase's duration; None = the reference's episode (``env.episode_steps`` steps)."""
+        return model.env.params.episode_steps * model.env.dt_s if duration_s is None else float(duration_s)
 
     def _land(self, origin: np.ndarray) -> None:
         self._set_phase("LAND")
@@ -766,10 +848,12 @@ class FlightRunner:
                 "max": float(np.max(np.abs(jitter))),
             },
             "late_ticks": int(np.sum(jitter > self.p.late_tick_ms)),
+            "upload_s": self.upload_s,
             "compute_ms": {"median": float(np.median(compute)), "p99": float(np.percentile(compute, 99))},
             "events": self.events,
+            **self.summary_extra,
         }
-        (self.run_dir / "events.json").write_text(json.dumps(summary, indent=2) + "\n")
+        (self.run_dir / "events.json").write_text(json.dumps(summary, indent=2, default=str) + "\n")
         if track:
             self._plot(track)
         return summary

@@ -20,44 +20,45 @@ key ``safety``.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
+
+from datt.configuration import FINITE, NON_NEGATIVE, POSITIVE, Range, check_ranges, ranged
 
 OK, LAND, KILL = "OK", "LAND", "KILL"
 
 
 @dataclass
 class SafetyParams:
-    geofence_min_m: list = field(default_factory=lambda: [-2.0, -2.0, -0.1])
-    geofence_max_m: list = field(default_factory=lambda: [2.0, 2.0, 2.5])
-    geofence_margin_m: float = 0.5
-    max_tilt_deg: float = 75.0
-    max_speed_mps: float = 4.0
-    max_state_age_s: float = 0.1
-    kill_state_age_s: float = 0.5
-    max_mocap_age_s: float = 0.1
-    land_battery_v: float = 3.3
-    kill_battery_v: float = 3.0
-    max_thrust_mps2: float = 39.81
-    max_rate_radps: list = field(default_factory=lambda: [20.0, 20.0, 2.0])
-    battery_filter_s: float = 1.0  # time constant of the battery voltage low-pass
-    max_estimate_mocap_m: float = 0.05  # preflight: the onboard estimate must agree with mocap
+    geofence_min_m: list = ranged([-2.0, -2.0, -0.1], FINITE)
+    geofence_max_m: list = ranged([2.0, 2.0, 2.5], FINITE)
+    geofence_margin_m: float = ranged(0.5, NON_NEGATIVE)
+    max_tilt_deg: float = ranged(75.0, Range(0.0, 180.0, low_open=True))
+    max_speed_mps: float = ranged(4.0, POSITIVE)
+    max_state_age_s: float = ranged(0.1, POSITIVE)
+    kill_state_age_s: float = ranged(0.5, POSITIVE)
+    max_mocap_age_s: float = ranged(0.1, POSITIVE)
+    land_battery_v: float = ranged(3.3, NON_NEGATIVE)
+    kill_battery_v: float = ranged(3.0, NON_NEGATIVE)
+    max_thrust_mps2: float = ranged(39.81, POSITIVE)
+    max_rate_radps: list = ranged([20.0, 20.0, 2.0], POSITIVE)
+    battery_filter_s: float = ranged(1.0, NON_NEGATIVE)  # time constant of the battery voltage low-pass
+    max_estimate_mocap_m: float = ranged(0.05, POSITIVE)  # preflight: the onboard estimate must agree with mocap
 
     def validate(self) -> None:
         from datt.errors import ConfigError
 
+        check_ranges(self, "deploy.safety")
         if any(lo >= hi for lo, hi in zip(self.geofence_min_m, self.geofence_max_m)) or len(self.geofence_min_m) != 3:
             raise ConfigError("deploy.safety.geofence_min_m/max_m: need 3 values each with min < max")
+        if len(self.geofence_max_m) != 3 or len(self.max_rate_radps) != 3:
+            raise ConfigError("deploy.safety.geofence_max_m / max_rate_radps: need 3 values each")
         if not self.kill_battery_v <= self.land_battery_v:
             raise ConfigError("deploy.safety.kill_battery_v: must be <= land_battery_v")
-        if not self.max_state_age_s > 0:
-            raise ConfigError(f"deploy.safety.max_state_age_s: must be > 0, got {self.max_state_age_s}")
         if not self.max_state_age_s <= self.kill_state_age_s:
             raise ConfigError(
                 f"deploy.safety.kill_state_age_s: must be >= max_state_age_s ({self.max_state_age_s}), "
                 f"got {self.kill_state_age_s}"
             )
-        if not self.battery_filter_s >= 0:
-            raise ConfigError(f"deploy.safety.battery_filter_s: must be >= 0, got {self.battery_filter_s}")
 
 
 @dataclass

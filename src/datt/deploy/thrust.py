@@ -24,7 +24,11 @@ limit rate setpoints; ``max_rate_degps`` is this project's limit on what it send
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
+
+from datt.configuration import POSITIVE, Range, check_ranges, ranged
+
+POSITIVE_OR_NONE = Range(0.0, low_open=True, optional=True)
 
 UINT16_MAX = 65535
 
@@ -33,17 +37,22 @@ UINT16_MAX = 65535
 class ThrustParams:
     """``conf/deploy/*.yaml`` key ``thrust`` (Crazyflie 2.1 with mocap markers by default)."""
 
-    mass_kg: float = 0.034
-    gravity_mps2: float = 9.81
-    thrust_max_n: float = 0.12  # the firmware's THRUST_MAX per motor (0.1125 before 2025-11; kit: 0.18 / 0.1625)
-    hover_command: float | None = None  # calibrated; None = the firmware map's own (g / k)
-    slope_mps2_per_command: float | None = None  # calibrated k; None = 4 THRUST_MAX / (65535 m)
+    mass_kg: float = ranged(0.034, POSITIVE)
+    gravity_mps2: float = ranged(9.81, POSITIVE)
+    thrust_max_n: float = ranged(
+        0.12, POSITIVE
+    )  # the firmware's THRUST_MAX per motor (0.1125 before 2025-11; kit: 0.18 / 0.1625)
+    hover_command: float | None = ranged(None, POSITIVE_OR_NONE)  # calibrated; None = the firmware map's own (g / k)
+    slope_mps2_per_command: float | None = ranged(
+        None, POSITIVE_OR_NONE
+    )  # calibrated k; None = 4 THRUST_MAX / (65535 m)
     max_command: int = 60000
-    max_rate_degps: list = field(default_factory=lambda: [720.0, 720.0, 400.0])
+    max_rate_degps: list = ranged([720.0, 720.0, 400.0], POSITIVE)
 
     def validate(self) -> None:
         from datt.errors import ConfigError
 
+        check_ranges(self, "deploy.thrust")
         if not self.mass_kg > 0:
             raise ConfigError(f"deploy.thrust.mass_kg: must be > 0, got {self.mass_kg}")
         if not self.thrust_max_n > 0:

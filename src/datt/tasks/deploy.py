@@ -3,7 +3,6 @@
 
 from __future__ import annotations
 
-import json
 import signal
 from pathlib import Path
 from urllib.parse import urlparse
@@ -19,8 +18,8 @@ from datt.deploy.runner import FlightRunner
 from datt.deploy.schema import DeployParams, deploy_params
 from datt.deploy.thrust import ThrustMap, ThrustParams
 from datt.envs.factory import make_env
-from datt.errors import ConfigError, FlightAborted
-from datt.runs import stop_signals
+from datt.errors import ConfigError, FlightAborted, FlightStopped
+from datt.runs import StopRequest, stop_signals
 from datt.tasks.common import console, hydra_run_dir, set_threads
 
 
@@ -90,10 +89,10 @@ def run_deploy(cfg: DictConfig, run_dir: Path | None = None, estop=None, server_
     def make_flight_env(family):
         return make_env(model_cfg, num_envs=1, seed=int(cfg.seed), traj=family)
 
-    # Stop signals are ignored around the flight: the runner takes them over from CONNECT to the end
-    # of the flight (a Ctrl-C KILLs it); before and after, a late or second one must not cut the
-    # server's shutdown or the log short.
-    with stop_signals(signal.SIG_IGN):
+    # While the flight is prepared (the app exported and built, the simulated vehicle started) a stop
+    # signal is remembered, and the runner ends the flight there, before anything is armed; from
+    # CONNECT on the runner takes the signals over (after arming a stop KILLs).
+    with StopRequest() as stop:
         policy_id, library = _onboard_app(cfg, run_dir, params.server is not None) if params.onboard else (None, None)
         server = _start_server(cfg, params, thrust, library) if params.server is not None else None
         try:
@@ -115,6 +114,8 @@ def run_deploy(cfg: DictConfig, run_dir: Path | None = None, estop=None, server_
                 console=console,
                 onboard=params.onboard,
                 onboard_policy_id=policy_id,
+                stop_request=stop,
+                summary_extra={"controller": labels},
             )
             if server_hook is not None:
                 server_hook(server, runner)
@@ -128,8 +129,7 @@ def run_deploy(cfg: DictConfig, run_dir: Path | None = None, estop=None, server_
         finally:
             if server is not None:
                 server.stop()
-        summary["controller"] = labels
-        (run_dir / "events.json").write_text(json.dumps(summary, indent=2, default=str) + "\n")
+    with stop_signals(signal.SIG_IGN):  # the flight is over: a late signal must not cut the log short
         if params.mode == "calibrate":
             fit = summary.get("calibration") or {}
             console.print(
@@ -151,9 +151,12 @@ def run_deploy(cfg: DictConfig, run_dir: Path | None = None, estop=None, server_
 
 def run_deploy_command(cfg: DictConfig) -> dict:
     """``deploy.py``: :func:`run_deploy`, and a flight that did not land is a failing command
-    (a refused setting: one line naming it, exit 2; KILLed or lost: exit 4)."""
+    (a refused setting: one line naming it, exit 2; KILLed, not armed or lost: exit 4; stopped
+    before arming: exit 130)."""
     summary = run_deploy(cfg)
     outcome = str(summary["outcome"])
+    if outcome.startswith("stopped before arming"):
+        raise FlightStopped(outcome)
     if outcome.startswith("preflight failed: deploy."):  # a setting refused the flight before arming
         raise ConfigError(outcome.removeprefix("preflight failed: "))
     if not outcome.startswith("landed"):

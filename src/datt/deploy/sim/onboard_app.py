@@ -3,14 +3,14 @@ generated policy, compiled by :func:`datt.export.app.build_sil_library`) called 
 with the firmware glue of ``app_datt.c`` (its 50 Hz task body, the parameters, the log
 variables) re-told here. The state it reads is the one the out-of-tree controller hook hands
 over: only while ``stabilizer.controller`` selects that controller (else it stays zero, as the
-hook is then never called)."""
+hook is then never called; the task sees how old it is and refuses a stale one)."""
 
 from __future__ import annotations
 
 import ctypes
 from pathlib import Path
 
-from datt.deploy.onboard import IDLE, LOGS, PARAMS
+from datt.deploy.onboard import IDLE, LOGS, PARAMS, READ_ONLY
 
 _F3, _F4 = ctypes.c_float * 3, ctypes.c_float * 4
 
@@ -60,8 +60,13 @@ class OnboardApp:
     """One vehicle's app: ``receive`` (app channel), ``tick`` (the task's 20 ms loop body),
     ``get``/``set`` of the ``datt.*`` parameters, ``log_values`` of the ``datt.*`` log group."""
 
-    def __init__(self, library: str | Path) -> None:
+    def __init__(self, library: str | Path, controller_id: int) -> None:
+        """``controller_id``: ``ControllerTypeOot`` of the firmware the app is built into (what
+        its read-only ``datt.controllerId`` holds)."""
         lib = ctypes.CDLL(str(library))
+        self.controller_id = int(controller_id)
+        lib.datt_onboard_state_max_age_ms.restype = ctypes.c_uint32
+        self.state_max_age_s = lib.datt_onboard_state_max_age_ms() / 1000.0
         lib.datt_onboard_size.restype = ctypes.c_uint32
         lib.datt_onboard_policy_id.restype = ctypes.c_uint32
         lib.datt_onboard_params_of.restype = ctypes.POINTER(_Params)
@@ -101,13 +106,15 @@ class OnboardApp:
             return self.run_request
         if name == "policyId":
             return self.lib.datt_onboard_policy_id()
+        if name == "controllerId":
+            return self.controller_id
         _, _, field, index = next(p for p in PARAMS if p[0] == name)
         value = getattr(self.p, field)
         return value[index] if index is not None else value
 
     def set(self, name: str, value: float) -> None:
-        if name == "policyId":
-            return  # read-only (PARAM_RONLY): the firmware ignores the write
+        if name in READ_ONLY:
+            return  # PARAM_RONLY: the firmware ignores the write
         if name == "run":
             self.run_request = int(value)
             return
@@ -143,21 +150,25 @@ class OnboardApp:
         n = self.lib.datt_onboard_receive(self.ptr, bytes(data), len(data), reply)
         return bytes(reply[:n])
 
-    def tick(self, pos, vel, quat, pos_var_m2: float = 0.0) -> tuple[_Setpoint | None, bool]:
-        """The body of ``appMain``'s loop: start / stop on ``datt.run``, one step on the state and
-        the Kalman filter's larger horizontal position variance. Returns the setpoint to push
-        (None: none this tick) and whether the commander is handed back."""
+    def tick(self, pos, vel, quat, pos_var_m2: float = 0.0, state_age_s: float = 0.0) -> tuple[_Setpoint | None, bool]:
+        """The body of ``appMain``'s loop: start / stop on ``datt.run``, one step on the state the
+        hook wrote ``state_age_s`` ago (``inf``: never) and the Kalman filter's larger horizontal
+        position variance. A stale state refuses the start and pushes no setpoint. Returns the
+        setpoint to push (None: none this tick) and whether the commander is handed back."""
         relax = False
+        fresh = state_age_s <= self.state_max_age_s
         phase = self.status().phase
         args = (_F3(*pos), _F3(*vel), _F4(*quat))
         if self.run_request and phase == IDLE:
-            if not self.self_test_ok:
+            if not self.self_test_ok or not fresh:
                 self.lib.datt_onboard_refuse(self.ptr)
             else:
                 self.lib.datt_onboard_start(self.ptr, *args)  # DATT_TRACK, or DATT_REFUSED
         elif not self.run_request and phase != IDLE:
             self.lib.datt_onboard_stop(self.ptr)
             relax = True
+        if not fresh and self.status().phase != IDLE:
+            return None, relax  # the commander's watchdog takes over
         sp = _Setpoint()
         self.lib.datt_onboard_step(self.ptr, *args, float(pos_var_m2), ctypes.byref(sp))
         return (sp if sp.active else None), relax

@@ -63,7 +63,7 @@ from dataclasses import dataclass, field
 import torch
 
 from datt.deploy import crtp
-from datt.deploy.onboard import CONTROLLER_OOT
+from datt.deploy.onboard import READ_ONLY as APP_READ_ONLY
 from datt.deploy.sim.motors import FirmwareMotors, MotorParams
 from datt.deploy.sim.onboard_app import OnboardApp
 from datt.deploy.thrust import ThrustMap
@@ -92,6 +92,9 @@ PARAMS = [  # (group, name, type, default)
     ("flightmode", "stabModePitch", "uint8_t", 1),
     ("stabilizer", "estimator", "uint8_t", 0),
     ("stabilizer", "controller", "uint8_t", 1),
+    ("flightmode", "althold", "uint8_t", 0),
+    ("flightmode", "poshold", "uint8_t", 0),
+    ("flightmode", "posSet", "uint8_t", 0),
     ("commander", "enHighLevel", "uint8_t", 0),
     ("locSrv", "extPosStdDev", "float", 0.01),
     ("locSrv", "extQuatStdDev", "float", 4.5e-3),
@@ -102,6 +105,15 @@ PARAMS = [  # (group, name, type, default)
 ]
 POSITIONING_DECKS = ("bcLighthouse4", "bcDWM1000", "bcFlow2")  # the decks simulated (all ask for Kalman)
 COMPLEMENTARY, KALMAN = 1, 2
+# The simulated firmware's own model of controller.h's enum (its order is the id), independent of
+# the host's table: a host that types an id this firmware does not mean flies the wrong controller
+# here too. OutOfTree exists only in a build with CONFIG_CONTROLLER_OOT (the DATT app's).
+CONTROLLERS = ("AutoSelect", "PID", "Mellinger", "INDI", "Brescianini", "Lee", "OutOfTree")
+RATE_CONTROLLERS = ("PID", "INDI", "OutOfTree")  # fly roll/pitch-rate setpoints (OutOfTree: the PID)
+ATTITUDE_KP = 8.0  # the attitude-holding controllers' levelling gain (rad/s per rad), as the watchdog's
+APP_CHANNEL_QUEUE = 10  # app_channel.c: xQueueCreate(10, sizeof(CRTPPacket)); a full queue drops
+SUPERVISOR_PERIOD_S = 0.04  # supervisor.c runs at RATE_SUPERVISOR (25 Hz): arming takes effect there
+PARAM_RO_FLAG = 0x40  # param TOC type byte: read-only
 KALMAN_RESET_VAR_M2, KALMAN_PROCESS_M2PS = 1.0, 0.01  # variance after a reset; its growth per second
 APP_CHANNEL = 2  # platform port channel of the app channel (app_channel.c)
 EXT_POSE = 8  # localization generic channel message type (cflib Localization.EXT_POSE)
@@ -148,6 +160,9 @@ class SimCrazyflieParams:
     radio_seed: int = 0
     onboard_library: str | None = None  # the DATT app's C as a shared library (datt.export.app); None = no app
     radio_cut_after_start_s: float | None = None  # the radio goes silent this long after the app starts
+    refuse_arming: bool = False  # the supervisor refuses to arm (a firmware whose preflight checks fail)
+    boot_params: dict = field(default_factory=dict)  # parameter values at power-on ("group.name": value),
+    # e.g. what an earlier flight left: parameters persist until a reboot
 
 
 class SimCrazyflie:
@@ -167,7 +182,14 @@ class SimCrazyflie:
             disturbance.reset(torch.arange(1), self.quad.state)
         self.battery_v = self.p.battery_v
         self.params = {f"{g}.{n}": v for g, n, _, v in PARAMS}
-        self.app = OnboardApp(self.p.onboard_library) if self.p.onboard_library else None
+        # a build with the app has the out-of-tree controller: its id is its place in the enum
+        self.controllers = CONTROLLERS if self.p.onboard_library else CONTROLLERS[:-1]
+        oot = CONTROLLERS.index("OutOfTree")
+        self.app = OnboardApp(self.p.onboard_library, controller_id=oot) if self.p.onboard_library else None
+        self.app_rx: list[bytes] = []  # the app channel's receive queue (APP_CHANNEL_QUEUE packets)
+        self.app_rx_dropped = 0
+        self.hook_t = -math.inf  # sim time the out-of-tree controller hook last ran
+        self.arm_request: bool | None = None  # applied at the supervisor's next update
         self.param_toc = PARAMS + (self.app.param_toc if self.app else [])
         self.log_toc = LOG_VARS + (self.app.log_toc if self.app else [])
         self.app_priority = False  # the app's setpoints hold the commander (radio setpoints are dropped)
@@ -179,7 +201,14 @@ class SimCrazyflie:
                     f"deploy.server.decks: unknown deck {deck!r}; allowed: {', '.join(POSITIONING_DECKS)}"
                 )
             self.params[f"deck.{deck}"] = 1
-        self.read_only = {f"{g}.{n}" for g, n, _, _ in PARAMS if g == "deck"}
+        self.read_only = {f"{g}.{n}" for g, n, _, _ in PARAMS if g == "deck"} | {f"datt.{n}" for n in APP_READ_ONLY}
+        for key, value in self.p.boot_params.items():
+            if key not in self.params:
+                raise ConfigError(
+                    f"deploy.server.boot_params: unknown parameter {key!r}; allowed: {', '.join(self.params)}"
+                )
+            self.params[key] = value
+        self._settle_params()
         self.pos_error_m = [0.0, 0.0, 0.0]  # Kalman: estimate - true position (held between measurements)
         self.kalman_var_m2 = [KALMAN_RESET_VAR_M2] * 3  # position variance: grows, shrinks with each measurement
         self.yaw_aligned = False  # an extpose has told the Kalman filter the mocap yaw
@@ -254,7 +283,7 @@ class SimCrazyflie:
     def state_bitfield(self) -> int:
         flying = self.armed and self.motors_on
         bits = {
-            BIT_CAN_BE_ARMED: not self.locked and not self.armed,
+            BIT_CAN_BE_ARMED: not self.locked and not self.armed and not self.p.refuse_arming,
             BIT_ARMED: self.armed,
             BIT_CAN_FLY: self.armed and not self.locked,
             BIT_FLYING: flying,
@@ -269,6 +298,28 @@ class SimCrazyflie:
     def _event(self, text: str) -> None:
         self.events.append((self.sim_time_s, text))
 
+    @property
+    def controller(self) -> str:
+        """The controller running (``stabilizer.controller``, settled)."""
+        return self.controllers[int(self.params["stabilizer.controller"])]
+
+    def _settle_params(self) -> None:
+        """What the stabilizer loop does with a written controller or estimator id
+        (``stabilizer.c``): AutoSelect becomes the build's default (the PID, or the Kalman filter
+        when a positioning deck asks for it); an id the build does not have is not switched to,
+        and the parameter reads back the controller still running."""
+        requested = int(self.params["stabilizer.controller"])
+        if requested == 0:
+            self.params["stabilizer.controller"] = CONTROLLERS.index("PID")
+        elif not 0 < requested < len(self.controllers):
+            self.params["stabilizer.controller"] = self._controller_running
+        self._controller_running = int(self.params["stabilizer.controller"])
+        estimator = int(self.params["stabilizer.estimator"])
+        if estimator not in (COMPLEMENTARY, KALMAN):
+            self.params["stabilizer.estimator"] = self.estimator
+
+    _controller_running = 1  # the PID until a valid id is written
+
     # -- physics ---------------------------------------------------------------------------
     def _physics_loop(self) -> None:
         next_t = time.monotonic()
@@ -280,6 +331,12 @@ class SimCrazyflie:
             time.sleep(max(0.0, next_t - time.monotonic()))
 
     def _physics_step(self) -> None:
+        self._settle_params()
+        if self.controller == "OutOfTree":
+            self.hook_t = self.sim_time_s  # the hook runs in every stabilizer tick under this controller
+        if self.arm_request is not None and self._supervisor_tick():
+            self._apply_arming(self.arm_request)
+            self.arm_request = None
         if self.app is not None:
             self._app_tick()
         now = self.sim_time_s
@@ -297,10 +354,21 @@ class SimCrazyflie:
         elif age > WATCHDOG_LEVEL_S:
             # level the attitude (P on the tilt) at the last thrust, as the firmware's watchdog
             q = self.quad.state.quat[0]
-            wx, wy, wz = -8.0 * float(q[1]) * 2, -8.0 * float(q[2]) * 2, 0.0
+            wx, wy, wz = -ATTITUDE_KP * float(q[1]) * 2, -ATTITUDE_KP * float(q[2]) * 2, 0.0
+        elif self.controller not in RATE_CONTROLLERS:
+            # Mellinger, Brescianini, Lee: they fly the setpoint's attitude (level: the legacy
+            # commander's rate-mode packet carries none) and ignore the rates
+            q = self.quad.state.quat[0]
+            wx, wy, wz = -ATTITUDE_KP * float(q[1]) * 2, -ATTITUDE_KP * float(q[2]) * 2, 0.0
         else:
             wz = self._yaw_rate(wz, command)
         thrust = self.motors.thrust_mps2(command, self.battery_v) if self.armed else 0.0
+        if command and self._holds_position():
+            # althold / poshold / posSet: the legacy commander turns the setpoint into velocity
+            # commands around the hover; the vehicle holds level where it is
+            q = self.quad.state.quat[0]
+            wx, wy, wz = -ATTITUDE_KP * float(q[1]) * 2, -ATTITUDE_KP * float(q[2]) * 2, 0.0
+            thrust = 9.81 - 2.0 * float(self.quad.state.vel_mps[0, 2]) if self.armed else 0.0
         d = torch.zeros(1, 3)
         if self.disturbance is not None and self.motors_on:
             d = self.disturbance.current_mps2
@@ -323,17 +391,36 @@ class SimCrazyflie:
             self.pos_error_m[0] += self.p.dead_reckoning_drift_mps * self.p.dt_s
         self.sim_time_s += self.p.dt_s
 
+    def _apply_arming(self, wanted: bool) -> None:
+        """The supervisor's arming transition: refused while locked, or always with
+        ``refuse_arming`` (preflight checks that do not pass)."""
+        if wanted and (self.locked or self.p.refuse_arming):
+            self._event("arming refused")
+            return
+        if wanted != self.armed:
+            self.armed = wanted
+            self._event("armed" if self.armed else "disarmed")
+
+    def _holds_position(self) -> bool:
+        return any(int(self.params[f"flightmode.{k}"]) for k in ("althold", "poshold", "posSet"))
+
+    def _supervisor_tick(self) -> bool:
+        """True in the physics steps where the supervisor (25 Hz) updates."""
+        return int(round(self.sim_time_s / self.p.dt_s)) % max(1, round(SUPERVISOR_PERIOD_S / self.p.dt_s)) == 0
+
     def _app_tick(self) -> None:
         """The app's 20 ms task: the state the out-of-tree controller hook handed over (zero
         unless ``stabilizer.controller`` selects it), one step, its setpoint to the commander at
         the app's priority (``COMMANDER_PRIORITY_EXTRX``: radio setpoints are then dropped)."""
-        if int(self.params["stabilizer.controller"]) == CONTROLLER_OOT:
-            pos, vel, quat = self._estimated_state()
+        while self.app_rx:  # the task drains the app channel's queue, answering each packet
+            self._send(crtp.packet(crtp.PORT_PLATFORM, APP_CHANNEL, self.app.receive(self.app_rx.pop(0))))
+        if self.hook_t > -math.inf:
+            pos, vel, quat = self._estimated_state()  # what the hook last handed over
         else:
-            pos, vel, quat = [0.0] * 3, [0.0] * 3, [0.0] * 4
+            pos, vel, quat = [0.0] * 3, [0.0] * 3, [0.0] * 4  # never written
         # kalman.varPX/varPY as the app reads them; without the Kalman filter its position is unknown
         var = max(self.kalman_var_m2[:2]) if self.estimator == KALMAN else 1e6
-        sp, relax = self.app.tick(pos, vel, quat, var)
+        sp, relax = self.app.tick(pos, vel, quat, var, state_age_s=self.sim_time_s - self.hook_t)
         if relax:
             self.app_priority = False
             self._event("app: stopped, commander handed back")
@@ -510,8 +597,11 @@ class SimCrazyflie:
     def _on_platform(self, ch: int, data: bytes) -> None:
         if ch == 1 and data and data[0] == 0:  # VERSION_GET_PROTOCOL
             self._send(crtp.packet(crtp.PORT_PLATFORM, 1, bytes([0, 12])))
-        elif ch == APP_CHANNEL and self.app is not None:  # the app's upload packets
-            self._send(crtp.packet(crtp.PORT_PLATFORM, APP_CHANNEL, self.app.receive(data)))
+        elif ch == APP_CHANNEL and self.app is not None:  # queued for the app's task; a full queue drops
+            if len(self.app_rx) < APP_CHANNEL_QUEUE:
+                self.app_rx.append(bytes(data))
+            else:
+                self.app_rx_dropped += 1
 
     def _toc(self, port: int, entries: list[tuple], types: dict, data: bytes) -> None:
         if data[0] == 3:  # info v2
@@ -520,7 +610,10 @@ class SimCrazyflie:
             ident = data[1] | (data[2] << 8)
             if ident < len(entries):
                 group, name, ctype = entries[ident][:3]
-                self._send(crtp.toc_item(port, ident, types[ctype][0], group, name))
+                type_id = types[ctype][0]
+                if port == crtp.PORT_PARAM and f"{group}.{name}" in self.read_only:
+                    type_id |= PARAM_RO_FLAG
+                self._send(crtp.toc_item(port, ident, type_id, group, name))
 
     def _on_log(self, ch: int, data: bytes) -> None:
         if not data:
@@ -569,20 +662,22 @@ class SimCrazyflie:
         key = f"{group}.{name}"
         # the app's variables live in its C struct (read-only ones ignore the write there)
         get = (lambda: self.app.get(name)) if group == "datt" else (lambda: self.params[key])
-        if ch == 2 and key not in self.read_only:  # write, echoed back as the firmware does
+        if ch == 2:  # write (param_logic.c): a read-only parameter is left alone and not answered;
+            if key in self.read_only:  # any other is set and the request itself is the answer
+                return
             value = struct.unpack(fmt, data[2 : 2 + struct.calcsize(fmt)])[0]
             if group == "datt":
                 self.app.set(name, value)
             else:
                 self.params[key] = value
-            self._event(f"param {key} = {get()}")
+            self._event(f"param {key} = {value}")
             if key == "kalman.resetEstimation" and value:
                 self.kalman_var_m2 = [KALMAN_RESET_VAR_M2] * 3  # the firmware re-initialises the filter
                 self.pos_error_m = [-v for v in self.quad.state.pos_m[0].tolist()]  # ... at the origin
                 self.params[key] = 0  # and clears the flag
-        if ch in (1, 2):
-            status = b"\0" if ch == 1 else b""
-            self._send(crtp.packet(crtp.PORT_PARAM, ch, data[:2] + status + struct.pack(fmt, get())))
+            self._send(crtp.packet(crtp.PORT_PARAM, 2, data))
+        elif ch == 1:  # read: id, status 0, the value held now
+            self._send(crtp.packet(crtp.PORT_PARAM, 1, data[:2] + b"\0" + struct.pack(fmt, get())))
 
     def _on_mem(self, ch: int, data: bytes) -> None:
         if ch == 0 and data and data[0] == 1:  # number of memories: none
@@ -638,13 +733,10 @@ class SimCrazyflie:
             self._send(crtp.packet(crtp.PORT_SUPERVISOR, 0, reply))
         if ch != 1:
             return
-        if data[0] == CMD_ARM:  # arm / disarm (refused while locked)
+        if data[0] == CMD_ARM:  # arm / disarm: acknowledged now, acted on at the supervisor's next update
             wanted = bool(data[1]) if len(data) > 1 else False
-            ok = not (wanted and self.locked)
-            if ok:
-                self.armed = wanted
-                self._event("armed" if self.armed else "disarmed")
-            self._send(crtp.packet(crtp.PORT_SUPERVISOR, 1, bytes([0x80 | CMD_ARM, int(ok), int(self.armed)])))
+            self.arm_request = wanted
+            self._send(crtp.packet(crtp.PORT_SUPERVISOR, 1, bytes([0x80 | CMD_ARM, 1, int(self.armed)])))
         elif data[0] == CMD_ESTOP:
             self.emergency_stopped = True
             self.cmd = (0.0, 0.0, 0.0, 0)

@@ -6,9 +6,12 @@
      COMMANDER_PRIORITY_EXTRX: the firmware's PID rate controller flies it, and the commander's
      watchdog (supervisor.c: 2 s without a setpoint locks the vehicle) is fed onboard, so a lost
      radio does not stop the flight.
-   - controllerOutOfTree (stabilizer.controller = 5, set by the host) hands each stabilizer tick's
-     state estimate to the task and runs the firmware's PID controller unchanged (the policy is
-     far too slow for the 500 Hz stabilizer loop; it lives in the task).
+   - controllerOutOfTree (stabilizer.controller = ControllerTypeOot, published as the read-only
+     parameter datt.controllerId, which the host selects and verifies) hands each stabilizer
+     tick's state estimate to the task and runs the firmware's PID controller unchanged (the
+     policy is far too slow for the stabilizer loop; it lives in the task). The task starts only
+     on a state the hook wrote within DATT_STATE_MAX_AGE_MS that is sane (finite, unit
+     quaternion), and pushes no setpoint on a stale one, so the commander's watchdog takes over.
    - The host uploads the reference table through the app channel (datt_onboard.h: packet
      layout, one acknowledgement per packet), sets the datt.* parameters and starts the flight
      with datt.run = 1 (datt.run = 0 stops it and hands the commander back). */
@@ -36,8 +39,10 @@ static datt_onboard onboard;
 static uint8_t run_request;    /* param datt.run */
 static uint8_t self_test_ok;   /* log datt.selfTest: the embedded golden case passed at boot */
 static uint32_t policy_id = DATT_POLICY_ID; /* param datt.policyId (read-only): the host checks it */
+static uint8_t controller_id = ControllerTypeOot; /* param datt.controllerId (read-only): the host selects it */
 static state_t latest_state;   /* written by the stabilizer task, read by appMain */
-static uint32_t latest_state_ticks;
+static TickType_t latest_state_tick; /* when the hook last wrote latest_state */
+static uint8_t state_written;  /* the hook has run at least once */
 static logVarId_t var_px, var_py; /* the Kalman filter's position variances (kalman.varPX, varPY) */
 
 void controllerOutOfTreeInit(void) { controllerPidInit(); }
@@ -48,15 +53,21 @@ void controllerOutOfTree(control_t *control, const setpoint_t *setpoint, const s
                          const state_t *state, const stabilizerStep_t stabilizerStep) {
     taskENTER_CRITICAL();
     latest_state = *state;
-    latest_state_ticks++;
+    latest_state_tick = xTaskGetTickCount();
+    state_written = 1;
     taskEXIT_CRITICAL();
     controllerPid(control, setpoint, sensors, state, stabilizerStep);
 }
 
-static void read_state(float pos[3], float vel[3], float quat[4]) {
+/* The hook's latest state; returns 1 if the hook wrote it within DATT_STATE_MAX_AGE_MS. */
+static int read_state(float pos[3], float vel[3], float quat[4]) {
     state_t s;
+    TickType_t written;
+    uint8_t ever;
     taskENTER_CRITICAL();
     s = latest_state;
+    written = latest_state_tick;
+    ever = state_written;
     taskEXIT_CRITICAL();
     pos[0] = s.position.x;
     pos[1] = s.position.y;
@@ -68,6 +79,7 @@ static void read_state(float pos[3], float vel[3], float quat[4]) {
     quat[1] = s.attitudeQuaternion.x;
     quat[2] = s.attitudeQuaternion.y;
     quat[3] = s.attitudeQuaternion.z;
+    return ever && (xTaskGetTickCount() - written) <= M2T(DATT_STATE_MAX_AGE_MS);
 }
 
 /* The larger of the Kalman filter's horizontal position variances, m^2 (huge when the Kalman
@@ -109,6 +121,7 @@ void appMain(void) {
     const TickType_t period = M2T((uint32_t)(DATT_DT_S * 1000.0f + 0.5f));
     TickType_t wake;
     float err = 0.0f, pos[3], vel[3], quat[4];
+    int fresh;
     datt_setpoint sp;
 
     datt_onboard_init(&onboard);
@@ -119,9 +132,9 @@ void appMain(void) {
     wake = xTaskGetTickCount();
     while (1) {
         receive_packets();
-        read_state(pos, vel, quat);
+        fresh = read_state(pos, vel, quat);
         if (run_request && onboard.phase == DATT_IDLE) {
-            if (!self_test_ok) datt_onboard_refuse(&onboard);
+            if (!self_test_ok || !fresh) datt_onboard_refuse(&onboard); /* no hook: not the OOT controller */
             if (onboard.phase == DATT_REFUSED || datt_onboard_start(&onboard, pos, vel, quat) != DATT_TRACK) {
                 DEBUG_PRINT("start refused (table %u of %u points, self-test %u)\n", onboard.n_received,
                             onboard.p.n_points, self_test_ok);
@@ -130,8 +143,10 @@ void appMain(void) {
             datt_onboard_stop(&onboard);
             commanderRelaxPriority(); /* the radio's setpoints fly the vehicle again */
         }
-        datt_onboard_step(&onboard, pos, vel, quat, position_var_m2(), &sp);
-        if (sp.active) push_setpoint(&sp);
+        if (fresh || onboard.phase == DATT_IDLE) {
+            datt_onboard_step(&onboard, pos, vel, quat, position_var_m2(), &sp);
+            if (sp.active) push_setpoint(&sp);
+        } /* stale: no setpoint, the commander's watchdog levels the vehicle, then stops it */
         vTaskDelayUntil(&wake, period);
     }
 }
@@ -140,6 +155,7 @@ void appMain(void) {
 PARAM_GROUP_START(datt)
 PARAM_ADD(PARAM_UINT8, run, &run_request)
 PARAM_ADD(PARAM_UINT32 | PARAM_RONLY, policyId, &policy_id)
+PARAM_ADD(PARAM_UINT8 | PARAM_RONLY, controllerId, &controller_id)
 PARAM_ADD(PARAM_FLOAT, originX, &onboard.p.origin_m[0])
 PARAM_ADD(PARAM_FLOAT, originY, &onboard.p.origin_m[1])
 PARAM_ADD(PARAM_FLOAT, originZ, &onboard.p.origin_m[2])

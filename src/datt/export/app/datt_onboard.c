@@ -81,11 +81,24 @@ static int params_valid(const datt_onboard_params *p) {
            p->max_tilt_deg > 0.0f && p->max_tilt_deg < 180.0f && p->max_pos_std_m >= 0.0f;
 }
 
+uint8_t datt_state_sane(const float pos[3], const float vel[3], const float quat[4]) {
+    float norm2 = 0.0f;
+    int i;
+    for (i = 0; i < 3; i++)
+        if (!finite_f(pos[i]) || !finite_f(vel[i])) return 0;
+    for (i = 0; i < 4; i++) {
+        if (!finite_f(quat[i])) return 0;
+        norm2 += quat[i] * quat[i];
+    }
+    return norm2 > 0.98f && norm2 < 1.02f;
+}
+
+uint32_t datt_onboard_state_max_age_ms(void) { return DATT_STATE_MAX_AGE_MS; }
+
 uint8_t datt_onboard_start(datt_onboard *o, const float pos[3], const float vel[3], const float quat[4]) {
     const float hover[4] = {DATT_GRAVITY_MPS2, 0.0f, 0.0f, 0.0f};
     int i;
-    (void)pos;
-    if (!params_valid(&o->p) || !table_complete(o)) {
+    if (!params_valid(&o->p) || !table_complete(o) || !datt_state_sane(pos, vel, quat)) {
         o->phase = DATT_REFUSED;
         return o->phase;
     }
@@ -163,10 +176,7 @@ uint8_t datt_onboard_step(datt_onboard *o, const float pos[3], const float vel[3
         return o->phase;
     }
     if (o->phase != DATT_TRACK && o->phase != DATT_LAND) return o->phase;
-    for (i = 0; i < 3; i++)
-        if (!finite_f(pos[i]) || !finite_f(vel[i])) return abort_flight(o, sp);
-    for (i = 0; i < 4; i++)
-        if (!finite_f(quat[i])) return abort_flight(o, sp);
+    if (!datt_state_sane(pos, vel, quat)) return abort_flight(o, sp);
     /* cos(tilt) = body z . world z; cos(max tilt) by its series to x^8 (no libm; < 1e-4 to 90 deg) */
     cos_tilt = 1.0f - 2.0f * (quat[1] * quat[1] + quat[2] * quat[2]);
     tilt2 = tilt_rad * tilt_rad;

@@ -11,6 +11,10 @@
 #define DATT_TABLE_MAX 1024 /* reference points held onboard (12 bytes each): 20 s at 50 Hz */
 #endif
 
+#ifndef DATT_STATE_MAX_AGE_MS
+#define DATT_STATE_MAX_AGE_MS 10 /* the controller hook's state older than this: no start, no setpoint */
+#endif
+
 /* phases (log datt.phase) */
 #define DATT_IDLE 0      /* not flying: the commander's other setpoints (the radio's) fly the vehicle */
 #define DATT_TRACK 1     /* the policy tracks the uploaded table */
@@ -80,8 +84,12 @@ void datt_onboard_init(datt_onboard *o);
 /* One app-channel packet from the host; writes the reply into reply[4], returns its length. */
 int datt_onboard_receive(datt_onboard *o, const uint8_t *data, int len, uint8_t reply[4]);
 /* Start tracking from the measured state (world frame): returns the new phase (DATT_TRACK, or
-   DATT_REFUSED when the table is incomplete or a parameter is out of range). */
+   DATT_REFUSED when the table is incomplete, a parameter is out of range or the state is not
+   sane). */
 uint8_t datt_onboard_start(datt_onboard *o, const float pos[3], const float vel[3], const float quat[4]);
+/* The state estimate is one to fly on: every value finite and the quaternion of unit norm (a
+   zero quaternion is what a state the controller hook never wrote looks like). */
+uint8_t datt_state_sane(const float pos[3], const float vel[3], const float quat[4]);
 /* Stop (host request): back to DATT_IDLE; the caller hands the commander back. */
 void datt_onboard_stop(datt_onboard *o);
 /* Refuse to start (the caller's own check failed, e.g. the boot self-test): DATT_REFUSED. */
@@ -106,6 +114,7 @@ typedef struct {
 } datt_onboard_status;
 uint32_t datt_onboard_size(void);
 uint32_t datt_onboard_policy_id(void); /* DATT_POLICY_ID of the policy compiled in */
+uint32_t datt_onboard_state_max_age_ms(void); /* DATT_STATE_MAX_AGE_MS */
 datt_onboard_params *datt_onboard_params_of(datt_onboard *o);
 void datt_onboard_get_status(const datt_onboard *o, datt_onboard_status *s);
 

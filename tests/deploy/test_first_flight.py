@@ -1,0 +1,303 @@
+"""A first real flight that cannot go wrong: the simulated Crazyflie disagrees with the host where
+the firmware would (controller ids, flight-mode holds, write echoes, arming, the app channel's
+queue), and the host's settings refuse what would disable a check. One test (or more) per way a
+first flight went wrong when read against crazyflie-firmware 2026.08 (docs/deploy.md)."""
+
+import itertools
+import math
+import os
+import shutil
+import signal
+import time
+
+import pytest
+
+pytest.importorskip("cflib")
+
+from datt.configuration import compose  # noqa: E402
+from datt.deploy import firmware, onboard  # noqa: E402
+from datt.deploy.link import CrazyflieLink, LinkError  # noqa: E402
+from datt.deploy.runner import FlightParams  # noqa: E402
+from datt.deploy.sim import SimCrazyflie, SimCrazyflieParams  # noqa: E402
+from datt.errors import ConfigError  # noqa: E402
+
+from . import SHORT_FLIGHT  # noqa: E402
+
+_ports = itertools.count(20100)
+needs_gcc = pytest.mark.skipif(shutil.which("gcc") is None, reason="no gcc: the onboard app cannot be built here")
+
+
+def fly(tmp_path, overrides=(), hook=None):
+    from datt.tasks.deploy import run_deploy
+
+    cfg = compose("deploy", [f"deploy.uri=udp://127.0.0.1:{next(_ports)}", *SHORT_FLIGHT, *overrides])
+    seen = {}
+
+    def server_hook(server, runner):
+        seen["server"], seen["runner"] = server, runner
+        if hook is not None:
+            hook(server, runner)
+
+    summary = run_deploy(cfg, run_dir=tmp_path, server_hook=server_hook)
+    return summary, seen["server"]
+
+
+def tilt_after(server, link, seconds, roll_degps):
+    """Stream a roll-rate setpoint at hover thrust for ``seconds``; the vehicle's tilt (deg) then."""
+    link.arm(True)
+    assert link.wait_armed(1.0)
+    link.send_rates(0.0, 0.0, 0.0, 0)  # thrust lock
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        link.send_rates(roll_degps, 0.0, 0.0, 55000)  # climbing: off the ground
+        time.sleep(0.02)
+    w, x, y, _ = server.true_state()["quat"]
+    return math.degrees(math.acos(max(-1.0, min(1.0, 1 - 2 * (x * x + y * y)))))
+
+
+# -- 1 and 2: the controller that flies the setpoints ------------------------------------------
+@pytest.mark.parametrize(
+    "controller, rates_flown", [("PID", True), ("INDI", True), ("Lee", False), ("Mellinger", False)]
+)
+def test_only_rate_controllers_fly_rate_setpoints(controller, rates_flown):
+    """Lee, Mellinger (and Brescianini) hold the setpoint's attitude: a roll-rate setpoint leaves
+    the vehicle level; the PID and INDI roll it."""
+    port = next(_ports)
+    ident = firmware.fact(f"controller_{controller.lower()}")
+    server = SimCrazyflie(SimCrazyflieParams(port=port, boot_params={"stabilizer.controller": ident})).start()
+    try:
+        link = CrazyflieLink(f"udp://127.0.0.1:{port}")
+        link.connect()
+        server.params["stabilizer.controller"] = ident  # as a vehicle that keeps it would
+        server._settle_params()
+        assert server.controller == controller
+        tilt = tilt_after(server, link, 0.3, 90.0)
+        link.close()
+    finally:
+        server.stop()
+    assert (tilt > 10.0) == rates_flown, tilt
+
+
+def test_off_board_selects_the_pid_and_clears_the_holds_then_restores_them(tmp_path):
+    """A vehicle left in Lee with the altitude and position holds on (parameters persist until a
+    reboot: an earlier flight, a cfclient session) flies the PID in rate mode, and gets its
+    settings back after the flight."""
+    left = {"stabilizer.controller": 5, "flightmode.althold": 1, "flightmode.poshold": 1, "flightmode.posSet": 1}
+    flown = {}
+
+    def watch(server, runner):
+        server.params.update(left)  # what the vehicle holds when the host connects
+        server._settle_params()
+
+        def during_track():
+            while runner.phase != "TRACK":
+                time.sleep(0.01)
+            flown.update({k: server.params[k] for k in left})
+
+        import threading
+
+        threading.Thread(target=during_track, daemon=True).start()
+
+    summary, server = fly(tmp_path, hook=watch)
+    assert summary["outcome"] == "landed", summary["outcome"]
+    assert summary["track_error_m"] < 0.15
+    assert flown == {"stabilizer.controller": firmware.CONTROLLER_PID, "flightmode.althold": 0,
+                     "flightmode.poshold": 0, "flightmode.posSet": 0}  # fmt: skip
+    assert {k: server.params[k] for k in left} == left  # restored on close
+
+
+@needs_gcc
+def test_onboard_selects_the_controller_the_app_publishes(tmp_path):
+    """The app publishes ``datt.controllerId`` (``ControllerTypeOot`` of its firmware, 6 in
+    2026.08); the host selects it and reads it back; the app's hook then runs and it flies."""
+    seen = {}
+
+    def watch(server, runner):
+        import threading
+
+        def during_track():
+            while runner.phase != "TRACK":
+                time.sleep(0.01)
+            time.sleep(0.3)
+            seen.update(controller=server.controller, phase=server.app.phase)
+
+        threading.Thread(target=during_track, daemon=True).start()
+
+    summary, server = fly(tmp_path, ["deploy.onboard=true"], hook=watch)
+    assert summary["outcome"] == "landed (onboard)", summary["outcome"]
+    assert server.app.get("controllerId") == firmware.CONTROLLER_OOT == 6
+    assert seen == {"controller": "OutOfTree", "phase": onboard.TRACK}
+    assert any("stabilizer.controller = 6" in e["text"] for e in summary["events"])
+
+
+@needs_gcc
+def test_the_app_refuses_to_start_without_its_hook(tmp_path):
+    """Under any controller but the out-of-tree one the hook never runs: the app refuses
+    ``datt.run`` instead of flying a zero state, and the host lands with the PID."""
+
+    def lee_after_handover(server, runner):
+        real = runner.link.set_param_checked
+
+        def switch_then_set(name, value):
+            if name == "datt.run" and value == 1:
+                with server._lock:  # something switches the controller to Lee after the host checked it
+                    server.params["stabilizer.controller"] = 5
+            real(name, value)
+
+        runner.link.set_param_checked = switch_then_set
+
+    summary, server = fly(tmp_path, ["deploy.onboard=true"], hook=lee_after_handover)
+    assert "the app refused to start" in " ".join(e["text"] for e in summary["events"])
+    assert summary["outcome"].startswith("landed early"), summary["outcome"]
+    assert server.app.phase == onboard.IDLE
+
+
+@needs_gcc
+def test_an_app_that_stops_stepping_is_taken_over_by_the_host(tmp_path):
+    """The controller switched away mid-track: the hook's state goes stale, the app pushes no
+    setpoint; the host sees its step counter stop and lands with the PID at once instead of
+    waiting for the commander's watchdog to cut the motors."""
+
+    def lee_mid_track(server, runner):
+        import threading
+
+        def switch():
+            while server.app.phase != onboard.TRACK:
+                time.sleep(0.005)
+            time.sleep(0.5)
+            with server._lock:
+                server.params["stabilizer.controller"] = 5
+
+        threading.Thread(target=switch, daemon=True).start()
+
+    summary, server = fly(tmp_path, ["deploy.onboard=true"], hook=lee_mid_track)
+    assert summary["outcome"].startswith("landed early: the app stopped stepping"), summary["outcome"]
+    assert not server.locked and server.true_state()["pos_m"][2] < 0.15
+
+
+# -- 3: a read that can fail ------------------------------------------------------------------
+def test_a_setting_the_vehicle_does_not_keep_is_refused():
+    """Without the app the firmware has no out-of-tree controller: writing its id is echoed as
+    written, but the stabilizer loop keeps the PID, and the fresh read says so."""
+    port = next(_ports)
+    server = SimCrazyflie(SimCrazyflieParams(port=port)).start()
+    try:
+        link = CrazyflieLink(f"udp://127.0.0.1:{port}").connect()
+        with pytest.raises(LinkError, match=r"stabilizer.controller reads back 1 after setting 6"):
+            link.set_param_checked("stabilizer.controller", 6)
+        link.close()
+    finally:
+        server.stop()
+
+
+def test_the_simulated_firmware_echoes_a_write_as_sent_and_ignores_read_only_writes():
+    from datt.deploy import crtp
+
+    server = SimCrazyflie(SimCrazyflieParams(port=next(_ports)))
+    sent = []
+    server._send = sent.append
+    ident = next(i for i, p in enumerate(server.param_toc) if p[:2] == ("stabilizer", "controller"))
+    request = bytes([ident & 255, ident >> 8, 6])
+    server._on_param(2, request)
+    assert sent == [crtp.packet(crtp.PORT_PARAM, 2, request)]  # the echo says 6 ...
+    server._settle_params()
+    server._on_param(1, request[:2])
+    assert sent[-1] == crtp.packet(crtp.PORT_PARAM, 1, request[:2] + b"\0\x01")  # ... the vehicle runs 1
+    deck = next(i for i, p in enumerate(server.param_toc) if p[:2] == ("deck", "bcLighthouse4"))
+    server._on_param(2, bytes([deck, 0, 1]))
+    assert len(sent) == 2 and server.params["deck.bcLighthouse4"] == 0  # read-only: no answer, unchanged
+
+
+# -- 4: arming confirmed -----------------------------------------------------------------------
+def test_a_vehicle_that_does_not_arm_does_not_take_off(tmp_path):
+    summary, server = fly(tmp_path, ["deploy.server.refuse_arming=true"])
+    assert summary["outcome"].startswith("arming failed: the supervisor did not report the vehicle armed")
+    phases = [e["text"] for e in summary["events"] if e["kind"] == "phase"]
+    assert "TAKEOFF" not in phases and not server.armed
+    assert summary["ticks"] == 0 and server.true_state()["pos_m"][2] == 0.0
+
+
+def test_arming_takes_effect_at_the_supervisors_update():
+    server = SimCrazyflie(SimCrazyflieParams(port=next(_ports)))
+    server._send = lambda data: None
+    server.sim_time_s = 0.02  # between two 25 Hz supervisor updates
+    server._on_supervisor(1, bytes([1, 1]))
+    assert not server.armed
+    server._physics_step()
+    assert not server.armed and server.sim_time_s == pytest.approx(0.04)
+    server._physics_step()
+    assert server.armed
+
+
+# -- 5: the app channel's queue ----------------------------------------------------------------
+def test_the_app_channel_queues_ten_packets_and_drops_the_rest():
+    server = SimCrazyflie(SimCrazyflieParams(port=next(_ports)))
+    server.app = object()  # any app: packets are queued for its task
+    for k in range(16):
+        server._on_platform(2, onboard.points_packet(2 * k, [(0.0, 0.0, 0.0)] * 2))
+    assert len(server.app_rx) == firmware.APP_CHANNEL_RX_QUEUE == 10 and server.app_rx_dropped == 6
+
+
+def test_the_upload_never_sends_more_than_the_queue_holds():
+    sent = []
+    upload = onboard.Upload(sent.append, [(0.0, 0.0, 0.0)] * 64, timeout_s=0.01, attempts=1)
+    with pytest.raises(ValueError, match="app channel queues 1..10"):
+        upload.run(window=16)
+    with pytest.raises(RuntimeError, match="no acknowledgement"):
+        upload.run()
+    assert len(sent) == firmware.APP_CHANNEL_RX_QUEUE
+
+
+@needs_gcc
+def test_onboard_upload_fits_the_queue_and_is_timed(tmp_path):
+    summary, server = fly(tmp_path, ["deploy.onboard=true"])
+    assert summary["outcome"] == "landed (onboard)"
+    assert server.app_rx_dropped == 0
+    assert 0 < summary["upload_s"] < 10
+
+
+# -- 6: settings that would disable a check, and a stop before arming ---------------------------
+@pytest.mark.parametrize("track_s", [0.0, -1.0, math.nan, math.inf])
+def test_a_track_duration_that_is_not_positive_and_finite_is_refused(track_s):
+    with pytest.raises(ConfigError, match=r"^deploy.flight.track_s: must be a finite number > 0 or null, got"):
+        FlightParams(track_s=track_s).validate()
+
+
+def test_safety_settings_from_the_command_line_are_refused_in_one_line():
+    from datt.deploy.schema import deploy_params
+
+    for override, key in [
+        ("deploy.safety.max_tilt_deg=nan", "deploy.safety.max_tilt_deg"),
+        ("deploy.safety.geofence_margin_m=nan", "deploy.safety.geofence_margin_m"),
+        ("deploy.safety.geofence_max_m=[inf,inf,inf]", "deploy.safety.geofence_max_m"),
+        ("deploy.flight.track_s=0", "deploy.flight.track_s"),
+    ]:
+        with pytest.raises(ConfigError, match=f"^{key}: must be"):
+            deploy_params(compose("deploy", [override]).deploy)
+
+
+def test_a_stop_signal_before_arming_arms_nothing(tmp_path):
+    """SIGINT while the flight is being prepared (as while ``deploy.onboard=true`` builds the
+    app): remembered, and the flight ends before arming with exit 130; the log is kept."""
+    from datt.errors import FlightStopped
+    from datt.tasks.deploy import run_deploy_command
+
+    cfg = compose("deploy", [f"deploy.uri=udp://127.0.0.1:{next(_ports)}", *SHORT_FLIGHT])
+    seen = {}
+
+    def interrupt(server, runner):
+        seen["server"] = server
+        os.kill(os.getpid(), signal.SIGINT)  # handled by the StopRequest active while preparing
+        time.sleep(0.05)
+
+    from datt.tasks import deploy as task
+
+    real = task.run_deploy
+    task.run_deploy = lambda c: real(c, run_dir=tmp_path, server_hook=interrupt)
+    try:
+        with pytest.raises(FlightStopped, match=r"stopped before arming \(SIGINT\): nothing was armed"):
+            run_deploy_command(cfg)
+    finally:
+        task.run_deploy = real
+    assert not seen["server"].armed and seen["server"].true_state()["pos_m"][2] == 0.0
+    assert (tmp_path / "events.json").is_file()
