@@ -46,7 +46,8 @@ def test_complementary_estimator_drops_external_positions():
     server.params["stabilizer.estimator"] = 2
     server._on_localization(0, struct.pack("<fff", 0.5, -0.25, 0.0))
     (x, y, z), _ = estimate(server)
-    gain = 1.0 / (1.0 + 0.01**2)  # variance 1 m² (never measured), measurement std 0.01 m
+    var = 100.0**2  # never measured: the firmware's initial xy variance (stdDevInitialPosition_xy 100 m)
+    gain = var / (var + 0.01**2)  # measurement std 0.01 m
     assert (x, y) == pytest.approx((0.4 + gain * 0.1, -0.3 + gain * 0.05), abs=1e-9)
 
 
@@ -95,7 +96,7 @@ def test_extpose_golden_bytes_reach_the_simulated_filter():
     server.params["stabilizer.estimator"] = 2
     server._on_localization(ch, data)
     (x, y, z), q = estimate(server)
-    # fused with gain 1 / (1 + 1e-4) (the filter's variance is still 1 m²)
+    # fused with gain 1e4 / (1e4 + 1e-4) (the filter's xy variance is still the initial 100² m²)
     assert (x, y) == pytest.approx((0.5, -1.0), abs=1e-4)
     assert server.yaw_aligned and server.extpos_rx[-1][1] == pytest.approx((0.5, -1.0, 1.25))
 
@@ -141,20 +142,22 @@ def test_no_mocap_needs_a_positioning_deck(tmp_path):
 
 
 def test_kalman_variance_shrinks_with_measurements_and_grows_without():
-    """The logged position variance: reset to 1 m², the scalar Kalman update v r / (v + r) per
-    measurement (r = locSrv.extPosStdDev²), growth of 0.01 m²/s between them."""
+    """The logged position variance: reset as the firmware does (kalman_core_params_defaults.h:
+    100² m² in x and y, 1 m² in z), the scalar Kalman update v r / (v + r) per measurement
+    (r = locSrv.extPosStdDev²), growth of 0.01 m²/s between them."""
     server = hovering_server()
     server.params["stabilizer.estimator"] = 2
     server._on_param(2, struct.pack("<H", _param_id("kalman.resetEstimation")) + b"\x01")
-    assert server.kalman_var_m2 == [1.0, 1.0, 1.0] and server.params["kalman.resetEstimation"] == 0
+    assert server.kalman_var_m2 == [1e4, 1e4, 1.0] and server.params["kalman.resetEstimation"] == 0
     r = 0.01**2
     server._on_localization(0, struct.pack("<fff", 0.4, -0.3, 0.0))
-    assert server.kalman_var_m2[0] == pytest.approx(1.0 * r / (1.0 + r))
+    assert server.kalman_var_m2[0] == pytest.approx(1e4 * r / (1e4 + r))
+    assert server.kalman_var_m2[2] == pytest.approx(1.0 * r / (1.0 + r))
     before = server.kalman_var_m2[0]
     for _ in range(50):
         server._physics_step()
     assert server.kalman_var_m2[0] == pytest.approx(before + 0.01 * 50 * server.p.dt_s)
-    # the reset put the estimate at the origin; one measurement (gain 1 / (1 + 1e-4)) moved it back
+    # the reset put the estimate at the origin; one measurement (gain ~1) moved it back
     assert estimate(server)[0][:2] == pytest.approx((0.4 + 0.2, -0.3), abs=1e-4)
 
 

@@ -301,3 +301,27 @@ def test_a_stop_signal_before_arming_arms_nothing(tmp_path):
         task.run_deploy = real
     assert not seen["server"].armed and seen["server"].true_state()["pos_m"][2] == 0.0
     assert (tmp_path / "events.json").is_file()
+
+
+# -- the outcome type: one exit status per kind ---------------------------------------------------
+def test_each_outcome_kind_has_its_text_and_exit_status():
+    from datt.deploy.outcome import Kind, Outcome
+
+    cases = {
+        Outcome(Kind.LANDED): ("landed", 0),
+        Outcome(Kind.LANDED_EARLY, "mocap stale"): ("landed early: mocap stale", 0),
+        Outcome(Kind.LANDED_ONBOARD): ("landed (onboard)", 0),
+        Outcome(Kind.REFUSED_SETTING, "deploy.safety.geofence_max_m: ..."): (
+            "preflight failed: deploy.safety.geofence_max_m: ...",
+            2,
+        ),
+        Outcome(Kind.REFUSED, "vehicle not level"): ("preflight failed: vehicle not level", 4),
+        Outcome(Kind.ARMING_FAILED, "no"): ("arming failed: no", 4),
+        Outcome(Kind.STOPPED, "SIGTERM"): ("stopped before arming (SIGTERM): nothing was armed", 130),
+        Outcome(Kind.KILLED, "tilt"): ("killed: tilt", 4),
+        Outcome(Kind.LINK_LOST, "timeout"): ("link lost: timeout", 4),  # the radio's failure, not the user's
+        Outcome(Kind.INCOMPLETE): ("incomplete", 4),
+    }
+    assert {o.kind for o in cases} == set(Kind)
+    for outcome, (text, code) in cases.items():
+        assert (outcome.text, outcome.exit_code, outcome.landed) == (text, code, code == 0)

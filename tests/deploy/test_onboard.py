@@ -286,7 +286,7 @@ def test_link_loss_mid_track_the_app_finishes_and_lands(tmp_path):
         tmp_path,
         ["deploy.onboard=true", "deploy.server.radio_cut_after_start_s=1.0", "deploy.server.decks=[bcLighthouse4]"],
     )
-    assert summary["outcome"].startswith("link lost during the onboard flight")
+    assert summary["outcome"].startswith("link lost: during the onboard flight")
     assert server.radio_down and server.app.phase == onboard.DONE
     assert server.cmd[3] == 0 and not server.locked and server.true_state()["pos_m"][2] < 0.1
     end = server.app.status()
@@ -340,7 +340,7 @@ def test_link_loss_without_a_positioning_deck_lands_early(tmp_path):
         tmp_path,
         ["deploy.onboard=true", "deploy.server.radio_cut_after_start_s=1.0", "deploy.flight.track_s=6.0"],
     )
-    assert summary["outcome"].startswith("link lost during the onboard flight")
+    assert summary["outcome"].startswith("link lost: during the onboard flight")
     status = server.app.status()
     assert server.app.phase == onboard.DONE and status.landed_early == 1
     assert server.cmd[3] == 0 and server.true_state()["pos_m"][2] < 0.1

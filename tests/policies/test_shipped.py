@@ -52,7 +52,7 @@ def test_deploy_grade_checkpoint_is_the_output_of_experiment_deploy():
     from datt.tasks.phases import phase_config, phase_plan
 
     cfg = compose("train", ["experiment=deploy"])
-    assert cfg.train.init_from == "checkpoints/datt_h10_iid.pt"
+    assert cfg.train.init_from == "checkpoints/datt_h10.pt"
     plan = phase_plan(cfg)
     expected = OmegaConf.to_container(phase_config(cfg, len(plan) - 1, plan, "previous/last.pt"), resolve=True)
     data = load_checkpoint(resolve_path("checkpoints/datt_h10_deploy.pt"))

@@ -146,6 +146,8 @@ class CrazyflieLink:
         self._t_a = self._t_b = -math.inf
         self.variances: collections.deque = collections.deque(maxlen=50)  # (varPX, varPY, varPZ) samples
         self._lock = threading.Lock()
+        self._fresh = threading.Condition(self._lock)  # notified with every log block
+        self.round_trip_s = math.inf  # the shortest param read round trip seen (request -> answer)
         self.cf = None
         self.restore: dict[str, float] = {}  # parameters set at connect -> the value they held before
 
@@ -249,9 +251,11 @@ class CrazyflieLink:
 
         self.cf.add_port_callback(CRTPPort.PARAM, cb)
         try:
+            asked = time.monotonic()
             self.cf.param.request_param_update(name)
             if not got.wait(self._io.timeout_s * 4):
                 raise LinkError(f"connect: no answer reading {name} from the vehicle")
+            self.round_trip_s = min(self.round_trip_s, time.monotonic() - asked)
         finally:
             self.cf.remove_port_callback(CRTPPort.PARAM, cb)
         return float(seen[-1])
@@ -298,6 +302,7 @@ class CrazyflieLink:
             with self._lock:
                 setattr(self, store, data)
                 setattr(self, "_t" + store, time.monotonic())
+                self._fresh.notify_all()
 
         return cb
 
@@ -357,6 +362,16 @@ class CrazyflieLink:
         self.read_param(next(iter(self.restore)))
 
     # -- state -----------------------------------------------------------------------------
+    def wait_state_after(self, t_s: float, timeout_s: float) -> None:
+        """Wait (at most ``timeout_s``) until both log blocks have arrived after ``t_s``."""
+        deadline = time.monotonic() + timeout_s
+        with self._lock:
+            while min(self._t_a, self._t_b) <= t_s:
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    return
+                self._fresh.wait(left)
+
     def state(self) -> StateSample | None:
         """Latest estimate (None before both log blocks arrived); ``t_s`` = older block's arrival."""
         with self._lock:

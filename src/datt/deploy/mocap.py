@@ -20,7 +20,21 @@ import time
 
 
 class MocapSource:
+    """``subscribe(callback)``: ``callback(sample)`` is called with every new frame as it arrives
+    (on the source's thread), so a frame can be forwarded at once instead of at the next tick."""
+
     name = "none"
+
+    def __init__(self) -> None:
+        self._subscribers: list = []
+
+    def subscribe(self, callback) -> None:
+        self._subscribers.append(callback)
+
+    def _publish(self, sample) -> None:
+        self._latest = sample
+        for callback in list(getattr(self, "_subscribers", ())):
+            callback(sample)
 
     def start(self) -> None:
         pass
@@ -49,6 +63,7 @@ class SimulatedMocap(MocapSource):
         seed: int = 0,
         noise_std_m: float = 0.0,
     ) -> None:
+        super().__init__()
         self.server, self.latency_s, self.dropout_prob = server, float(latency_s), float(dropout_prob)
         self.dropout_after_s = dropout_after_s
         self.period_s = 1.0 / float(rate_hz)
@@ -72,7 +87,7 @@ class SimulatedMocap(MocapSource):
                 pos = tuple(p + self.rng.gauss(0.0, self.noise_std_m) if self.noise_std_m else p for p in true["pos_m"])
                 self._buffer.append((pos, tuple(true["quat"]), now))
             while self._buffer and now - self._buffer[0][-1] >= self.latency_s:
-                self._latest = self._buffer.popleft()
+                self._publish(self._buffer.popleft())
             time.sleep(self.period_s)
 
     def read(self):
@@ -92,6 +107,7 @@ class MotionCaptureMocap(MocapSource):
             from datt.errors import ConfigError
 
             raise ConfigError("deploy.mocap: the motioncapture source needs `pip install motioncapture`") from None
+        super().__init__()
         self.mc = motioncapture.connect(system, {"hostname": host})
         self.body = body
         self._latest = None
@@ -108,7 +124,7 @@ class MotionCaptureMocap(MocapSource):
                 if name == self.body:
                     p, q = obj.position, getattr(obj, "rotation", None)
                     quat = None if q is None else (float(q.w), float(q.x), float(q.y), float(q.z))
-                    self._latest = ((float(p[0]), float(p[1]), float(p[2])), quat, time.monotonic())
+                    self._publish(((float(p[0]), float(p[1]), float(p[2])), quat, time.monotonic()))
 
     def read(self):
         return self._latest

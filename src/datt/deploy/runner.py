@@ -17,9 +17,7 @@ row per tick), ``events.json`` (phases, safety decisions, timing), and track plo
 
 from __future__ import annotations
 
-import csv
 import dataclasses
-import json
 import math
 import signal
 import threading
@@ -31,7 +29,9 @@ import numpy as np
 import torch
 
 from datt.configuration import FINITE, NON_NEGATIVE, POSITIVE, Range, check_ranges, ranged
-from datt.deploy import firmware, onboard
+from datt.deploy import firmware
+from datt.deploy.flight_log import FlightLog
+from datt.deploy.outcome import Kind, Outcome
 from datt.deploy.safety import KILL, LAND, OK, BatteryFilter, SafetyParams, check, tilt_deg
 from datt.deploy.thrust import ThrustMap
 from datt.errors import LinkError
@@ -57,9 +57,7 @@ class Ramp(RefFamily):
         return (self.start + u * (self.end - self.start)).to(t_s.dtype).expand(n, len(t_s), 3).clone()
 
 
-APP_STALL_S = 0.3  # onboard: the app's step counter still this long while it should fly: the host takes over
 PRE_ARM_PHASES = ("CONNECT", "PREFLIGHT")  # a stop here ends the flight with nothing armed
-LINK_LOST = "LINK_LOST"  # onboard flights: the host lost the vehicle while the app flew on
 
 
 class FlightModel:
@@ -75,9 +73,14 @@ class FlightModel:
         controller.reset(self.env)
         self.last_cmd = self.env.hover_action.clone()
 
-    def act(self, pos_m, vel_mps, quat) -> np.ndarray:
+    def act(self, pos_m, vel_mps, quat, predicted=None) -> np.ndarray:
+        """The command for the measured state; ``predicted`` ((pos, vel, quat), the state rolled
+        over the loop's latency) is what the controller then sees, while the adaptation is
+        updated from the measurement."""
         self.env.set_state(pos_m, vel_mps, quat)
         self.env.adaptation.update(self.env.sim.state, self.last_cmd, None)
+        if predicted is not None:
+            self.env.set_state(*predicted)
         td = None if self.controller.builds_observation else self.env.observe()
         action = self.controller.act(self.env, td)
         cmd = torch.clamp(action, self.env.action_low, self.command_high)
@@ -122,6 +125,13 @@ class FlightParams:
 
 
 class FlightRunner:
+    """An off-board flight: CONNECT -> PREFLIGHT -> ARM -> TAKEOFF -> TRACK -> LAND -> DISARM, the
+    configured controller flying over the radio at ``rate_hz``. :class:`~datt.deploy.onboard_flight.OnboardFlight`
+    hands TRACK to the vehicle's app, :class:`~datt.deploy.calibration.CalibrationFlight` hovers
+    with a thrust excitation instead."""
+
+    sends_estop_watchdog = True  # the firmware's e-stop watchdog every tick (onboard: the app flies on without us)
+
     def __init__(
         self,
         link,
@@ -136,10 +146,9 @@ class FlightRunner:
         run_dir: Path,
         estop: threading.Event | None = None,
         console=None,
-        onboard: bool = False,
-        onboard_policy_id: int | None = None,
         stop_request=None,
         summary_extra: dict | None = None,
+        predictor=None,
     ) -> None:
         self.link, self.mocap = link, mocap
         self.make_env, self.track_controller, self.pid_factory = make_env, track_controller, pid_factory
@@ -147,33 +156,39 @@ class FlightRunner:
         self.p, self.safety, self.thrust = params, safety, thrust
         self.run_dir = Path(run_dir)
         self.estop = estop or threading.Event()
-        self.console = console
-        self.rows: list[dict] = []
-        self.events: list[dict] = []
-        self.phase = "CONNECT"
-        self.t0 = time.monotonic()
-        self.outcome = "incomplete"
+        self.log = FlightLog(self.run_dir, console, params.rate_hz, params.late_tick_ms)
+        self.outcome = Outcome(Kind.INCOMPLETE)
         self.battery = BatteryFilter(safety.battery_filter_s)
         self._mocap_sent_t: float | None = None  # time stamp of the last mocap sample forwarded
+        self._forwarding = False  # mocap frames go to the vehicle (from CONNECT until the log is written)
+        self.predictor = predictor  # off-board latency compensation (datt.deploy.predictor), or None
         self._excitation = None  # calibration: extra thrust (m/s²) as a function of the tick index
-        self.onboard = onboard  # TRACK runs in the vehicle's DATT app (datt.deploy.onboard)
-        self._app: dict = {"samples": {}, "last": None}  # the app's log: step -> its error, latest values
-        self._onboard_steps = 0  # TRACK steps the app flies (set when the reference is uploaded)
-        self.onboard_policy_id = onboard_policy_id  # the app must carry this policy (datt.export.c_code.policy_id)
         self.stop_request = stop_request  # datt.runs.StopRequest active while the flight was prepared
         self.upload_s: float | None = None  # onboard: the reference upload's duration
         self.summary_extra = dict(summary_extra or {})  # recorded in events.json with the summary
 
     # -- helpers ---------------------------------------------------------------------------
+    @property
+    def phase(self) -> str:
+        return self.log.phase
+
+    @property
+    def t0(self) -> float:
+        return self.log.t0
+
+    @property
+    def rows(self) -> list[dict]:
+        return self.log.rows
+
+    @property
+    def events(self) -> list[dict]:
+        return self.log.events
+
     def _event(self, kind: str, text: str = "", **extra) -> None:
-        item = {"t_s": round(time.monotonic() - self.t0, 4), "phase": self.phase, "kind": kind, "text": text, **extra}
-        self.events.append(item)
-        if self.console is not None:
-            self.console.print(f"[{item['t_s']:7.2f} s] {self.phase:8s} {kind}: {text}")
+        self.log.event(kind, text, **extra)
 
     def _set_phase(self, phase: str) -> None:
-        self.phase = phase
-        self._event("phase", phase)
+        self.log.set_phase(phase)
 
     def _origin(self) -> np.ndarray:
         return np.array([self.p.origin_m[0], self.p.origin_m[1], self.p.takeoff_height_m])
@@ -182,23 +197,24 @@ class FlightRunner:
         return self.mocap is not None and self.mocap.name != "none"
 
     def _mocap_age(self) -> float | None:
-        """Forward the mocap sample to the vehicle if it is new and not older than
-        ``safety.max_mocap_age_s`` (the Kalman filter takes every packet as a fresh measurement:
-        resending an old sample would pin the estimate where the vehicle was); return its age."""
+        """The age of the latest mocap frame (None without a mocap source, inf before one)."""
         if not self._has_mocap():
             return None
         sample = self.mocap.read()
-        if sample is None:
-            return math.inf
+        return math.inf if sample is None else time.monotonic() - sample[2]
+
+    def _forward_frame(self, sample) -> None:
+        """Each mocap frame to the vehicle as it arrives (the source's thread), once, and never
+        one older than ``safety.max_mocap_age_s``: the Kalman filter takes every packet as a
+        fresh measurement, so resending an old one would pin the estimate where the vehicle was."""
         pos, quat, t = sample
-        age = time.monotonic() - t
-        if t != self._mocap_sent_t and age <= self.safety.max_mocap_age_s:
-            if quat is None:
-                self.link.send_extpos(pos)
-            else:
-                self.link.send_extpose(pos, quat)
-            self._mocap_sent_t = t
-        return age
+        if t == self._mocap_sent_t or time.monotonic() - t > self.safety.max_mocap_age_s or not self._forwarding:
+            return
+        self._mocap_sent_t = t
+        if quat is None:
+            self.link.send_extpos(pos)
+        else:
+            self.link.send_extpose(pos, quat)
 
     def _send(self, action) -> int:
         roll, pitch, yaw = self.thrust.rates_deg(float(action[1]), float(action[2]), float(action[3]))
@@ -206,17 +222,18 @@ class FlightRunner:
         self.link.send_rates(roll, pitch, yaw, command)
         return command
 
-    def _refuse(self, outcome: str) -> None:
-        """End the flight before arming: ``outcome`` (a "preflight failed: ..." line) is logged
-        and becomes the flight's outcome."""
-        self.outcome = outcome
-        self._event("preflight failed", outcome)
-        raise _Abort(outcome)
+    def _refuse(self, detail: str) -> None:
+        """End the flight before arming: ``detail`` says why (a setting's refusal names its key,
+        ``deploy.…``), is logged and becomes the flight's outcome."""
+        kind = Kind.REFUSED_SETTING if detail.startswith("deploy.") else Kind.REFUSED
+        self.outcome = Outcome(kind, detail)
+        self._event("preflight failed", detail)
+        raise _Abort(self.outcome.text)
 
     def _kill(self, reason: str) -> None:
         self.link.emergency_stop()  # first, before logging or anything else
         self._event("KILL", reason)
-        self.outcome = f"killed: {reason}"
+        self.outcome = Outcome(Kind.KILLED, reason)
 
     # -- flight ----------------------------------------------------------------------------
     def _flight(self, build, airborne) -> dict:
@@ -230,6 +247,12 @@ class FlightRunner:
                 self._stop_if_requested()
                 self._set_phase("CONNECT")
                 self.link.connect(external_position=self._has_mocap())
+                if self.predictor is not None:  # the radio round trip, measured by connect's param reads
+                    self.predictor.round_trip_s = self.link.round_trip_s
+                    self._event("predictor", f"latency {self.predictor.latency_s * 1000:.0f} ms compensated")
+                if self._has_mocap():
+                    self.mocap.subscribe(self._forward_frame)
+                    self._forwarding = True
                 if self.mocap is not None:
                     self.mocap.start()
                 self._set_phase("PREFLIGHT")
@@ -250,7 +273,7 @@ class FlightRunner:
         except LinkError as exc:
             if self.phase == "CONNECT":
                 raise  # the vehicle could not be reached or refused a setting: the command's error
-            self.outcome = f"link lost: {exc}"
+            self.outcome = Outcome(Kind.LINK_LOST, str(exc))
             self._event("link lost", str(exc))
             if self.phase not in PRE_ARM_PHASES:
                 self._kill(str(exc))
@@ -265,6 +288,7 @@ class FlightRunner:
                 if self.link.link_lost.is_set():  # the sends above were skipped; say why
                     self._event("link lost", self.link.lost_reason)
                 summary = self._write()  # before closing anything: a hanging close keeps the log
+                self._forwarding = False
                 try:
                     if self.mocap is not None:
                         self.mocap.stop()
@@ -281,8 +305,8 @@ class FlightRunner:
             raise KeyboardInterrupt(self.stop_request.signal)
 
     def _stopped(self, why: str) -> None:
-        self.outcome = f"stopped before arming ({why}): nothing was armed"
-        self._event("stopped", self.outcome)
+        self.outcome = Outcome(Kind.STOPPED, why)
+        self._event("stopped", self.outcome.text)
 
     def _arm(self) -> None:
         """Arm, and take off only once the supervisor reports the vehicle armed: a firmware
@@ -297,9 +321,9 @@ class FlightRunner:
             why = f"the supervisor did not report the vehicle armed within {self.p.arm_timeout_s:g} s"
         if not armed:
             self.link.arm(False)
-            self.outcome = f"arming failed: {why} (supervisor.info); nothing flew"
-            self._event("arming failed", self.outcome)
-            raise _Abort(self.outcome)
+            self.outcome = Outcome(Kind.ARMING_FAILED, f"{why} (supervisor.info); nothing flew")
+            self._event("arming failed", self.outcome.text)
+            raise _Abort(self.outcome.text)
         self._event("armed", "the supervisor reports the vehicle armed")
         self.link.send_rates(0.0, 0.0, 0.0, 0)  # unlocks the firmware's thrust lock
 
@@ -323,270 +347,6 @@ class FlightRunner:
             self._land(origin)
 
         return self._flight(build, airborne)
-
-    def fly_onboard(self) -> dict:
-        """Takeoff (PID, off-board), then the vehicle's DATT app tracks the reference and lands
-        by itself: the reference is uploaded before arming, ``datt.run = 1`` hands it the flight,
-        and the host only streams mocap and watches (KILL on a safety breach; a LAND decision
-        stops the app and lands with the PID). A lost link leaves the app flying to the end."""
-
-        def build(start_rel):
-            track = self._model(self.track_controller, self.track_family)
-            self._check_reference_in_geofence(track, self.p.track_s)
-            self._onboard_prepare(track)
-            return self._takeoff(start_rel)
-
-        def airborne(origin, takeoff):
-            name, model, duration = takeoff
-            self._set_phase(name)
-            if self._fly_phase(model, duration, origin) != OK:
-                return
-            self._set_phase("TRACK")
-            result = self._onboard_track(origin)
-            if result == LAND:
-                self._land(origin)
-            elif result == OK:
-                self.link.send_rates(0.0, 0.0, 0.0, 0)
-                self.outcome = "landed (onboard)"
-
-        return self._flight(build, airborne)
-
-    def _onboard_track_steps(self, model: FlightModel) -> int:
-        duration = self._duration_s(model, self.p.track_s)
-        return int(round(duration * self.p.rate_hz))
-
-    def _onboard_prepare(self, track: FlightModel) -> None:
-        """Check the app is there, select its controller hook, set its parameters, upload the
-        reference (controller frame) and follow its log."""
-        if not self.link.has_param("datt.run"):
-            self._refuse(
-                "preflight failed: deploy.onboard: the vehicle's firmware has no DATT app (no parameter datt.run): "
-                "build and flash it (datt export format=app; docs/onboard.md), or fly off-board (deploy.onboard=false)"
-            )
-        if self.onboard_policy_id is not None:
-            carried = int(self.link.read_param("datt.policyId"))
-            if carried != self.onboard_policy_id:
-                self._refuse(
-                    f"preflight failed: deploy.onboard: the vehicle's app carries policy {carried:#010x}, the "
-                    f"checkpoint is {self.onboard_policy_id:#010x}: flash the app exported from it "
-                    "(datt export format=app checkpoint=...), or pass the checkpoint the app was built from"
-                )
-        steps = self._onboard_track_steps(track)
-        env = track.env
-        table = env.ref_table[0, : min(steps + env.window, env.table_len)].double().numpy()
-        if len(table) <= steps:  # a track longer than the reference: hold its last point, as off-board
-            table = np.concatenate((table, np.repeat(table[-1:], steps + 1 - len(table), axis=0)))
-        if len(table) > onboard.TABLE_MAX:
-            self._refuse(
-                f"preflight failed: deploy.flight.track_s: the app holds {onboard.TABLE_MAX} reference points "
-                f"({(onboard.TABLE_MAX - env.window) / self.p.rate_hz:.1f} s of track at {self.p.rate_hz:g} Hz); "
-                f"this track needs {len(table)}"
-            )
-        origin = self._origin()
-        values = {
-            "originX": origin[0],
-            "originY": origin[1],
-            "originZ": origin[2],
-            "nPoints": len(table),
-            "trackSteps": steps,
-            "landZ": -origin[2] + 0.05,
-            "landS": self.p.land_s,
-            "landHoldS": 0.5,
-            "hoverCmd": self.thrust.hover_command,
-            "slope": self.thrust.slope,
-            "maxCmd": self.thrust.p.max_command,
-            "maxRateRoll": self.thrust.p.max_rate_degps[0],
-            "maxRatePitch": self.thrust.p.max_rate_degps[1],
-            "maxRateYaw": self.thrust.p.max_rate_degps[2],
-            "maxTiltDeg": self.safety.max_tilt_deg,
-            "maxPosStdM": self.p.onboard_max_pos_std_m,
-        }
-        controller = self._app_controller_id()
-        try:  # every setting the onboard flight depends on, read back fresh
-            self.link.set_params_checked({"datt.run": 0, **{f"datt.{name}": value for name, value in values.items()}})
-            self.link.set_param_checked(str(firmware.fact("param_controller")), controller)
-        except LinkError as exc:
-            self._refuse(f"preflight failed: deploy.onboard: {str(exc).removeprefix('connect: ')}")
-        self._event("onboard", f"stabilizer.controller = {controller} (the app's out-of-tree controller), read back")
-        upload = onboard.Upload(self.link.send_app_packet, table)
-        self.link.on_app_packet(upload.on_packet)
-        started = time.monotonic()
-        try:
-            upload.run()
-        except RuntimeError as exc:
-            self._refuse(f"preflight failed: the reference upload to the app failed: {exc}")
-        self.upload_s = time.monotonic() - started
-        self._event("onboard", f"reference uploaded: {len(table)} points in {self.upload_s:.2f} s")
-        self._onboard_steps = steps
-        self.link.log_block("datt", onboard.LOG_BLOCK, self.link.log_period_ms, self._on_app_log)
-
-    def _app_controller_id(self) -> int:
-        """The controller id the app's hook runs under, as the app publishes it
-        (``datt.controllerId``: ``ControllerTypeOot`` of the firmware it was built into)."""
-        if not self.link.has_param("datt.controllerId"):
-            self._refuse(
-                "preflight failed: deploy.onboard: the vehicle's app does not publish datt.controllerId (built by an "
-                "older datt export): rebuild and flash it (datt export format=app; docs/onboard.md)"
-            )
-        controller = int(self.link.read_param("datt.controllerId"))
-        if controller != firmware.CONTROLLER_OOT:
-            self._event(
-                "warning",
-                f"the app runs under controller {controller}, the host's table ({firmware.FIRMWARE_VERSION}) says "
-                f"{firmware.CONTROLLER_OOT}: that firmware numbers its controllers otherwise; the app's id is used",
-            )
-        return controller
-
-    def _on_app_log(self, values: dict) -> None:
-        phase, step = int(values["datt.phase"]), int(values["datt.step"])
-        ref = (values["datt.refX"], values["datt.refY"], values["datt.refZ"])
-        self._app["last"] = (phase, step, ref, time.monotonic())
-        if phase in (onboard.TRACK, onboard.LAND, onboard.DONE) and step > 0:
-            # datt.errM / datt.ref* belong to the step before datt.step (the app counts after stepping)
-            self._app["samples"][step - 1] = float(values["datt.errM"])
-
-    def _onboard_track(self, origin: np.ndarray) -> str:
-        """Hand the flight to the app and watch until it has landed (or the time it needs has
-        passed). Returns OK (the app landed), LAND (stopped: the host lands) or KILL."""
-        self.link.set_param_checked("datt.run", 1)
-        dt = 1.0 / self.p.rate_hz
-        budget_s = self._onboard_steps * dt + self.p.land_s + 0.5 + 2.0
-        deadline = time.monotonic() + budget_s
-        quiet = False
-        stepping = [-1, time.monotonic()]  # the app's last step seen, and when it changed
-        next_t = time.monotonic()
-        while time.monotonic() < deadline:
-            now = time.monotonic()
-            state = self.link.state()
-            mocap_age = self._mocap_age()
-            last = self._app["last"]
-            phase = last[0] if last is not None else onboard.IDLE
-            if phase == onboard.REFUSED:
-                self._event("LAND", "the app refused to start (table incomplete or a parameter invalid)")
-                self.link.set_param("datt.run", 0)
-                return LAND
-            if phase == onboard.ABORTED:  # the app holds the motors off (stop setpoints) until datt.run = 0
-                self.outcome = "killed: the onboard app aborted (tilt or a non-finite state/action), motors stopped"
-                self._event("KILL", self.outcome)
-                return KILL
-            if phase == onboard.DONE:
-                self.link.set_param("datt.run", 0)
-                self._event("onboard", "the app has landed")
-                return OK
-            if last is not None and phase in (onboard.TRACK, onboard.LAND):
-                if last[1] != stepping[0]:
-                    stepping[:] = [last[1], now]
-                elif now - stepping[1] > APP_STALL_S and not self.link.link_lost.is_set():
-                    self._event("LAND", f"the app stopped stepping at step {last[1]} (its state is stale: no hook)")
-                    self.link.set_param("datt.run", 0)  # the commander back to the radio's setpoints
-                    return LAND
-            fresh = state is not None and now - state.t_s < self.safety.max_state_age_s
-            if self.link.link_lost.is_set() or not fresh:
-                if not quiet:  # nothing the host can do: the app flies on by itself
-                    self._event("warning", "no fresh state from the vehicle: the onboard app flies on")
-                    quiet = True
-            else:
-                quiet = False
-                state_for_check = dataclasses.replace(state, vbat_v=self.battery.update(state.vbat_v, dt))
-                decision = check(
-                    self.safety,
-                    now_s=now,
-                    state=state_for_check,
-                    command=None,
-                    estop=self.estop.is_set(),
-                    link_lost=False,
-                    mocap_age_s=mocap_age,
-                )
-                if decision.action == KILL:
-                    self._kill(decision.reason)
-                    return KILL
-                if decision.action == LAND:
-                    self._event("LAND", decision.reason)
-                    self.link.set_param("datt.run", 0)  # the app hands the commander back
-                    return LAND
-                ref = np.array(last[2]) + origin if last is not None else np.full(3, np.nan)
-                self.rows.append(
-                    {
-                        "t_s": now - self.t0,
-                        "phase": "TRACK" if phase != onboard.LAND else "LAND",
-                        "pos": list(state.pos_m),
-                        "vel": list(state.vel_mps),
-                        "quat": list(state.quat),
-                        "ref": list(ref),
-                        "action": [math.nan] * 4,  # computed onboard
-                        "thrust_cmd": 0,
-                        "d_hat": [math.nan] * 3,
-                        "vbat": state.vbat_v,
-                        "decision": decision.action,
-                        "jitter_ms": (now - next_t) * 1e3,
-                        "compute_ms": 0.0,
-                    }
-                )
-            next_t += dt
-            time.sleep(max(0.0, next_t - time.monotonic()))
-        state = self.link.state()
-        if self.link.link_lost.is_set() or state is None or time.monotonic() - state.t_s > self.safety.max_state_age_s:
-            # an e-stop could not arrive, and would drop a vehicle that may still be flying well
-            self.outcome = (
-                "link lost during the onboard flight: the app flew on by itself; the host cannot confirm it landed"
-            )
-            self._event("warning", self.outcome)
-            return LINK_LOST
-        self._event("LAND", f"the app did not report landing within {budget_s:.1f} s")
-        self.link.set_param("datt.run", 0)
-        return LAND
-
-    def calibrate(self, hover_s: float = 4.0, excitation_mps2: float = 1.0) -> dict:
-        """Hover calibration flight: takeoff, then hold the hover point with the PID while a slow
-        square wave of ±``excitation_mps2`` is added to its thrust. From the logged velocity:
-        the loop's response latency (ticks from a command to the state showing its effect,
-        :func:`~datt.deploy.thrust.response_lag_ticks`), then, with the commands shifted by it,
-        the command at which the vertical acceleration is zero and the slope of acceleration
-        against command (:func:`~datt.deploy.thrust.fit_hover`); then land. Returns the summary
-        with ``calibration`` = ``{hover_command, slope_mps2_per_command, response_latency_ms}``
-        (set the first two as ``deploy.thrust.*``)."""
-        from datt.deploy.thrust import fit_hover, response_lag_ticks
-
-        fitted = {}
-
-        def build(start_rel):
-            return self._takeoff(start_rel), self._model(self.pid_factory(), Ramp([0.0] * 3, [0.0] * 3, 1.0))
-
-        def airborne(origin, built):
-            (name, takeoff, duration), hold = built
-            self._set_phase(name)
-            if self._fly_phase(takeoff, duration, origin) != OK:
-                return
-            self._set_phase("CALIBRATE")
-            half_period = int(self.p.rate_hz / 2)
-            self._excitation = lambda k: excitation_mps2 * self._square(k, half_period)
-            first = len(self.rows)
-            result = self._tick_loop(hold, int(hover_s * self.p.rate_hz), origin)
-            self._excitation = None
-            if result == OK:
-                rows = self.rows[first:]
-                acc = list(np.diff([r["vel"][2] for r in rows]) * self.p.rate_hz)
-                lag = response_lag_ticks([self._square(k, half_period) for k in range(len(acc))], acc)
-                shift = int(round(lag))
-                cmds = [float(r["thrust_cmd"]) for r in rows[: len(acc) - shift]]
-                hover, slope = fit_hover(cmds, acc[shift:])
-                latency_ms = lag / self.p.rate_hz * 1000.0
-                fitted.update(hover_command=hover, slope_mps2_per_command=slope, response_latency_ms=latency_ms)
-                self._event(
-                    "calibrated",
-                    f"hover command {hover:.0f}, slope {slope:.3e} m/s² per unit, "
-                    f"command-to-response latency {latency_ms:.0f} ms",
-                )
-            if result != KILL:
-                self._land(origin)
-
-        summary = self._flight(build, airborne)
-        summary["calibration"] = fitted or None
-        return summary
-
-    @staticmethod
-    def _square(k: int, half_period: int) -> float:
-        return 1.0 if (k // half_period) % 2 else -1.0
 
     def _preflight(self) -> np.ndarray:
         deadline = time.monotonic() + self.p.preflight_timeout_s
@@ -639,9 +399,7 @@ class FlightRunner:
             if not all(lo[i] <= goal[i] <= hi[i] for i in range(3)):
                 checks.append("hover point outside the geofence")
         if checks:
-            self.outcome = "preflight failed: " + "; ".join(checks)
-            self._event("preflight failed", "; ".join(checks))
-            raise _Abort(self.outcome)
+            self._refuse("; ".join(checks))
         self._event("preflight ok", f"battery {state.vbat_v:.2f} V")
         return np.array(state.pos_m)
 
@@ -677,7 +435,7 @@ class FlightRunner:
             axis = int(np.nonzero((path[k] < lo) | (path[k] > hi))[0][0])
             bound = "geofence_min_m" if path[k, axis] < lo[axis] else "geofence_max_m"
             self._refuse(
-                f"preflight failed: deploy.safety.{bound}: the reference leaves the geofence at "
+                f"deploy.safety.{bound}: the reference leaves the geofence at "
                 f"t={k / self.p.rate_hz:.2f} s ({'xyz'[axis]}={path[k, axis]:.2f} m; "
                 f"fence {lo[axis]:.2f}..{hi[axis]:.2f} m)"
             )
@@ -685,10 +443,14 @@ class FlightRunner:
     def _tick_loop(self, model: FlightModel, steps: int, origin: np.ndarray, allow_land: bool = True) -> str:
         dt = 1.0 / self.p.rate_hz
         next_t = time.monotonic()
+        used_t = -math.inf  # arrival of the estimate the last tick used
+        predict = self.predictor is not None and self._excitation is None  # calibration measures the raw loop
         for k in range(steps):
             scheduled = next_t
+            jitter_ms = (time.monotonic() - scheduled) * 1e3
+            # the tick runs on a fresh estimate: wait (at most one log period) for one newer than the last
+            self.link.wait_state_after(used_t, self.link.log_period_ms / 1000.0)
             now = time.monotonic()
-            jitter_ms = (now - scheduled) * 1e3
             state = self.link.state()
             if state is not None:  # the decision sees the low-passed voltage (the log keeps the raw one)
                 state_for_check = dataclasses.replace(state, vbat_v=self.battery.update(state.vbat_v, dt))
@@ -697,8 +459,15 @@ class FlightRunner:
             mocap_age = self._mocap_age()
             action, command = None, 0
             if state is not None and all(math.isfinite(v) for v in (*state.pos_m, *state.vel_mps, *state.quat)):
+                used_t = state.t_s
+                predicted = None
+                if predict:
+                    p, v, q = self.predictor.predict(
+                        now, state.t_s, state.pos_m, state.vel_mps, state.quat, model.d_hat
+                    )
+                    predicted = (np.array(p) - origin, v, q)
                 pos = np.array(state.pos_m) - origin
-                action = model.act(pos, state.vel_mps, state.quat)
+                action = model.act(pos, state.vel_mps, state.quat, predicted)
                 if self._excitation is not None:
                     action[0] += self._excitation(k)
             decision = check(
@@ -719,12 +488,14 @@ class FlightRunner:
             if decision.action == LAND:  # already landing: keep landing, note why
                 self._event("warning", decision.reason)
             command = self._send(action)
-            if self.p.estop_watchdog and not self.onboard:  # onboard: a lost link must not stop the app's flight
+            if self.predictor is not None:
+                self.predictor.record(time.monotonic(), model.last_cmd[0].detach().numpy())
+            if self.p.estop_watchdog and self.sends_estop_watchdog:
                 self.link.send_estop_watchdog()
             compute_ms = (time.monotonic() - now) * 1e3
             self.rows.append(
                 {
-                    "t_s": now - self.t0,
+                    "t_s": now - self.log.t0,
                     "phase": self.phase,
                     "pos": list(state.pos_m),
                     "vel": list(state.vel_mps),
@@ -774,102 +545,27 @@ class FlightRunner:
         if result == OK:
             self.link.send_rates(0.0, 0.0, 0.0, 0)
             reasons = [e["text"] for e in self.events if e["kind"] == "LAND"]
-            self.outcome = "landed" + (f" early: {reasons[0]}" if reasons else "")
+            self.outcome = Outcome(Kind.LANDED_EARLY, reasons[0]) if reasons else Outcome(Kind.LANDED)
 
     # -- records ---------------------------------------------------------------------------
+    def _track_errors(self) -> list[float]:
+        """|pos - ref| of each TRACK tick (the onboard flight: the app's own per-step error)."""
+        return [float(np.linalg.norm(np.array(r["pos"]) - np.array(r["ref"]))) for r in self._track_rows()]
+
+    def _track_rows(self) -> list[dict]:
+        return [r for r in self.rows if r["phase"] == "TRACK"]
+
     def _write(self) -> dict:
-        self.run_dir.mkdir(parents=True, exist_ok=True)
-        with open(self.run_dir / "flight.csv", "w", newline="") as f:
-            w = csv.writer(f)
-            w.writerow(
-                [
-                    "t_s",
-                    "phase",
-                    "x",
-                    "y",
-                    "z",
-                    "vx",
-                    "vy",
-                    "vz",
-                    "qw",
-                    "qx",
-                    "qy",
-                    "qz",
-                    "ref_x",
-                    "ref_y",
-                    "ref_z",
-                    "thrust_mps2",
-                    "wx",
-                    "wy",
-                    "wz",
-                    "thrust_cmd",
-                    "dhat_x",
-                    "dhat_y",
-                    "dhat_z",
-                    "vbat_v",
-                    "decision",
-                    "jitter_ms",
-                    "compute_ms",
-                ]
-            )
-            for r in self.rows:
-                w.writerow(
-                    [
-                        f"{r['t_s']:.4f}",
-                        r["phase"],
-                        *r["pos"],
-                        *r["vel"],
-                        *r["quat"],
-                        *r["ref"],
-                        *r["action"],
-                        r["thrust_cmd"],
-                        *r["d_hat"],
-                        r["vbat"],
-                        r["decision"],
-                        f"{r['jitter_ms']:.3f}",
-                        f"{r['compute_ms']:.3f}",
-                    ]
-                )
-        track = [r for r in self.rows if r["phase"] == "TRACK"]
-        err = [float(np.linalg.norm(np.array(r["pos"]) - np.array(r["ref"]))) for r in track]
-        app_steps = {k: e for k, e in self._app["samples"].items() if k < self._onboard_steps}
-        if self.onboard:  # the app's own per-step error (the estimate it flew on vs p_d at that step)
-            err = list(app_steps.values())
-        jitter = np.array([r["jitter_ms"] for r in self.rows]) if self.rows else np.zeros(1)
-        compute = np.array([r["compute_ms"] for r in self.rows]) if self.rows else np.zeros(1)
+        err = self._track_errors()
         summary = {
-            "outcome": self.outcome,
-            "track_steps": len(app_steps) if self.onboard else len(track),
+            "outcome": self.outcome.text,
+            "outcome_kind": self.outcome.kind.value,
+            "track_steps": len(err),
             "track_error_m": float(np.mean(err)) if err else None,
-            "ticks": len(self.rows),
-            "jitter_ms": {
-                "median": float(np.median(np.abs(jitter))),
-                "p99": float(np.percentile(np.abs(jitter), 99)),
-                "max": float(np.max(np.abs(jitter))),
-            },
-            "late_ticks": int(np.sum(jitter > self.p.late_tick_ms)),
             "upload_s": self.upload_s,
-            "compute_ms": {"median": float(np.median(compute)), "p99": float(np.percentile(compute, 99))},
-            "events": self.events,
             **self.summary_extra,
         }
-        (self.run_dir / "events.json").write_text(json.dumps(summary, indent=2, default=str) + "\n")
-        if track:
-            self._plot(track)
-        return summary
-
-    def _plot(self, track: list[dict]) -> None:
-        from types import SimpleNamespace
-
-        from datt.eval.plots import plot_group_axes, plot_tracks
-
-        pos = torch.tensor([r["pos"] for r in track]).unsqueeze(0)
-        ref = torch.tensor([r["ref"] for r in track]).unsqueeze(0)
-        trace = SimpleNamespace(pos_m=pos, ref_m=ref, crashed_at=torch.tensor([len(track) - 1]))
-        plot_tracks(
-            trace, ["track"], [1], self.run_dir / "tracks_flight.png", title="flight: reference vs flown", per_group=1
-        )
-        plot_group_axes(trace, ["track"], [1], 1.0 / self.p.rate_hz, self.run_dir / "axes_flight.png", title="flight")
+        return self.log.write(summary, self._track_rows())
 
 
 class _Abort(RuntimeError):

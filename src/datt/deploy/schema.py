@@ -10,6 +10,7 @@ from typing import Any
 from omegaconf import MISSING, DictConfig, OmegaConf
 
 from datt.configuration import structured
+from datt.deploy.predictor import PredictorParams
 from datt.deploy.runner import FlightParams
 from datt.deploy.safety import SafetyParams
 from datt.deploy.thrust import ThrustParams
@@ -61,6 +62,7 @@ class DeployParams:
     flight: Any = MISSING
     safety: Any = MISSING
     thrust: Any = MISSING
+    predictor: Any = MISSING  # datt.deploy.predictor.PredictorParams (set by deploy_params)
 
     def validate(self) -> None:
         self.mocap.validate()
@@ -84,4 +86,5 @@ def deploy_params(node: DictConfig) -> tuple[DeployParams, FlightParams, SafetyP
     flight = structured(FlightParams, params.flight, "deploy.flight")
     safety = structured(SafetyParams, params.safety, "deploy.safety")
     thrust = structured(ThrustParams, params.thrust, "deploy.thrust")
+    params.predictor = structured(PredictorParams, params.predictor, "deploy.predictor")
     return params, flight, safety, thrust

@@ -13,7 +13,11 @@ from datt.configuration import instantiate_option, with_options
 from datt.control.factory import build_controller
 from datt.control.pid import PidController
 from datt.deploy import mocap
+from datt.deploy.calibration import CalibrationFlight
 from datt.deploy.link import CrazyflieLink, LinkError
+from datt.deploy.onboard_flight import OnboardFlight
+from datt.deploy.outcome import Kind, Outcome
+from datt.deploy.predictor import StatePredictor
 from datt.deploy.runner import FlightRunner
 from datt.deploy.schema import DeployParams, deploy_params
 from datt.deploy.thrust import ThrustMap, ThrustParams
@@ -99,7 +103,22 @@ def run_deploy(cfg: DictConfig, run_dir: Path | None = None, estop=None, server_
             source = _mocap_source(params, server)
             link = CrazyflieLink(params.uri, params.log_period_ms, params.connect_timeout_s, params.io_timeout_s)
             track_family = instantiate_option(cfg, "traj")
-            runner = FlightRunner(
+            kind, extra = FlightRunner, {}
+            if params.mode == "calibrate":
+                kind, extra = CalibrationFlight, {"hover_s": params.calibrate_hover_s}
+            elif params.onboard:
+                kind, extra = OnboardFlight, {"policy_id": policy_id}
+            predictor = None
+            if params.predictor.enabled:
+                quad = model_cfg.env.quad
+                predictor = StatePredictor(
+                    params.predictor,
+                    gravity_mps2=float(quad.gravity_mps2),
+                    k_rate=float(quad.k_rate),
+                    dt_s=float(model_cfg.env.dt_s),
+                    k_thrust=float(quad.k_thrust),
+                )
+            runner = kind(
                 link,
                 source,
                 make_flight_env,
@@ -112,18 +131,15 @@ def run_deploy(cfg: DictConfig, run_dir: Path | None = None, estop=None, server_
                 run_dir,
                 estop=estop,
                 console=console,
-                onboard=params.onboard,
-                onboard_policy_id=policy_id,
                 stop_request=stop,
                 summary_extra={"controller": labels},
+                predictor=predictor,
+                **extra,
             )
             if server_hook is not None:
                 server_hook(server, runner)
             try:
-                if params.mode == "calibrate":
-                    summary = runner.calibrate(params.calibrate_hover_s)
-                else:
-                    summary = runner.fly_onboard() if params.onboard else runner.fly()
+                summary = runner.fly()
             except LinkError as exc:
                 raise ConfigError(str(exc)) from None
         finally:
@@ -154,11 +170,12 @@ def run_deploy_command(cfg: DictConfig) -> dict:
     (a refused setting: one line naming it, exit 2; KILLed, not armed or lost: exit 4; stopped
     before arming: exit 130)."""
     summary = run_deploy(cfg)
-    outcome = str(summary["outcome"])
-    if outcome.startswith("stopped before arming"):
-        raise FlightStopped(outcome)
-    if outcome.startswith("preflight failed: deploy."):  # a setting refused the flight before arming
-        raise ConfigError(outcome.removeprefix("preflight failed: "))
-    if not outcome.startswith("landed"):
-        raise FlightAborted(outcome)
+    outcome = Outcome(Kind(summary["outcome_kind"]), "")
+    text = str(summary["outcome"])
+    if outcome.exit_code == 2:  # a setting refused the flight before arming
+        raise ConfigError(text.removeprefix("preflight failed: "))
+    if outcome.exit_code == 130:
+        raise FlightStopped(text)
+    if outcome.exit_code != 0:
+        raise FlightAborted(text)
     return summary

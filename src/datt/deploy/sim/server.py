@@ -114,13 +114,18 @@ ATTITUDE_KP = 8.0  # the attitude-holding controllers' levelling gain (rad/s per
 APP_CHANNEL_QUEUE = 10  # app_channel.c: xQueueCreate(10, sizeof(CRTPPacket)); a full queue drops
 SUPERVISOR_PERIOD_S = 0.04  # supervisor.c runs at RATE_SUPERVISOR (25 Hz): arming takes effect there
 PARAM_RO_FLAG = 0x40  # param TOC type byte: read-only
-KALMAN_RESET_VAR_M2, KALMAN_PROCESS_M2PS = 1.0, 0.01  # variance after a reset; its growth per second
+# kalman_core_params_defaults.h: stdDevInitialPosition_xy 100 m, _z 1 m (the variances after a reset)
+KALMAN_RESET_VAR_M2 = (100.0**2, 100.0**2, 1.0)
+KALMAN_PROCESS_M2PS = 0.01  # the position variance's growth per second between measurements
+# supervisor.c isTumbledCheck (platform_defaults.h): body-z specific force under 0.5 g for 1 s, or
+# under -0.2 g (upside down) for 0.1 s, is a tumble: motors off, crashed until a restart
+TUMBLE_ACCZ_G, TUMBLE_S, UPSIDE_DOWN_ACCZ_G, UPSIDE_DOWN_S, FREE_FALL_G = 0.5, 1.0, -0.2, 0.1, 0.1
 APP_CHANNEL = 2  # platform port channel of the app channel (app_channel.c)
 EXT_POSE = 8  # localization generic channel message type (cflib Localization.EXT_POSE)
 WATCHDOG_LEVEL_S, WATCHDOG_OFF_S = 0.5, 2.0
 ESTOP_WATCHDOG_S = 1.0  # supervisor.c: DEFAULT_EMERGENCY_STOP_WATCHDOG_TIMEOUT
 CMD_ARM, CMD_ESTOP, CMD_ESTOP_WATCHDOG, CMD_GET_STATE_BITFIELD = 1, 3, 4, 12  # crtp_supervisor.c
-BIT_CAN_BE_ARMED, BIT_ARMED, BIT_CAN_FLY, BIT_FLYING, BIT_LOCKED = 0, 1, 3, 4, 6
+BIT_CAN_BE_ARMED, BIT_ARMED, BIT_CAN_FLY, BIT_FLYING, BIT_TUMBLED, BIT_LOCKED, BIT_CRASHED = 0, 1, 3, 4, 5, 6, 7
 
 
 def _yaw_rotated(q: list[float], angle_rad: float) -> list[float]:
@@ -161,6 +166,10 @@ class SimCrazyflieParams:
     onboard_library: str | None = None  # the DATT app's C as a shared library (datt.export.app); None = no app
     radio_cut_after_start_s: float | None = None  # the radio goes silent this long after the app starts
     refuse_arming: bool = False  # the supervisor refuses to arm (a firmware whose preflight checks fail)
+    radio_jitter_s: float = 0.0  # each packet's delay: radio_latency_s + U(0, radio_jitter_s), in order
+    radio_burst_len: float = 1.0  # mean length of a run of lost packets (1: independent losses)
+    vel_noise_std_mps: float = 0.0  # the estimate's velocity error (first-order, 0.2 s correlation)
+    att_noise_std_rad: float = 0.0  # the estimate's roll/pitch/yaw error (first-order, 0.2 s correlation)
     boot_params: dict = field(default_factory=dict)  # parameter values at power-on ("group.name": value),
     # e.g. what an earlier flight left: parameters persist until a reboot
 
@@ -210,7 +219,16 @@ class SimCrazyflie:
             self.params[key] = value
         self._settle_params()
         self.pos_error_m = [0.0, 0.0, 0.0]  # Kalman: estimate - true position (held between measurements)
-        self.kalman_var_m2 = [KALMAN_RESET_VAR_M2] * 3  # position variance: grows, shrinks with each measurement
+        self.kalman_var_m2 = list(KALMAN_RESET_VAR_M2)  # position variance: grows, shrinks with each measurement
+        self.vel_error_mps = [0.0, 0.0, 0.0]  # the estimate's velocity error
+        self.att_error_rad = [0.0, 0.0, 0.0]  # the estimate's attitude error (small rotation, world frame)
+        self._noise_rng = random.Random(self.p.radio_seed + 1)
+        self.crashed = False  # the supervisor found the vehicle tumbled: motors off until a restart
+        self._tilted_s = 0.0  # how long the body-z specific force has been under the tumble limits
+        self._upside_down_s = 0.0
+        self._last_vel = None
+        self._burst_lost = False  # the radio's loss state (a run of losses continues with 1 - 1 / burst_len)
+        self._radio_last_due = 0.0  # packets stay in order: none is delivered before an earlier one
         self.yaw_aligned = False  # an extpose has told the Kalman filter the mocap yaw
         self.extpos_rx: list[tuple[float, tuple]] = []  # (monotonic time, position) of every ext position/pose
         self.log_blocks: dict[int, dict] = {}
@@ -274,7 +292,7 @@ class SimCrazyflie:
     @property
     def locked(self) -> bool:
         """The supervisor's Locked state: only a restart leaves it."""
-        return self.emergency_stopped or self.watchdog_locked
+        return self.emergency_stopped or self.watchdog_locked or self.crashed
 
     @property
     def motors_on(self) -> bool:
@@ -287,7 +305,9 @@ class SimCrazyflie:
             BIT_ARMED: self.armed,
             BIT_CAN_FLY: self.armed and not self.locked,
             BIT_FLYING: flying,
-            BIT_LOCKED: self.locked,
+            BIT_LOCKED: self.emergency_stopped or self.watchdog_locked,
+            BIT_TUMBLED: self.crashed,
+            BIT_CRASHED: self.crashed,
         }
         return sum(1 << bit for bit, on in bits.items() if on)
 
@@ -381,6 +401,8 @@ class SimCrazyflie:
             s.vel_mps[0].zero_()
             s.rate_radps[0].zero_()
             s.quat[0] = torch.tensor([1.0, 0.0, 0.0, 0.0])
+        self._tumble_check()
+        self._estimate_noise_step()
         if self.motors_on:
             self.battery_v -= self.p.battery_drain_vps * self.p.dt_s
         self.kalman_var_m2 = [v + KALMAN_PROCESS_M2PS * self.p.dt_s for v in self.kalman_var_m2]
@@ -400,6 +422,42 @@ class SimCrazyflie:
         if wanted != self.armed:
             self.armed = wanted
             self._event("armed" if self.armed else "disarmed")
+
+    def _tumble_check(self) -> None:
+        """``isTumbledCheck``: the accelerometer's body-z specific force (g) from the step's
+        acceleration; free fall resets the clock."""
+        s = self.quad.state
+        vel = s.vel_mps[0].tolist()
+        acc = (
+            [0.0, 0.0, 0.0] if self._last_vel is None else [(v - u) / self.p.dt_s for v, u in zip(vel, self._last_vel)]
+        )
+        self._last_vel = vel
+        w, x, y, _ = s.quat[0].tolist()
+        z_world = (
+            2 * (x * s.quat[0, 3].item() + w * y),
+            2 * (y * s.quat[0, 3].item() - w * x),
+            1 - 2 * (x * x + y * y),
+        )
+        specific = [acc[0], acc[1], acc[2] + 9.81]
+        acc_z_g = sum(a * b for a, b in zip(specific, z_world)) / 9.81
+        if all(abs(a) / 9.81 < FREE_FALL_G for a in specific):
+            self._tilted_s = self._upside_down_s = 0.0
+            return
+        self._tilted_s = self._tilted_s + self.p.dt_s if acc_z_g < TUMBLE_ACCZ_G and self.motors_on else 0.0
+        self._upside_down_s = self._upside_down_s + self.p.dt_s if acc_z_g < UPSIDE_DOWN_ACCZ_G else 0.0
+        if not self.crashed and (self._tilted_s > TUMBLE_S or self._upside_down_s > UPSIDE_DOWN_S):
+            self.crashed = True
+            self.cmd = (0.0, 0.0, 0.0, 0)
+            self._event("supervisor: tumbled, motors off (crashed until a restart)")
+
+    def _estimate_noise_step(self) -> None:
+        """The estimate's velocity and attitude errors: first-order (Gauss-Markov) with a 0.2 s
+        correlation time and the configured stationary std."""
+        a = math.exp(-self.p.dt_s / 0.2)
+        b = math.sqrt(1 - a * a)
+        gauss = self._noise_rng.gauss
+        self.vel_error_mps = [a * e + b * gauss(0.0, self.p.vel_noise_std_mps) for e in self.vel_error_mps]
+        self.att_error_rad = [a * e + b * gauss(0.0, self.p.att_noise_std_rad) for e in self.att_error_rad]
 
     def _holds_position(self) -> bool:
         return any(int(self.params[f"flightmode.{k}"]) for k in ("althold", "poshold", "posSet"))
@@ -479,6 +537,20 @@ class SimCrazyflie:
         s = self.quad.state
         pos, vel = s.pos_m[0].tolist(), s.vel_mps[0].tolist()
         q = s.quat[0].tolist()  # (w, x, y, z)
+        vel = [v + e for v, e in zip(vel, self.vel_error_mps)]
+        ex, ey, ez = self.att_error_rad
+        if ex or ey or ez:  # a small world-frame rotation error
+            half = 0.5 * math.sqrt(ex * ex + ey * ey + ez * ez)
+            k = math.sin(half) / (2 * half)
+            err = [math.cos(half), ex * k, ey * k, ez * k]
+            w0, x0, y0, z0 = err
+            w1, x1, y1, z1 = q
+            q = [
+                w0 * w1 - x0 * x1 - y0 * y1 - z0 * z1,
+                w0 * x1 + x0 * w1 + y0 * z1 - z0 * y1,
+                w0 * y1 - x0 * z1 + y0 * w1 + z0 * x1,
+                w0 * z1 + x0 * y1 - y0 * x1 + z0 * w1,
+            ]
         if self.estimator == COMPLEMENTARY:
             pos[0] = pos[1] = vel[0] = vel[1] = 0.0
         else:
@@ -518,7 +590,16 @@ class SimCrazyflie:
         self._via_radio("out", data)
 
     def _lost(self) -> bool:
-        return self.p.radio_loss > 0 and self._radio_rng.random() < self.p.radio_loss
+        """Losses in runs (a two-state chain): a lost packet is followed by another with
+        probability 1 - 1 / radio_burst_len, and the runs start so that ``radio_loss`` of all
+        packets are lost (``radio_burst_len`` 1: independent losses)."""
+        loss = self.p.radio_loss
+        if loss <= 0:
+            return False
+        stay = 1.0 - 1.0 / max(1.0, self.p.radio_burst_len)
+        start = loss * (1.0 - stay) / (1.0 - loss)  # stationary loss fraction = loss
+        self._burst_lost = self._radio_rng.random() < (stay if self._burst_lost else start)
+        return self._burst_lost
 
     def _via_radio(self, direction: str, data: bytes) -> None:
         """Deliver ``data`` (to the host: "out"; to the firmware: "in") after the radio latency."""
@@ -527,7 +608,11 @@ class SimCrazyflie:
             return
         with self._radio_ready:
             self._radio_seq += 1
-            heapq.heappush(self._radio, (time.monotonic() + self.p.radio_latency_s, self._radio_seq, direction, data))
+            due = time.monotonic() + self.p.radio_latency_s
+            if self.p.radio_jitter_s > 0:
+                due += self._radio_rng.uniform(0.0, self.p.radio_jitter_s)
+            due = self._radio_last_due = max(due, self._radio_last_due)  # the radio keeps packets in order
+            heapq.heappush(self._radio, (due, self._radio_seq, direction, data))
             self._radio_ready.notify()
 
     def _deliver(self, direction: str, data: bytes) -> None:
@@ -672,7 +757,7 @@ class SimCrazyflie:
                 self.params[key] = value
             self._event(f"param {key} = {value}")
             if key == "kalman.resetEstimation" and value:
-                self.kalman_var_m2 = [KALMAN_RESET_VAR_M2] * 3  # the firmware re-initialises the filter
+                self.kalman_var_m2 = list(KALMAN_RESET_VAR_M2)  # the firmware re-initialises the filter
                 self.pos_error_m = [-v for v in self.quad.state.pos_m[0].tolist()]  # ... at the origin
                 self.params[key] = 0  # and clears the flag
             self._send(crtp.packet(crtp.PORT_PARAM, 2, data))

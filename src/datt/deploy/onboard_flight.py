@@ -1,0 +1,258 @@
+"""An onboard flight (``deploy.onboard=true``): the PID takes off over the radio, then the
+vehicle's DATT app (``datt export format=app``, docs/onboard.md) tracks the reference and lands
+by itself while the host streams mocap and watches.
+
+Before arming the host checks the app is there and carries the flight's policy
+(``datt.policyId``), selects the controller the app's hook runs under (``datt.controllerId``),
+sets the app's parameters and uploads the reference, each read back or acknowledged. In flight it
+follows the app's log: a LAND decision (or an app that stops stepping) hands the commander back
+and lands with the PID; a KILL stops the motors; a lost link leaves the app flying to the end.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+
+import numpy as np
+
+from datt.deploy import firmware, onboard
+from datt.deploy.outcome import Kind, Outcome
+from datt.deploy.runner import FlightModel, FlightRunner
+from datt.deploy.safety import KILL, LAND, OK, check
+from datt.errors import LinkError
+
+APP_STALL_S = 0.3  # the app's step counter still this long while it should fly (its log arriving): the host takes over
+LINK_LOST = "LINK_LOST"  # the host lost the vehicle while the app flew on
+
+
+class OnboardFlight(FlightRunner):
+    sends_estop_watchdog = False  # a lost link must not stop the app's flight
+
+    def __init__(self, *args, policy_id: int | None = None, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        self.onboard_policy_id = policy_id  # the app must carry this policy (datt.export.c_code.policy_id)
+        self._app: dict = {"samples": {}, "last": None}  # the app's log: step -> its error, latest values
+        self._onboard_steps = 0  # TRACK steps the app flies (set when the reference is uploaded)
+
+    def fly(self) -> dict:
+        """Takeoff (PID, off-board), then the vehicle's DATT app tracks the reference and lands
+        by itself: the reference is uploaded before arming, ``datt.run = 1`` hands it the flight,
+        and the host only streams mocap and watches (KILL on a safety breach; a LAND decision
+        stops the app and lands with the PID). A lost link leaves the app flying to the end."""
+
+        def build(start_rel):
+            track = self._model(self.track_controller, self.track_family)
+            self._check_reference_in_geofence(track, self.p.track_s)
+            self._onboard_prepare(track)
+            return self._takeoff(start_rel)
+
+        def airborne(origin, takeoff):
+            name, model, duration = takeoff
+            self._set_phase(name)
+            if self._fly_phase(model, duration, origin) != OK:
+                return
+            self._set_phase("TRACK")
+            result = self._onboard_track(origin)
+            if result == LAND:
+                self._land(origin)
+            elif result == OK:
+                self.link.send_rates(0.0, 0.0, 0.0, 0)
+                self.outcome = Outcome(Kind.LANDED_ONBOARD)
+
+        return self._flight(build, airborne)
+
+    def _onboard_track_steps(self, model: FlightModel) -> int:
+        duration = self._duration_s(model, self.p.track_s)
+        return int(round(duration * self.p.rate_hz))
+
+    def _onboard_prepare(self, track: FlightModel) -> None:
+        """Check the app is there, select its controller hook, set its parameters, upload the
+        reference (controller frame) and follow its log."""
+        if not self.link.has_param("datt.run"):
+            self._refuse(
+                "deploy.onboard: the vehicle's firmware has no DATT app (no parameter datt.run): "
+                "build and flash it (datt export format=app; docs/onboard.md), or fly off-board (deploy.onboard=false)"
+            )
+        if self.onboard_policy_id is not None:
+            carried = int(self.link.read_param("datt.policyId"))
+            if carried != self.onboard_policy_id:
+                self._refuse(
+                    f"deploy.onboard: the vehicle's app carries policy {carried:#010x}, the "
+                    f"checkpoint is {self.onboard_policy_id:#010x}: flash the app exported from it "
+                    "(datt export format=app checkpoint=...), or pass the checkpoint the app was built from"
+                )
+        steps = self._onboard_track_steps(track)
+        env = track.env
+        table = env.ref_table[0, : min(steps + env.window, env.table_len)].double().numpy()
+        if len(table) <= steps:  # a track longer than the reference: hold its last point, as off-board
+            table = np.concatenate((table, np.repeat(table[-1:], steps + 1 - len(table), axis=0)))
+        if len(table) > onboard.TABLE_MAX:
+            self._refuse(
+                f"deploy.flight.track_s: the app holds {onboard.TABLE_MAX} reference points "
+                f"({(onboard.TABLE_MAX - env.window) / self.p.rate_hz:.1f} s of track at {self.p.rate_hz:g} Hz); "
+                f"this track needs {len(table)}"
+            )
+        origin = self._origin()
+        values = {
+            "originX": origin[0],
+            "originY": origin[1],
+            "originZ": origin[2],
+            "nPoints": len(table),
+            "trackSteps": steps,
+            "landZ": -origin[2] + 0.05,
+            "landS": self.p.land_s,
+            "landHoldS": 0.5,
+            "hoverCmd": self.thrust.hover_command,
+            "slope": self.thrust.slope,
+            "maxCmd": self.thrust.p.max_command,
+            "maxRateRoll": self.thrust.p.max_rate_degps[0],
+            "maxRatePitch": self.thrust.p.max_rate_degps[1],
+            "maxRateYaw": self.thrust.p.max_rate_degps[2],
+            "maxTiltDeg": self.safety.max_tilt_deg,
+            "maxPosStdM": self.p.onboard_max_pos_std_m,
+        }
+        controller = self._app_controller_id()
+        try:  # every setting the onboard flight depends on, read back fresh
+            self.link.set_params_checked({"datt.run": 0, **{f"datt.{name}": value for name, value in values.items()}})
+            self.link.set_param_checked(str(firmware.fact("param_controller")), controller)
+        except LinkError as exc:
+            self._refuse(f"deploy.onboard: {str(exc).removeprefix('connect: ')}")
+        self._event("onboard", f"stabilizer.controller = {controller} (the app's out-of-tree controller), read back")
+        upload = onboard.Upload(self.link.send_app_packet, table)
+        self.link.on_app_packet(upload.on_packet)
+        started = time.monotonic()
+        try:
+            upload.run()
+        except RuntimeError as exc:
+            self._refuse(f"the reference upload to the app failed: {exc}")
+        self.upload_s = time.monotonic() - started
+        self._event("onboard", f"reference uploaded: {len(table)} points in {self.upload_s:.2f} s")
+        self._onboard_steps = steps
+        self.link.log_block("datt", onboard.LOG_BLOCK, self.link.log_period_ms, self._on_app_log)
+
+    def _app_controller_id(self) -> int:
+        """The controller id the app's hook runs under, as the app publishes it
+        (``datt.controllerId``: ``ControllerTypeOot`` of the firmware it was built into)."""
+        if not self.link.has_param("datt.controllerId"):
+            self._refuse(
+                "deploy.onboard: the vehicle's app does not publish datt.controllerId (built by an "
+                "older datt export): rebuild and flash it (datt export format=app; docs/onboard.md)"
+            )
+        controller = int(self.link.read_param("datt.controllerId"))
+        if controller != firmware.CONTROLLER_OOT:
+            self._event(
+                "warning",
+                f"the app runs under controller {controller}, the host's table ({firmware.FIRMWARE_VERSION}) says "
+                f"{firmware.CONTROLLER_OOT}: that firmware numbers its controllers otherwise; the app's id is used",
+            )
+        return controller
+
+    def _on_app_log(self, values: dict) -> None:
+        phase, step = int(values["datt.phase"]), int(values["datt.step"])
+        ref = (values["datt.refX"], values["datt.refY"], values["datt.refZ"])
+        self._app["last"] = (phase, step, ref, time.monotonic())
+        if phase in (onboard.TRACK, onboard.LAND, onboard.DONE) and step > 0:
+            # datt.errM / datt.ref* belong to the step before datt.step (the app counts after stepping)
+            self._app["samples"][step - 1] = float(values["datt.errM"])
+
+    def _onboard_track(self, origin: np.ndarray) -> str:
+        """Hand the flight to the app and watch until it has landed (or the time it needs has
+        passed). Returns OK (the app landed), LAND (stopped: the host lands) or KILL."""
+        self.link.set_param_checked("datt.run", 1)
+        dt = 1.0 / self.p.rate_hz
+        budget_s = self._onboard_steps * dt + self.p.land_s + 0.5 + 2.0
+        deadline = time.monotonic() + budget_s
+        quiet = False
+        stepping = [-1, time.monotonic()]  # the app's last step seen, and when it changed
+        next_t = time.monotonic()
+        while time.monotonic() < deadline:
+            now = time.monotonic()
+            state = self.link.state()
+            mocap_age = self._mocap_age()
+            last = self._app["last"]
+            phase = last[0] if last is not None else onboard.IDLE
+            if phase == onboard.REFUSED:
+                self._event("LAND", "the app refused to start (table incomplete or a parameter invalid)")
+                self.link.set_param("datt.run", 0)
+                return LAND
+            if phase == onboard.ABORTED:  # the app holds the motors off (stop setpoints) until datt.run = 0
+                self.outcome = Outcome(
+                    Kind.KILLED, "the onboard app aborted (tilt or a non-finite state/action), motors stopped"
+                )
+                self._event("KILL", self.outcome.text)
+                return KILL
+            if phase == onboard.DONE:
+                self.link.set_param("datt.run", 0)
+                self._event("onboard", "the app has landed")
+                return OK
+            if last is not None and phase in (onboard.TRACK, onboard.LAND):
+                hearing = now - last[3] < APP_STALL_S / 2  # the app's log arrives: the link is up
+                if last[1] != stepping[0]:
+                    stepping[:] = [last[1], now]
+                elif now - stepping[1] > APP_STALL_S and hearing:
+                    self._event("LAND", f"the app stopped stepping at step {last[1]} (its state is stale: no hook)")
+                    self.link.set_param("datt.run", 0)  # the commander back to the radio's setpoints,
+                    # flown by a controller that honours rates (the app's hook ran under another)
+                    self.link.set_param(str(firmware.fact("param_controller")), firmware.CONTROLLER_PID)
+                    return LAND
+            fresh = state is not None and now - state.t_s < self.safety.max_state_age_s
+            if self.link.link_lost.is_set() or not fresh:
+                if not quiet:  # nothing the host can do: the app flies on by itself
+                    self._event("warning", "no fresh state from the vehicle: the onboard app flies on")
+                    quiet = True
+            else:
+                quiet = False
+                state_for_check = dataclasses.replace(state, vbat_v=self.battery.update(state.vbat_v, dt))
+                decision = check(
+                    self.safety,
+                    now_s=now,
+                    state=state_for_check,
+                    command=None,
+                    estop=self.estop.is_set(),
+                    link_lost=False,
+                    mocap_age_s=mocap_age,
+                )
+                if decision.action == KILL:
+                    self._kill(decision.reason)
+                    return KILL
+                if decision.action == LAND:
+                    self._event("LAND", decision.reason)
+                    self.link.set_param("datt.run", 0)  # the app hands the commander back
+                    return LAND
+                ref = np.array(last[2]) + origin if last is not None else np.full(3, np.nan)
+                self.rows.append(
+                    {
+                        "t_s": now - self.log.t0,
+                        "phase": "TRACK" if phase != onboard.LAND else "LAND",
+                        "pos": list(state.pos_m),
+                        "vel": list(state.vel_mps),
+                        "quat": list(state.quat),
+                        "ref": list(ref),
+                        "action": [math.nan] * 4,  # computed onboard
+                        "thrust_cmd": 0,
+                        "d_hat": [math.nan] * 3,
+                        "vbat": state.vbat_v,
+                        "decision": decision.action,
+                        "jitter_ms": (now - next_t) * 1e3,
+                        "compute_ms": 0.0,
+                    }
+                )
+            next_t += dt
+            time.sleep(max(0.0, next_t - time.monotonic()))
+        state = self.link.state()
+        if self.link.link_lost.is_set() or state is None or time.monotonic() - state.t_s > self.safety.max_state_age_s:
+            # an e-stop could not arrive, and would drop a vehicle that may still be flying well
+            self.outcome = Outcome(
+                Kind.LINK_LOST, "during the onboard flight the app flew on by itself; the host cannot confirm it landed"
+            )
+            self._event("warning", self.outcome.text)
+            return LINK_LOST
+        self._event("LAND", f"the app did not report landing within {budget_s:.1f} s")
+        self.link.set_param("datt.run", 0)
+        return LAND
+
+    def _track_errors(self) -> list[float]:
+        """The app's own per-step error (the estimate it flew on vs p_d at that step)."""
+        return [e for k, e in sorted(self._app["samples"].items()) if k < self._onboard_steps]

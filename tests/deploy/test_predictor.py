@@ -1,0 +1,92 @@
+"""The off-board state predictor against closed-form motions."""
+
+import math
+
+import pytest
+
+from datt.deploy.predictor import PredictorParams, StatePredictor
+from datt.errors import ConfigError
+
+LEVEL = (1.0, 0.0, 0.0, 0.0)
+G = 9.81
+
+
+def predictor(latency_s=0.04, policy_delay_s=0.0, k_rate=1.0, **kw) -> StatePredictor:
+    return StatePredictor(PredictorParams(latency_s=latency_s, policy_delay_s=policy_delay_s, **kw), G, k_rate, 0.02)
+
+
+def test_free_flight_under_constant_thrust_is_the_parabola():
+    """Thrust g + 2 along z for the whole horizon: z = z0 + v T + a T^2 / 2 with a = 2 m/s²."""
+    p = predictor(latency_s=0.06, policy_delay_s=0.02)
+    p.record(0.0, [G + 2.0, 0.0, 0.0, 0.0])
+    pos, vel, quat = p.predict(1.0, 0.99, (0.0, 0.0, 1.0), (0.5, 0.0, 0.1), LEVEL, (0.0, 0.0, 0.0))
+    horizon = 0.01 + 0.06 - 0.02
+    assert pos == pytest.approx((0.5 * horizon, 0.0, 1.0 + 0.1 * horizon + horizon**2), abs=1e-9)
+    assert vel == pytest.approx((0.5, 0.0, 0.1 + 2.0 * horizon), abs=1e-9)
+    assert quat == pytest.approx(LEVEL)
+
+
+def test_a_yaw_rate_turns_the_attitude_by_rate_times_time():
+    p = predictor(latency_s=0.1)
+    p.record(0.0, [G, 0.0, 0.0, 1.5])
+    _, _, q = p.predict(1.0, 1.0, (0, 0, 1), (0, 0, 0), LEVEL, (0, 0, 0))
+    assert 2 * math.atan2(q[3], q[0]) == pytest.approx(1.5 * 0.1, rel=1e-6)
+
+
+def test_each_command_acts_from_when_it_reaches_the_vehicle():
+    """A command sent at t acts from t + latency / 2; before that the previous one does: a step
+    from hover to g + 4 sent 10 ms before the estimate arrived acts for the last part only."""
+    p = predictor(latency_s=0.04)
+    p.record(0.0, [G, 0.0, 0.0, 0.0])
+    p.record(0.99, [G + 4.0, 0.0, 0.0, 0.0])
+    # the estimate describes t = 1.0 - 0.02; the horizon runs to now + 0.02 = 1.02: 40 ms
+    _, vel, _ = p.predict(1.0, 1.0, (0, 0, 0), (0, 0, 0), LEVEL, (0, 0, 0))
+    acting_s = 1.02 - (0.99 + 0.02)  # the step acts from 1.01
+    assert vel[2] == pytest.approx(4.0 * acting_s, abs=4.0 * 0.005 + 1e-9)  # within one substep
+
+
+def test_the_disturbance_estimate_is_part_of_the_model():
+    p = predictor(latency_s=0.05)
+    p.record(0.0, [G, 0.0, 0.0, 0.0])
+    _, vel, _ = p.predict(1.0, 1.0, (0, 0, 0), (0, 0, 0), LEVEL, (1.0, 0.0, -0.5))
+    assert vel == pytest.approx((0.05, 0.0, -0.025), abs=1e-9)
+
+
+def test_disabled_or_no_commands_returns_the_estimate():
+    off = StatePredictor(PredictorParams(enabled=False, latency_s=0.05), G, 0.4, 0.02)
+    off.record(0.0, [G + 5, 0, 0, 0])
+    assert off.predict(1.0, 0.9, (1, 2, 3), (4, 5, 6), LEVEL, (0, 0, 0)) == ((1, 2, 3), (4, 5, 6), LEVEL)
+    empty = predictor()
+    assert empty.predict(1.0, 0.9, (1, 2, 3), (0, 0, 0), LEVEL, (0, 0, 0))[0] == (1, 2, 3)
+
+
+def test_without_a_set_latency_the_round_trip_and_the_trained_delay_are_the_chain():
+    """latency = round trip + policy delay: the estimate is half a round trip old on arrival and a
+    command acts half a round trip plus the trained delay after it is sent, so a command sent just
+    before the estimate arrived does not act before the state the policy will see."""
+    p = StatePredictor(PredictorParams(latency_s=None, policy_delay_s=0.02), G, 1.0, 0.02, round_trip_s=0.04)
+    assert p.latency_s == pytest.approx(0.06) and p.up_s == pytest.approx(0.02)
+    p.record(0.0, [G, 0.0, 0.0, 0.0])
+    p.record(0.999, [G + 10.0, 0.0, 0.0, 0.0])  # acts from 1.039
+    _, vel, _ = p.predict(1.0, 1.0, (0, 0, 0), (0, 0, 0), LEVEL, (0, 0, 0))  # integrates 0.98 .. 1.02
+    assert vel == pytest.approx((0.0, 0.0, 0.0), abs=1e-12)
+    assert predictor(latency_s=0.03).latency_s == 0.03
+
+
+def test_the_rate_follows_the_command_with_the_trained_lag():
+    """k_rate per 20 ms step (a time constant of -20 ms / ln(1 - k_rate)): the yaw turned is the
+    integral of the lagging rate from the moment the step reaches the vehicle."""
+    p = predictor(latency_s=0.02, k_rate=0.4, substep_s=0.0005)
+    p.record(0.0, [G, 0.0, 0.0, 0.0])
+    p.record(0.985, [G, 0.0, 0.0, 2.0])  # reaches the vehicle at 0.995
+    # the estimate describes t = 0.99; the horizon runs to 1.01: the step acts for 15 ms
+    _, _, q = p.predict(1.0, 1.0, (0, 0, 0), (0, 0, 0), LEVEL, (0, 0, 0))
+    tau, acting = -0.02 / math.log(0.6), 0.015
+    expected = 2.0 * (acting - tau * (1 - math.exp(-acting / tau)))
+    assert 2 * math.atan2(q[3], q[0]) == pytest.approx(expected, rel=0.05)
+
+
+@pytest.mark.parametrize("key, value", [("latency_s", math.nan), ("latency_s", -0.01), ("substep_s", 0.0)])
+def test_settings_are_checked(key, value):
+    with pytest.raises(ConfigError, match=f"^deploy.predictor.{key}: must be a finite number"):
+        PredictorParams(**{key: value}).validate()
