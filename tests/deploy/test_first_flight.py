@@ -325,3 +325,61 @@ def test_each_outcome_kind_has_its_text_and_exit_status():
     assert {o.kind for o in cases} == set(Kind)
     for outcome, (text, code) in cases.items():
         assert (outcome.text, outcome.exit_code, outcome.landed) == (text, code, code == 0)
+
+
+# -- the simulated vehicle's estimate, supervisor and radio ---------------------------------------
+def test_losses_come_in_runs_of_the_set_mean_length_at_the_set_rate():
+    server = SimCrazyflie(SimCrazyflieParams(port=next(_ports), radio_loss=0.1, radio_burst_len=4.0, radio_seed=3))
+    lost = [server._lost() for _ in range(200_000)]
+    runs, length = [], 0
+    for x in lost:
+        if x:
+            length += 1
+        elif length:
+            runs.append(length)
+            length = 0
+    assert sum(lost) / len(lost) == pytest.approx(0.1, abs=0.005)
+    assert sum(runs) / len(runs) == pytest.approx(4.0, rel=0.05)
+    independent = SimCrazyflie(SimCrazyflieParams(port=next(_ports), radio_loss=0.1, radio_seed=3))
+    lost = [independent._lost() for _ in range(200_000)]
+    pairs = sum(a and b for a, b in zip(lost, lost[1:])) / (len(lost) - 1)
+    assert pairs == pytest.approx(0.01, abs=0.002)  # P(lost, lost) = 0.1² when independent
+
+
+def test_the_estimate_errors_have_the_set_spread_and_correlation():
+    server = SimCrazyflie(SimCrazyflieParams(port=next(_ports), vel_noise_std_mps=0.05, att_noise_std_rad=0.01))
+    vel, att = [], []
+    for _ in range(20_000):
+        server._estimate_noise_step()
+        vel.append(server.vel_error_mps[0])
+        att.append(server.att_error_rad[2])
+    import numpy as np
+
+    vel, att = np.array(vel), np.array(att)
+    assert vel.std() == pytest.approx(0.05, rel=0.1) and abs(vel.mean()) < 0.01
+    assert att.std() == pytest.approx(0.01, rel=0.1)
+    lag = round(0.2 / server.p.dt_s)  # one correlation time: correlation e^-1
+    assert np.corrcoef(vel[:-lag], vel[lag:])[0, 1] == pytest.approx(math.exp(-1), abs=0.08)
+    server.params["stabilizer.estimator"] = 2  # the complementary filter has no horizontal velocity
+    truth = server.true_state()["vel_mps"]
+    assert server._estimated_state()[1] == pytest.approx([t + e for t, e in zip(truth, server.vel_error_mps)])
+
+
+def test_a_vehicle_tilted_past_the_limit_for_a_second_is_stopped_by_the_supervisor():
+    import torch
+
+    server = SimCrazyflie(SimCrazyflieParams(port=next(_ports)))
+    server.armed, server.thrust_locked = True, False
+    server.quad.state.pos_m[0, 2] = 5.0
+    half = math.radians(70) / 2  # body z 70 deg from vertical: specific force along it ~ thrust only
+    server.quad.state.quat[0] = torch.tensor([math.cos(half), math.sin(half), 0.0, 0.0])
+    server.cmd, server.last_setpoint_t = (0.0, 0.0, 0.0, 20000), 0.0  # a weak thrust: under 0.5 g
+    for _ in range(40):  # 0.8 s: not yet
+        server.last_setpoint_t = server.sim_time_s
+        server._physics_step()
+    assert not server.crashed
+    for _ in range(15):
+        server.last_setpoint_t = server.sim_time_s
+        server._physics_step()
+    assert server.crashed and server.cmd[3] == 0
+    assert server.state_bitfield() & (1 << 5) and server.state_bitfield() & (1 << 7)  # tumbled, crashed

@@ -32,7 +32,7 @@ from datt.configuration import NON_NEGATIVE, Range, check_ranges, ranged
 class PredictorParams:
     """``deploy.predictor``."""
 
-    enabled: bool = True
+    enabled: bool = False
     # the chain from the estimate's measurement to the command's effect (s); null = the radio round trip
     # measured at connect + policy_delay_s (a vehicle that actuates with the policy's trained delay)
     latency_s: float | None = ranged(None, Range(0.0, 0.5, optional=True))

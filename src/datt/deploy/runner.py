@@ -161,6 +161,9 @@ class FlightRunner:
         self.battery = BatteryFilter(safety.battery_filter_s)
         self._mocap_sent_t: float | None = None  # time stamp of the last mocap sample forwarded
         self._forwarding = False  # mocap frames go to the vehicle (from CONNECT until the log is written)
+        self._frame_lock = threading.Lock()
+        self._frame_ready = threading.Event()
+        self._pending_frame = None  # the newest mocap frame not yet forwarded
         self.predictor = predictor  # off-board latency compensation (datt.deploy.predictor), or None
         self._excitation = None  # calibration: extra thrust (m/s²) as a function of the tick index
         self.stop_request = stop_request  # datt.runs.StopRequest active while the flight was prepared
@@ -204,17 +207,33 @@ class FlightRunner:
         return math.inf if sample is None else time.monotonic() - sample[2]
 
     def _forward_frame(self, sample) -> None:
-        """Each mocap frame to the vehicle as it arrives (the source's thread), once, and never
-        one older than ``safety.max_mocap_age_s``: the Kalman filter takes every packet as a
-        fresh measurement, so resending an old one would pin the estimate where the vehicle was."""
-        pos, quat, t = sample
-        if t == self._mocap_sent_t or time.monotonic() - t > self.safety.max_mocap_age_s or not self._forwarding:
-            return
-        self._mocap_sent_t = t
-        if quat is None:
-            self.link.send_extpos(pos)
-        else:
-            self.link.send_extpose(pos, quat)
+        """A new mocap frame (the source's thread): kept as the one to forward next; a frame not
+        yet forwarded when a newer one arrives is dropped (the newest is the one worth sending)."""
+        with self._frame_lock:
+            self._pending_frame = sample
+        self._frame_ready.set()
+
+    def _forward_frames(self) -> None:
+        """Each mocap frame to the vehicle as it arrives (own thread, so a slow send never holds
+        the mocap source back), once, and never one older than ``safety.max_mocap_age_s``: the
+        Kalman filter takes every packet as a fresh measurement, so resending an old one would
+        pin the estimate where the vehicle was."""
+        while self._forwarding:
+            if not self._frame_ready.wait(0.05):
+                continue
+            self._frame_ready.clear()
+            with self._frame_lock:
+                sample, self._pending_frame = self._pending_frame, None
+            if sample is None or not self._forwarding:
+                continue
+            pos, quat, t = sample
+            if t == self._mocap_sent_t or time.monotonic() - t > self.safety.max_mocap_age_s:
+                continue
+            self._mocap_sent_t = t
+            if quat is None:
+                self.link.send_extpos(pos)
+            else:
+                self.link.send_extpose(pos, quat)
 
     def _send(self, action) -> int:
         roll, pitch, yaw = self.thrust.rates_deg(float(action[1]), float(action[2]), float(action[3]))
@@ -253,6 +272,7 @@ class FlightRunner:
                 if self._has_mocap():
                     self.mocap.subscribe(self._forward_frame)
                     self._forwarding = True
+                    threading.Thread(target=self._forward_frames, name="mocap-forward", daemon=True).start()
                 if self.mocap is not None:
                     self.mocap.start()
                 self._set_phase("PREFLIGHT")

@@ -1,13 +1,13 @@
-"""Sim-to-real transfer test (issue 18): fly a policy against the strict simulated Crazyflie made
-worse than the controller assumes, and compare with ``eval.py`` on the same reference.
+"""Sim-to-real transfer test: fly a policy against the strict simulated Crazyflie made worse than
+the controller assumes, and compare with ``eval.py`` on the same reference.
 
 Transfer conditions (``CONDITIONS``): 40 ms radio round trip, motors 10 % weaker than the
 firmware's fit, the vehicle 10 % heavier than ``deploy.thrust.mass_kg``, 2 % of setpoint, mocap,
 log and app-channel packets lost. ``MODES``: off-board on the nominal map (the policy over the
-radio at 50 Hz), onboard on the nominal map (the policy in the vehicle's app, ``deploy.onboard``),
-and onboard after a calibration flight under the same conditions (:func:`calibrate`: the
-deploy procedure of docs/deploy.md). Used by ``benchmarks/transfer.py`` and
-``tests/deploy/test_transfer.py``.
+radio at 50 Hz; also with the experimental state predictor), onboard on the nominal map (the
+policy in the vehicle's app, ``deploy.onboard``), and onboard after a calibration flight under the
+same conditions (:func:`calibrate`: the deploy procedure of docs/deploy.md). Used by
+``benchmarks/transfer.py`` and ``tests/deploy/test_transfer.py``.
 """
 
 from __future__ import annotations
@@ -19,8 +19,8 @@ from datt.configuration import compose
 from datt.tasks.deploy import run_deploy
 from datt.tasks.eval import run_eval
 
-# what benchmarks/transfer.py flies by default: the former shipped policy and the deploy-grade one
-CHECKPOINTS = ["checkpoints/datt_h10_iid.pt", "checkpoints/datt_h10_deploy.pt"]
+# what benchmarks/transfer.py flies by default: the shipped policy (python train.py) and the deploy-grade one
+CHECKPOINTS = ["checkpoints/datt_h10.pt", "checkpoints/datt_h10_deploy.pt"]
 MASS_KG = 0.034  # deploy.thrust.mass_kg's default: what the controller believes
 CONDITIONS = {
     "deploy.server.radio_latency_s": 0.02,  # each way: 40 ms round trip
@@ -30,6 +30,7 @@ CONDITIONS = {
 }
 MODES = {  # name -> (deploy overrides, calibrate first)
     "off-board": ((), False),
+    "off-board, predictor": (("deploy.predictor.enabled=true",), False),
     "onboard": (("deploy.onboard=true",), False),
     "onboard, calibrated": (("deploy.onboard=true",), True),
 }

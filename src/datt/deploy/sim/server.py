@@ -167,7 +167,7 @@ class SimCrazyflieParams:
     radio_cut_after_start_s: float | None = None  # the radio goes silent this long after the app starts
     refuse_arming: bool = False  # the supervisor refuses to arm (a firmware whose preflight checks fail)
     radio_jitter_s: float = 0.0  # each packet's delay: radio_latency_s + U(0, radio_jitter_s), in order
-    radio_burst_len: float = 1.0  # mean length of a run of lost packets (1: independent losses)
+    radio_burst_len: float = 1.0  # mean length of a run of lost packets (<= 1 / (1 - radio_loss): independent)
     vel_noise_std_mps: float = 0.0  # the estimate's velocity error (first-order, 0.2 s correlation)
     att_noise_std_rad: float = 0.0  # the estimate's roll/pitch/yaw error (first-order, 0.2 s correlation)
     boot_params: dict = field(default_factory=dict)  # parameter values at power-on ("group.name": value),
@@ -591,12 +591,12 @@ class SimCrazyflie:
 
     def _lost(self) -> bool:
         """Losses in runs (a two-state chain): a lost packet is followed by another with
-        probability 1 - 1 / radio_burst_len, and the runs start so that ``radio_loss`` of all
-        packets are lost (``radio_burst_len`` 1: independent losses)."""
+        probability 1 - 1 / radio_burst_len (at least ``radio_loss``: independent losses), and
+        the runs start so that ``radio_loss`` of all packets are lost."""
         loss = self.p.radio_loss
         if loss <= 0:
             return False
-        stay = 1.0 - 1.0 / max(1.0, self.p.radio_burst_len)
+        stay = max(loss, 1.0 - 1.0 / max(1.0, self.p.radio_burst_len))  # at least as likely as independent
         start = loss * (1.0 - stay) / (1.0 - loss)  # stationary loss fraction = loss
         self._burst_lost = self._radio_rng.random() < (stay if self._burst_lost else start)
         return self._burst_lost
