@@ -12,3 +12,21 @@ SHORT_FLIGHT = [
     "deploy.safety.kill_state_age_s=1.0",
     "deploy.safety.max_mocap_age_s=0.4",
 ]
+
+
+def fly_sim(tmp_path, port: int, overrides=(), hook=None, estop=None) -> tuple[dict, object, object]:
+    """One shortened ``deploy.py`` flight against the simulated Crazyflie on ``port``;
+    ``hook(server, runner)`` runs once both exist. Returns (summary, server, runner)."""
+    from datt.configuration import compose
+    from datt.tasks.deploy import run_deploy
+
+    cfg = compose("deploy", [f"deploy.uri=udp://127.0.0.1:{port}", *SHORT_FLIGHT, *overrides])
+    seen = {}
+
+    def server_hook(server, runner):
+        seen["server"], seen["runner"] = server, runner
+        if hook is not None:
+            hook(server, runner)
+
+    summary = run_deploy(cfg, run_dir=tmp_path, estop=estop, server_hook=server_hook)
+    return summary, seen["server"], seen["runner"]

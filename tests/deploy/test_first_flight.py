@@ -21,25 +21,15 @@ from datt.deploy.runner import FlightParams  # noqa: E402
 from datt.deploy.sim import SimCrazyflie, SimCrazyflieParams  # noqa: E402
 from datt.errors import ConfigError  # noqa: E402
 
-from . import SHORT_FLIGHT  # noqa: E402
+from . import SHORT_FLIGHT, fly_sim  # noqa: E402
 
 _ports = itertools.count(20100)
 needs_gcc = pytest.mark.skipif(shutil.which("gcc") is None, reason="no gcc: the onboard app cannot be built here")
 
 
 def fly(tmp_path, overrides=(), hook=None):
-    from datt.tasks.deploy import run_deploy
-
-    cfg = compose("deploy", [f"deploy.uri=udp://127.0.0.1:{next(_ports)}", *SHORT_FLIGHT, *overrides])
-    seen = {}
-
-    def server_hook(server, runner):
-        seen["server"], seen["runner"] = server, runner
-        if hook is not None:
-            hook(server, runner)
-
-    summary = run_deploy(cfg, run_dir=tmp_path, server_hook=server_hook)
-    return summary, seen["server"]
+    summary, server, _ = fly_sim(tmp_path, next(_ports), overrides, hook)
+    return summary, server
 
 
 def tilt_after(server, link, seconds, roll_degps):

@@ -19,7 +19,7 @@ pytest.importorskip("cflib")
 from datt.configuration import compose  # noqa: E402
 from datt.tasks.deploy import run_deploy  # noqa: E402
 
-from . import SHORT_FLIGHT  # noqa: E402
+from . import SHORT_FLIGHT, fly_sim  # noqa: E402
 
 pytestmark = pytest.mark.flight  # real flights (seconds each): not in the mutation-testing selection
 
@@ -28,16 +28,7 @@ SHORT = SHORT_FLIGHT
 
 
 def fly(tmp_path, overrides=(), hook=None, estop=None):
-    cfg = compose("deploy", [f"deploy.uri=udp://127.0.0.1:{next(_ports)}", *SHORT, *overrides])
-    seen = {}
-
-    def server_hook(server, runner):
-        seen["server"], seen["runner"] = server, runner
-        if hook is not None:
-            hook(server, runner)
-
-    summary = run_deploy(cfg, run_dir=tmp_path, estop=estop, server_hook=server_hook)
-    server = seen["server"]
+    summary, server, _ = fly_sim(tmp_path, next(_ports), overrides, hook, estop)
     assert (tmp_path / "flight.csv").stat().st_size > 100 and (tmp_path / "events.json").is_file()
     logged = json.loads((tmp_path / "events.json").read_text())
     assert logged["outcome"] == summary["outcome"]

@@ -141,15 +141,18 @@ def test_one_step_is_the_policy_on_the_table_window_with_the_thrust_map(built):
             {"pos_m": rel, "vel_mps": torch.tensor([vel]), "quat": torch.tensor([quat], dtype=torch.float32),
              "ref_m": window, "d_hat": d_hat, "cmd_hist": hist},
         )[0].numpy()  # fmt: skip
+    thrust = ThrustMap()  # the app's defaults are the firmware's map for 34 g
+    want[0] = min(want[0], thrust.ceiling_mps2)  # the app keeps the thrust the map can deliver
     assert np.abs(np.array(list(s.action)) - want).max() < 1e-4
     assert list(s.ref_m) == pytest.approx([0.0, 0.0, 0.0])
     assert s.error_m == pytest.approx(math.dist(rel[0].tolist(), (0, 0, 0)), abs=1e-5)
-    thrust = ThrustMap()  # the app's defaults are the firmware's map for 34 g
     assert abs(sp.thrust - thrust.command(float(s.action[0]))) <= 1
-    # the firmware's setpoint convention: roll = wx, pitch = -wy, yaw = wz, deg/s
-    assert sp.roll_degps == pytest.approx(math.degrees(s.action[1]), rel=1e-5)
-    assert sp.pitch_degps == pytest.approx(-math.degrees(s.action[2]), rel=1e-5)
-    assert sp.yaw_degps == pytest.approx(math.degrees(s.action[3]), rel=1e-5)
+    # the firmware's setpoint convention: roll = wx, pitch = -wy, yaw = wz, deg/s, within the rate limits
+    roll, pitch, yaw = (
+        float(np.clip(sign * math.degrees(s.action[k + 1]), -lim, lim))
+        for k, (sign, lim) in enumerate(zip((1, -1, 1), thrust.p.max_rate_degps))
+    )
+    assert (sp.roll_degps, sp.pitch_degps, sp.yaw_degps) == pytest.approx((roll, pitch, yaw), rel=1e-5)
 
 
 def test_thrust_above_the_maps_ceiling_is_sent_and_remembered_as_the_ceiling(built):

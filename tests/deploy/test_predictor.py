@@ -12,7 +12,8 @@ G = 9.81
 
 
 def predictor(latency_s=0.04, policy_delay_s=0.0, k_rate=1.0, **kw) -> StatePredictor:
-    return StatePredictor(PredictorParams(latency_s=latency_s, policy_delay_s=policy_delay_s, **kw), G, k_rate, 0.02)
+    params = PredictorParams(enabled=True, latency_s=latency_s, policy_delay_s=policy_delay_s, **kw)
+    return StatePredictor(params, G, k_rate, 0.02)
 
 
 def test_free_flight_under_constant_thrust_is_the_parabola():
@@ -64,7 +65,7 @@ def test_without_a_set_latency_the_round_trip_and_the_trained_delay_are_the_chai
     """latency = round trip + policy delay: the estimate is half a round trip old on arrival and a
     command acts half a round trip plus the trained delay after it is sent, so a command sent just
     before the estimate arrived does not act before the state the policy will see."""
-    p = StatePredictor(PredictorParams(latency_s=None, policy_delay_s=0.02), G, 1.0, 0.02, round_trip_s=0.04)
+    p = StatePredictor(PredictorParams(True, latency_s=None, policy_delay_s=0.02), G, 1.0, 0.02, round_trip_s=0.04)
     assert p.latency_s == pytest.approx(0.06) and p.up_s == pytest.approx(0.02)
     p.record(0.0, [G, 0.0, 0.0, 0.0])
     p.record(0.999, [G + 10.0, 0.0, 0.0, 0.0])  # acts from 1.039

@@ -74,9 +74,9 @@ def recorded_observations(merged, controller, drones: int, steps: int) -> dict:
 
 
 def test_c_action_matches_torch_on_ten_thousand_observations(exported):
-    """Recorded flight states: within 1e-5 of torch. Random states across the training ranges
-    drive the net to large activations where float32 itself rounds at ~1e-5 on a 40 m/s² thrust:
-    there the C must be as close to the exact (float64) result as torch's float32 is."""
+    """Recorded flight states and random states across the training ranges: within 8 float32
+    ulps of the largest output of torch (float32 itself rounds at ~4e-6 on a 40 m/s² thrust), and
+    as close to the exact (float64) result as torch's float32 is."""
     import copy
 
     spec, controller, merged, _, lib = exported
@@ -89,15 +89,16 @@ def test_c_action_matches_torch_on_ten_thousand_observations(exported):
         name: reference_action(controller, obs_params, obs).numpy()
         for name, obs in (("random", rand), ("recorded", flown))
     }
-    assert np.abs(got["recorded"] - expect["recorded"]).max() <= 1e-5
-    assert np.abs(got["random"] - expect["random"]).max() <= 2e-5
+    for name in ("recorded", "random"):  # within 8 float32 ulps of the largest output (the last layer's scale)
+        assert np.abs(got[name] - expect[name]).max() <= 8 * np.spacing(np.abs(expect[name]).max()), name
     exact_ctrl = copy.deepcopy(controller)
     exact_ctrl.net, exact_ctrl.center, exact_ctrl.half = (
         x.double() for x in (exact_ctrl.net, exact_ctrl.center, exact_ctrl.half)
     )
-    exact = reference_action(exact_ctrl, obs_params, {k: v.double() for k, v in rand.items()}).numpy()
-    c_err, torch_err = np.abs(got["random"] - exact).max(), np.abs(expect["random"] - exact).max()
-    assert c_err <= 1.25 * torch_err, (c_err, torch_err)
+    for name, obs in (("random", rand), ("recorded", flown)):
+        exact = reference_action(exact_ctrl, obs_params, {k: v.double() for k, v in obs.items()}).numpy()
+        c_err, torch_err = np.abs(got[name] - exact).max(), np.abs(expect[name] - exact).max()
+        assert c_err <= 1.25 * torch_err, (name, c_err, torch_err)
 
 
 class L1State(ctypes.Structure):
