@@ -163,6 +163,7 @@ def check_ranges(obj: Any, key: str) -> None:
 
 
 POSITIVE = Range(0.0, low_open=True)
+POSITIVE_OR_NONE = Range(0.0, low_open=True, optional=True)
 NON_NEGATIVE = Range(0.0)
 FINITE = Range()
 

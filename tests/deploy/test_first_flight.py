@@ -18,6 +18,7 @@ from datt.configuration import compose  # noqa: E402
 from datt.deploy import firmware, onboard  # noqa: E402
 from datt.deploy.link import CrazyflieLink, LinkError  # noqa: E402
 from datt.deploy.runner import FlightParams  # noqa: E402
+from datt.deploy.safety import tilt_deg  # noqa: E402
 from datt.deploy.sim import SimCrazyflie, SimCrazyflieParams  # noqa: E402
 from datt.errors import ConfigError  # noqa: E402
 
@@ -41,8 +42,7 @@ def tilt_after(server, link, seconds, roll_degps):
     while time.monotonic() < end:
         link.send_rates(roll_degps, 0.0, 0.0, 55000)  # climbing: off the ground
         time.sleep(0.02)
-    w, x, y, _ = server.true_state()["quat"]
-    return math.degrees(math.acos(max(-1.0, min(1.0, 1 - 2 * (x * x + y * y)))))
+    return tilt_deg(server.true_state()["quat"])
 
 
 # -- 1 and 2: the controller that flies the setpoints ------------------------------------------

@@ -33,7 +33,7 @@ class MocapSource:
 
     def _publish(self, sample) -> None:
         self._latest = sample
-        for callback in list(getattr(self, "_subscribers", ())):
+        for callback in list(self._subscribers):
             callback(sample)
 
     def start(self) -> None:

@@ -63,10 +63,6 @@ class OnboardFlight(FlightRunner):
 
         return self._flight(build, airborne)
 
-    def _onboard_track_steps(self, model: FlightModel) -> int:
-        duration = self._duration_s(model, self.p.track_s)
-        return int(round(duration * self.p.rate_hz))
-
     def _onboard_prepare(self, track: FlightModel) -> None:
         """Check the app is there, select its controller hook, set its parameters, upload the
         reference (controller frame) and follow its log."""
@@ -83,11 +79,10 @@ class OnboardFlight(FlightRunner):
                     f"checkpoint is {self.onboard_policy_id:#010x}: flash the app exported from it "
                     "(datt export format=app checkpoint=...), or pass the checkpoint the app was built from"
                 )
-        steps = self._onboard_track_steps(track)
+        steps = self._steps(track, self.p.track_s)
         env = track.env
-        table = env.ref_table[0, : min(steps + env.window, env.table_len)].double().numpy()
-        if len(table) <= steps:  # a track longer than the reference: hold its last point, as off-board
-            table = np.concatenate((table, np.repeat(table[-1:], steps + 1 - len(table), axis=0)))
+        # the track's points and the window after them, as far as the reference goes (at least the track)
+        table = self._held_table(track, max(min(steps + env.window, env.table_len), steps + 1))
         if len(table) > onboard.TABLE_MAX:
             self._refuse(
                 f"deploy.flight.track_s: the app holds {onboard.TABLE_MAX} reference points "
@@ -127,8 +122,9 @@ class OnboardFlight(FlightRunner):
             upload.run()
         except RuntimeError as exc:
             self._refuse(f"the reference upload to the app failed: {exc}")
-        self.upload_s = time.monotonic() - started
-        self._event("onboard", f"reference uploaded: {len(table)} points in {self.upload_s:.2f} s")
+        upload_s = time.monotonic() - started
+        self.summary_extra["upload_s"] = upload_s
+        self._event("onboard", f"reference uploaded: {len(table)} points in {upload_s:.2f} s")
         self._onboard_steps = steps
         self.link.log_block("datt", onboard.LOG_BLOCK, self.link.log_period_ms, self._on_app_log)
 

@@ -23,9 +23,10 @@ import collections
 import math
 from dataclasses import dataclass
 
-import numpy as np
+import torch
 
 from datt.configuration import NON_NEGATIVE, Range, check_ranges, ranged
+from datt.sim.frames import quat_body_z, quat_exp_rotvec, quat_mul, quat_normalize
 
 
 @dataclass
@@ -41,24 +42,6 @@ class PredictorParams:
 
     def validate(self) -> None:
         check_ranges(self, "deploy.predictor")
-
-
-def _quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    aw, ax, ay, az = a
-    bw, bx, by, bz = b
-    return np.array(
-        [
-            aw * bw - ax * bx - ay * by - az * bz,
-            aw * bx + ax * bw + ay * bz - az * by,
-            aw * by - ax * bz + ay * bw + az * bx,
-            aw * bz + ax * by - ay * bx + az * bw,
-        ]
-    )
-
-
-def _body_z(q: np.ndarray) -> np.ndarray:
-    w, x, y, z = q
-    return np.array([2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y)])
 
 
 class StatePredictor:
@@ -93,9 +76,9 @@ class StatePredictor:
 
     def record(self, t_s: float, action) -> None:
         """A command sent at ``t_s`` (monotonic): thrust m/s², body rates rad/s."""
-        self.sent.append((float(t_s), np.asarray(action, dtype=float)[:4].copy()))
+        self.sent.append((float(t_s), torch.as_tensor(action, dtype=torch.float64)[:4].clone()))
 
-    def _command_at(self, t_s: float, down_s: float) -> np.ndarray | None:
+    def _command_at(self, t_s: float, down_s: float) -> torch.Tensor | None:
         """The command acting at ``t_s``: the last one sent before ``t_s - down_s``."""
         acting = None
         for sent_t, action in self.sent:
@@ -109,20 +92,21 @@ class StatePredictor:
         """The estimate that arrived at ``arrived_s`` rolled forward to ``now_s + down -
         policy_delay_s``; returns (pos, vel, quat) as tuples (unchanged when disabled, the horizon
         is not positive or no command was sent yet)."""
-        if not math.isfinite(self.latency_s):
+        if not self.p.enabled or not self.sent or not math.isfinite(self.latency_s):
             return tuple(pos_m), tuple(vel_mps), tuple(quat)
         up = self.up_s
         down = self.latency_s - up
         t0 = arrived_s - up
         horizon_s = now_s + down - self.p.policy_delay_s - t0
-        if not self.p.enabled or horizon_s <= 0 or not self.sent:
+        if horizon_s <= 0:
             return tuple(pos_m), tuple(vel_mps), tuple(quat)
-        pos, vel = np.array(pos_m, dtype=float), np.array(vel_mps, dtype=float)
-        q = np.array(quat, dtype=float)
-        d = np.asarray(d_hat_mps2, dtype=float)
-        g = np.array([0.0, 0.0, -self.gravity_mps2])
+        f64 = torch.float64
+        pos, vel = torch.tensor(pos_m, dtype=f64), torch.tensor(vel_mps, dtype=f64)
+        q = torch.tensor(quat, dtype=f64)
+        d = torch.as_tensor(d_hat_mps2, dtype=f64)
+        g = torch.tensor([0.0, 0.0, -self.gravity_mps2], dtype=f64)
         first = self._command_at(t0, down)
-        rate = np.zeros(3) if first is None else first[1:].copy()
+        rate = torch.zeros(3, dtype=f64) if first is None else first[1:].clone()
         thrust = self.gravity_mps2 if first is None else float(first[0])
         steps = max(1, int(math.ceil(horizon_s / self.p.substep_s)))
         h = horizon_s / steps
@@ -132,15 +116,10 @@ class StatePredictor:
             command = self._command_at(t0 + k * h, down)
             if command is None:
                 continue
-            thrust = thrust + beta * (command[0] - thrust)
+            thrust = thrust + beta * (float(command[0]) - thrust)
             rate = rate + alpha * (command[1:] - rate)
-            acc = thrust * _body_z(q) + g + d
+            acc = thrust * quat_body_z(q) + g + d
             pos = pos + vel * h + 0.5 * acc * h * h
             vel = vel + acc * h
-            angle = np.linalg.norm(rate) * h
-            if angle > 0:
-                axis = rate / np.linalg.norm(rate)
-                dq = np.concatenate(([math.cos(angle / 2)], math.sin(angle / 2) * axis))
-                q = _quat_mul(q, dq)
-                q = q / np.linalg.norm(q)
-        return tuple(pos), tuple(vel), tuple(q)
+            q = quat_normalize(quat_mul(q, quat_exp_rotvec(rate * h)))
+        return tuple(pos.tolist()), tuple(vel.tolist()), tuple(q.tolist())

@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from datt.configuration import FINITE, NON_NEGATIVE, POSITIVE, Range, check_ranges, ranged
+from datt.configuration import FINITE, NON_NEGATIVE, POSITIVE, POSITIVE_OR_NONE, check_ranges, ranged
 from datt.deploy import firmware
 from datt.deploy.flight_log import FlightLog
 from datt.deploy.outcome import Kind, Outcome
@@ -106,7 +106,7 @@ class FlightParams:
     takeoff_height_m: float = ranged(1.0, POSITIVE)
     takeoff_s: float = ranged(2.5, POSITIVE)
     hover_s: float = ranged(1.0, NON_NEGATIVE)
-    track_s: float | None = ranged(None, Range(0.0, low_open=True, optional=True))  # None = the env's episode
+    track_s: float | None = ranged(None, POSITIVE_OR_NONE)  # None = the env's episode
     land_s: float = ranged(2.5, POSITIVE)
     preflight_timeout_s: float = ranged(3.0, POSITIVE)
     arm_timeout_s: float = ranged(1.0, POSITIVE)  # the supervisor must report "armed" within this
@@ -167,7 +167,6 @@ class FlightRunner:
         self.predictor = predictor  # off-board latency compensation (datt.deploy.predictor), or None
         self._excitation = None  # calibration: extra thrust (m/s²) as a function of the tick index
         self.stop_request = stop_request  # datt.runs.StopRequest active while the flight was prepared
-        self.upload_s: float | None = None  # onboard: the reference upload's duration
         self.summary_extra = dict(summary_extra or {})  # recorded in events.json with the summary
 
     # -- helpers ---------------------------------------------------------------------------
@@ -293,9 +292,10 @@ class FlightRunner:
         except LinkError as exc:
             if self.phase == "CONNECT":
                 raise  # the vehicle could not be reached or refused a setting: the command's error
-            self.outcome = Outcome(Kind.LINK_LOST, str(exc))
-            self._event("link lost", str(exc))
-            if self.phase not in PRE_ARM_PHASES:
+            if self.phase in PRE_ARM_PHASES:
+                self.outcome = Outcome(Kind.LINK_LOST, str(exc))
+                self._event("link lost", str(exc))
+            else:
                 self._kill(str(exc))
         finally:
             with stop_signals(signal.SIG_IGN):  # a second Ctrl-C must not cut the disarm or the log short
@@ -442,12 +442,7 @@ class FlightRunner:
 
     def _check_reference_in_geofence(self, model: FlightModel, duration_s: float | None) -> None:
         """Refuse before arming a reference that would leave the geofence (it would be KILLed mid-air)."""
-        env = model.env
-        steps = int(round(self._duration_s(model, duration_s) * self.p.rate_hz))
-        table = env.ref_table[0, : steps + 1].double().numpy()
-        if len(table) <= steps:  # a flight longer than the table holds its last point
-            table = np.concatenate((table, np.repeat(table[-1:], steps + 1 - len(table), axis=0)))
-        path = table + self._origin()
+        path = self._held_table(model, self._steps(model, duration_s) + 1) + self._origin()
         lo, hi = np.asarray(self.safety.geofence_min_m), np.asarray(self.safety.geofence_max_m)
         outside = np.nonzero(((path < lo) | (path > hi)).any(axis=1))[0]
         if len(outside):
@@ -509,7 +504,7 @@ class FlightRunner:
                 self._event("warning", decision.reason)
             command = self._send(action)
             if self.predictor is not None:
-                self.predictor.record(time.monotonic(), model.last_cmd[0].detach().numpy())
+                self.predictor.record(time.monotonic(), model.last_cmd[0].detach())
             if self.p.estop_watchdog and self.sends_estop_watchdog:
                 self.link.send_estop_watchdog()
             compute_ms = (time.monotonic() - now) * 1e3
@@ -544,16 +539,25 @@ class FlightRunner:
         return model
 
     def _fly_phase(self, model: FlightModel, duration_s: float | None, origin: np.ndarray) -> str:
-        steps = int(round(self._duration_s(model, duration_s) * self.p.rate_hz))
-        result = self._tick_loop(model, steps, origin)
+        result = self._tick_loop(model, self._steps(model, duration_s), origin)
         if result == LAND:
             self._land(origin)
         return result
 
+    def _steps(self, model: FlightModel, duration_s: float | None) -> int:
+        """Control ticks of a phase lasting ``duration_s``; None = the reference's episode
+        (``env.episode_steps`` steps)."""
+        duration = model.env.params.episode_steps * model.env.dt_s if duration_s is None else float(duration_s)
+        return int(round(duration * self.p.rate_hz))
+
     @staticmethod
-    def _duration_s(model: FlightModel, duration_s: float | None) -> float:
-        """A phase's duration; None = the reference's episode (``env.episode_steps`` steps)."""
-        return model.env.params.episode_steps * model.env.dt_s if duration_s is None else float(duration_s)
+    def _held_table(model: FlightModel, points: int) -> np.ndarray:
+        """The first ``points`` points of the reference table (controller frame, ``[points, 3]``);
+        a flight longer than the table holds its last point, as the flight model does."""
+        table = model.env.ref_table[0, :points].double().numpy()
+        if len(table) < points:
+            table = np.concatenate((table, np.repeat(table[-1:], points - len(table), axis=0)))
+        return table
 
     def _land(self, origin: np.ndarray) -> None:
         self._set_phase("LAND")
@@ -582,7 +586,6 @@ class FlightRunner:
             "outcome_kind": self.outcome.kind.value,
             "track_steps": len(err),
             "track_error_m": float(np.mean(err)) if err else None,
-            "upload_s": self.upload_s,
             **self.summary_extra,
         }
         return self.log.write(summary, self._track_rows())

@@ -26,9 +26,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from datt.configuration import POSITIVE, Range, check_ranges, ranged
-
-POSITIVE_OR_NONE = Range(0.0, low_open=True, optional=True)
+from datt.configuration import POSITIVE, POSITIVE_OR_NONE, check_ranges, ranged
 
 UINT16_MAX = 65535
 
@@ -39,32 +37,22 @@ class ThrustParams:
 
     mass_kg: float = ranged(0.034, POSITIVE)
     gravity_mps2: float = ranged(9.81, POSITIVE)
-    thrust_max_n: float = ranged(
-        0.12, POSITIVE
-    )  # the firmware's THRUST_MAX per motor (0.1125 before 2025-11; kit: 0.18 / 0.1625)
+    # the firmware's THRUST_MAX per motor (0.1125 before 2025-11; kit: 0.18 / 0.1625)
+    thrust_max_n: float = ranged(0.12, POSITIVE)
     hover_command: float | None = ranged(None, POSITIVE_OR_NONE)  # calibrated; None = the firmware map's own (g / k)
-    slope_mps2_per_command: float | None = ranged(
-        None, POSITIVE_OR_NONE
-    )  # calibrated k; None = 4 THRUST_MAX / (65535 m)
+    # calibrated k; None = 4 THRUST_MAX / (65535 m)
+    slope_mps2_per_command: float | None = ranged(None, POSITIVE_OR_NONE)
     max_command: int = 60000
     max_rate_degps: list = ranged([720.0, 720.0, 400.0], POSITIVE)
 
     def validate(self) -> None:
         from datt.errors import ConfigError
 
-        check_ranges(self, "deploy.thrust")
-        if not self.mass_kg > 0:
-            raise ConfigError(f"deploy.thrust.mass_kg: must be > 0, got {self.mass_kg}")
-        if not self.thrust_max_n > 0:
-            raise ConfigError(f"deploy.thrust.thrust_max_n: must be > 0, got {self.thrust_max_n}")
+        check_ranges(self, "deploy.thrust")  # mass, gravity, THRUST_MAX, hover, slope, rate limits
         if not 0 < self.max_command <= UINT16_MAX:
             raise ConfigError(f"deploy.thrust.max_command: must be in (0, 65535], got {self.max_command}")
         if self.hover_command is not None and not 0 < self.hover_command < self.max_command:
             raise ConfigError(f"deploy.thrust.hover_command: must be in (0, max_command), got {self.hover_command}")
-        if self.slope_mps2_per_command is not None and not self.slope_mps2_per_command > 0:
-            raise ConfigError(
-                f"deploy.thrust.slope_mps2_per_command: must be > 0 or null, got {self.slope_mps2_per_command}"
-            )
 
 
 class ThrustMap:

@@ -68,6 +68,7 @@ from datt.deploy.sim.motors import FirmwareMotors, MotorParams
 from datt.deploy.sim.onboard_app import OnboardApp
 from datt.deploy.thrust import ThrustMap
 from datt.errors import ConfigError
+from datt.sim.frames import quat_body_z, quat_exp_rotvec, quat_mul
 from datt.sim.quadrotor import Quadrotor, QuadrotorParams
 
 LOG_VARS = [  # (group, name, type)
@@ -372,22 +373,18 @@ class SimCrazyflie:
             command, wx, wy, wz = 0, 0.0, 0.0, 0.0
             self.cmd = (0.0, 0.0, 0.0, 0)
         elif age > WATCHDOG_LEVEL_S:
-            # level the attitude (P on the tilt) at the last thrust, as the firmware's watchdog
-            q = self.quad.state.quat[0]
-            wx, wy, wz = -ATTITUDE_KP * float(q[1]) * 2, -ATTITUDE_KP * float(q[2]) * 2, 0.0
+            wx, wy, wz = self._level_rates()  # level the attitude at the last thrust, as the firmware's watchdog
         elif self.controller not in RATE_CONTROLLERS:
             # Mellinger, Brescianini, Lee: they fly the setpoint's attitude (level: the legacy
             # commander's rate-mode packet carries none) and ignore the rates
-            q = self.quad.state.quat[0]
-            wx, wy, wz = -ATTITUDE_KP * float(q[1]) * 2, -ATTITUDE_KP * float(q[2]) * 2, 0.0
+            wx, wy, wz = self._level_rates()
         else:
             wz = self._yaw_rate(wz, command)
         thrust = self.motors.thrust_mps2(command, self.battery_v) if self.armed else 0.0
         if command and self._holds_position():
             # althold / poshold / posSet: the legacy commander turns the setpoint into velocity
             # commands around the hover; the vehicle holds level where it is
-            q = self.quad.state.quat[0]
-            wx, wy, wz = -ATTITUDE_KP * float(q[1]) * 2, -ATTITUDE_KP * float(q[2]) * 2, 0.0
+            wx, wy, wz = self._level_rates()
             thrust = 9.81 - 2.0 * float(self.quad.state.vel_mps[0, 2]) if self.armed else 0.0
         d = torch.zeros(1, 3)
         if self.disturbance is not None and self.motors_on:
@@ -432,12 +429,7 @@ class SimCrazyflie:
             [0.0, 0.0, 0.0] if self._last_vel is None else [(v - u) / self.p.dt_s for v, u in zip(vel, self._last_vel)]
         )
         self._last_vel = vel
-        w, x, y, _ = s.quat[0].tolist()
-        z_world = (
-            2 * (x * s.quat[0, 3].item() + w * y),
-            2 * (y * s.quat[0, 3].item() - w * x),
-            1 - 2 * (x * x + y * y),
-        )
+        z_world = quat_body_z(s.quat[0]).tolist()
         specific = [acc[0], acc[1], acc[2] + 9.81]
         acc_z_g = sum(a * b for a, b in zip(specific, z_world)) / 9.81
         if all(abs(a) / 9.81 < FREE_FALL_G for a in specific):
@@ -458,6 +450,12 @@ class SimCrazyflie:
         gauss = self._noise_rng.gauss
         self.vel_error_mps = [a * e + b * gauss(0.0, self.p.vel_noise_std_mps) for e in self.vel_error_mps]
         self.att_error_rad = [a * e + b * gauss(0.0, self.p.att_noise_std_rad) for e in self.att_error_rad]
+
+    def _level_rates(self) -> tuple[float, float, float]:
+        """Body rates that level the vehicle (P on the tilt, no yaw): what a controller that holds
+        a level attitude flies."""
+        q = self.quad.state.quat[0]
+        return -ATTITUDE_KP * float(q[1]) * 2, -ATTITUDE_KP * float(q[2]) * 2, 0.0
 
     def _holds_position(self) -> bool:
         return any(int(self.params[f"flightmode.{k}"]) for k in ("althold", "poshold", "posSet"))
@@ -538,19 +536,9 @@ class SimCrazyflie:
         pos, vel = s.pos_m[0].tolist(), s.vel_mps[0].tolist()
         q = s.quat[0].tolist()  # (w, x, y, z)
         vel = [v + e for v, e in zip(vel, self.vel_error_mps)]
-        ex, ey, ez = self.att_error_rad
-        if ex or ey or ez:  # a small world-frame rotation error
-            half = 0.5 * math.sqrt(ex * ex + ey * ey + ez * ez)
-            k = math.sin(half) / (2 * half)
-            err = [math.cos(half), ex * k, ey * k, ez * k]
-            w0, x0, y0, z0 = err
-            w1, x1, y1, z1 = q
-            q = [
-                w0 * w1 - x0 * x1 - y0 * y1 - z0 * z1,
-                w0 * x1 + x0 * w1 + y0 * z1 - z0 * y1,
-                w0 * y1 - x0 * z1 + y0 * w1 + z0 * x1,
-                w0 * z1 + x0 * y1 - y0 * x1 + z0 * w1,
-            ]
+        if any(self.att_error_rad):  # a small world-frame rotation error
+            error = quat_exp_rotvec(torch.tensor(self.att_error_rad, dtype=torch.float64))
+            q = quat_mul(error, torch.tensor(q, dtype=torch.float64)).tolist()
         if self.estimator == COMPLEMENTARY:
             pos[0] = pos[1] = vel[0] = vel[1] = 0.0
         else:
