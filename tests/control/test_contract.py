@@ -79,6 +79,8 @@ def test_datt_fast_path_equals_torchrl_deterministic_action(tiny_policy_checkpoi
         ("conv", True, True, True, 8.0, 40, 0),
         ("conv", True, True, True, 8.0, 5, 2),
         ("none", True, True, True, 8.0, 5, 1),
+        ("authors", True, True, True, 8.0, 5, 0),
+        ("authors", True, True, True, 8.0, 40, 2),
     ],
 )
 def test_datt_frozen_path_equals_observation_plus_network(

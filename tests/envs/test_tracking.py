@@ -22,6 +22,7 @@ from datt.sim.frames import quat_from_euler, quat_rotate_inverse
         ["traj=polygon", "disturbance=constant", "env.dtype=float64", "env.quad.latency_steps=0"],
         ["traj=zigzag", "env.obs.action_history=3"],
         ["traj=zigzag", "env.obs.critic_ref_points=4", "env.obs.body_frame=false"],
+        ["traj=zigzag", "env.obs.timing=authors", "env.obs.action_history=2"],
     ],
 )
 def test_check_env_specs(make_tracking_env, overrides):

@@ -9,7 +9,7 @@ from datt.policies.networks import PolicyParams, RefEncoder, make_actor, make_cr
 
 
 @pytest.mark.parametrize("horizon", [1, 5, 10, 20])
-@pytest.mark.parametrize("encoder", ["conv", "mlp", "none"])
+@pytest.mark.parametrize("encoder", ["conv", "mlp", "none", "authors"])
 def test_actor_critic_shapes_for_every_horizon_and_encoder(horizon, encoder):
     env = make_env(compose("sim", [f"horizon={horizon}"]), num_envs=6)
     p = PolicyParams(encoder=encoder)
@@ -27,6 +27,24 @@ def test_paper_encoder_structure():
     convs = [m for m in enc.conv if isinstance(m, torch.nn.Conv1d)]
     assert [(c.in_channels, c.out_channels, c.kernel_size[0]) for c in convs] == [(3, 16, 3), (16, 16, 3), (16, 16, 3)]
     assert enc.proj.out_features == 32 and enc(torch.zeros(7, 10, 3)).shape == (7, 32)
+
+
+@pytest.mark.parametrize("horizon", [5, 10, 15, 20])
+def test_the_authors_encoder_is_two_unpadded_convs_whose_width_grows_with_the_horizon(horizon):
+    enc = RefEncoder(horizon, PolicyParams(encoder="authors"))
+    convs = [m for m in enc.conv if isinstance(m, torch.nn.Conv1d)]
+    assert [(c.in_channels, c.out_channels, c.kernel_size[0], c.padding[0]) for c in convs] == [(3, 8, 3, 0), (8, 8, 3, 0)]
+    assert enc.out_dim == 8 * (horizon - 4)
+    ref = torch.randn(4, horizon, 3)
+    expect = convs[1](torch.relu(convs[0](ref.transpose(1, 2)))).flatten(1)  # no ReLU after the second
+    assert torch.allclose(enc(ref), expect, atol=1e-6)
+
+
+@pytest.mark.parametrize("horizon", [1, 4])
+def test_the_authors_encoder_below_five_points_is_their_flatten_extractor(horizon):
+    enc = RefEncoder(horizon, PolicyParams(encoder="authors"))
+    ref = torch.randn(3, horizon, 3)
+    assert enc.kind == "none" and enc.out_dim == 3 * horizon and torch.equal(enc(ref), ref.flatten(1))
 
 
 def test_initial_policy_hovers():

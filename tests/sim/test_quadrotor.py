@@ -22,9 +22,6 @@ def cmd(n, thrust, rates=(0.0, 0.0, 0.0), dtype=torch.float32):
 def test_free_fall_matches_analytic(dtype, latency):
     quad = Quadrotor(4, QuadrotorParams(initial_thrust_mps2=0.0, latency_steps=latency), dtype=dtype)
     quad.reset(pos_m=torch.zeros(4, 3))
-    # Zero thrust from the start: even the in-flight (hover) commands must not act, so
-    # latency only matters if the queue were filled with something else; fill it with 0.
-    quad.latency.fill_all(0.0)
     dt = quad.dt_s
     for k in range(1, 151):
         quad.step(cmd(4, 0.0, dtype=quad.dtype))
@@ -34,6 +31,29 @@ def test_free_fall_matches_analytic(dtype, latency):
         assert torch.allclose(z, torch.full_like(z, expect), rtol=1e-4, atol=0), (k, z[0].item(), expect)
     assert torch.allclose(quad.state.vel_mps[:, 2], torch.full((4,), -G * 150 * dt, dtype=quad.dtype), rtol=1e-5)
     assert quad.state.pos_m[:, :2].abs().max() == 0
+
+
+def test_zero_initial_thrust_idles_until_the_first_command_arrives():
+    """The authors' start (their ``QuadSim`` rebuilt at reset, an empty command queue): with
+    ``initial_thrust_mps2 = 0`` and one step of latency, the first step falls freely and the
+    first command reaches the thrust filter one step later, 0.4 of it."""
+    quad = Quadrotor(1, QuadrotorParams(initial_thrust_mps2=0.0, latency_steps=1), dtype="float64")
+    quad.reset(pos_m=torch.zeros(1, 3))
+    quad.step(cmd(1, 2 * G, dtype=torch.float64))
+    assert quad.state.thrust_mps2.item() == 0.0
+    assert quad.state.vel_mps[0, 2].item() == pytest.approx(-G * quad.dt_s)
+    quad.step(cmd(1, 2 * G, dtype=torch.float64))
+    assert quad.state.thrust_mps2.item() == pytest.approx(0.4 * 2 * G)
+
+
+def test_hover_start_holds_hover_before_the_first_command_arrives():
+    quad = Quadrotor(1, QuadrotorParams(latency_steps=2), dtype="float64")
+    quad.reset(pos_m=torch.zeros(1, 3))
+    for _ in range(2):  # the two in-flight slots hold hover, whatever is sent now
+        quad.step(cmd(1, 0.0, dtype=torch.float64))
+        assert quad.state.thrust_mps2.item() == pytest.approx(G)
+    quad.step(cmd(1, 0.0, dtype=torch.float64))
+    assert quad.state.thrust_mps2.item() == pytest.approx(0.6 * G)
 
 
 def test_hover_holds_position_for_ten_seconds():

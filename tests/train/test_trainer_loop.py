@@ -151,6 +151,17 @@ def test_a_run_that_never_leaves_the_fixed_phase_still_has_a_best(tmp_path):
     assert best["iteration"] == 2 and best["phase"] == "fixed"
 
 
+@pytest.mark.parametrize("fixed_ref_steps, phases", [(BATCH, ["fixed"] * 3), (0, ["main"] * 3)])
+def test_the_whole_run_curriculum_flies_the_fixed_reference_to_the_end_unless_skipped(tmp_path, fixed_ref_steps, phases):
+    trainer = _trainer(
+        tmp_path,
+        f"train.total_steps={3 * BATCH}",
+        f"curriculum.fixed_ref_steps={fixed_ref_steps}",
+        "curriculum.fixed_ref=whole_run",
+    )
+    assert [row["phase"] for row in trainer.train()] == phases
+
+
 def test_progress_bar_shows_steps_rate_error_and_return(tmp_path):
     console = _recording_console()
     trainer = _trainer(

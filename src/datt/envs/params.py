@@ -30,7 +30,8 @@ class RewardParams:
 
 # ObsParams keys that shape what a policy reads (a checkpoint carries them to eval and deploy)
 # and keys that describe the sensor (the environment's, never carried by a checkpoint)
-OBS_LAYOUT_KEYS = ("body_frame", "feedback", "action_history")
+OBS_LAYOUT_KEYS = ("body_frame", "feedback", "action_history", "timing")
+OBS_TIMINGS = ("project", "authors")
 OBS_NOISE_KEYS = ("pos_noise_std_m", "vel_noise_std_mps", "att_noise_std_rad")
 
 
@@ -56,7 +57,15 @@ class ObsParams:
     entries as ``ref`` (errors R^T (p − p_d), or the raw positions without the body frame) at
     t + k ``critic_ref_spacing_s`` for k = 1..K. Only the critic reads it (an asymmetric critic:
     the return depends on the reference beyond the policy's window, which the policy's own
-    inputs cannot explain); the policy's inputs and a checkpoint's policy are unchanged."""
+    inputs cannot explain); the policy's inputs and a checkpoint's policy are unchanged.
+    ``timing``: which state the observation and the reward of a step read. ``project``: the state
+    after the step with the reference at the new time. ``authors``: the state *before* the step
+    with the reference at the new time t + dt, as the authors' env pairs them (their
+    ``QuadSim.step_angvel_raw`` returns the state read before integrating, ``quadsim/sim.py``
+    lines 134-147; ``BaseQuadsimEnv.step`` advances ``t`` and builds observation and reward from
+    it, ``learning/base_env.py`` lines 239-259): the policy sees a state one step old, which with
+    the one step of command latency makes two steps of dead time. The tracking error (metrics)
+    is the true state against the reference at the same time under both."""
 
     body_frame: bool = True
     feedback: bool = True
@@ -66,6 +75,7 @@ class ObsParams:
     action_history: int = 0
     critic_ref_points: int = 0
     critic_ref_spacing_s: float = 0.1
+    timing: str = "project"
 
 
 @dataclass
@@ -139,6 +149,11 @@ class EnvParams:
             k = getattr(self.obs, key)
             whole = isinstance(k, int) and not isinstance(k, bool) and k >= 0
             need(whole, f"obs.{key}", f"must be an integer >= 0, got {k!r}")
+        need(
+            self.obs.timing in OBS_TIMINGS,
+            "obs.timing",
+            f"unknown value {self.obs.timing!r}; allowed: {', '.join(OBS_TIMINGS)}",
+        )
         ratio = self.obs.critic_ref_spacing_s / self.dt_s
         need(
             self.obs.critic_ref_spacing_s > 0 and abs(ratio - round(ratio)) < 1e-6,

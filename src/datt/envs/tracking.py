@@ -2,8 +2,9 @@
 
 Per step (dt = ``dt_s``): clip the action ``[thrust_mps2, wx, wy, wz]`` to its bounds, integrate
 the sim with the disturbance d, advance the reference index, update d and d_hat, then build the
-observation and reward from the *new* state and the reference at the *new* time (no one-step
-lag between them, unlike the authors' env).
+observation and reward from the *new* state and the reference at the *new* time
+(``obs.timing = project``), or from the state *before* the step with the reference at the new
+time (``obs.timing = authors``, the authors' env; see :class:`~datt.envs.params.ObsParams`).
 
 Episodes: drones start at rest, level, uniformly within ``init_pos_range_m`` of the origin,
 with a fresh reference (and disturbance) each; an episode is truncated after
@@ -94,6 +95,7 @@ class TrackingEnv(EnvBase):
         self.adaptation = adaptation if adaptation is not None else Privileged()
         self.generator = torch.Generator(device=device)
         self.generator.manual_seed(0 if seed is None else int(seed))
+        self._start_generator: torch.Generator | None = None  # see seed_starts
 
         kw = {"device": device, "dtype": self.dtype}
         self.sim = Quadrotor(num_envs, params.quad, dt_s=params.dt_s, device=device, dtype=self.dtype)
@@ -172,7 +174,8 @@ class TrackingEnv(EnvBase):
     def _reset_drones(self, idx: torch.Tensor) -> None:
         k = len(idx)
         r = self.params.init_pos_range_m
-        u = torch.rand(k, 3, generator=self.generator, device=self.device, dtype=self.dtype)
+        gen = self._start_generator or self.generator
+        u = torch.rand(k, 3, generator=gen, device=self.device, dtype=self.dtype)
         self.sim.reset(idx, (2.0 * u - 1.0) * r)
         self.sim.randomise(idx, self.generator)
         self.step_idx[idx] = 0
@@ -185,6 +188,12 @@ class TrackingEnv(EnvBase):
         self.adaptation.reset(idx, self.disturbance.current_mps2, self.sim.state)
         if self.cmd_history.shape[1]:
             self.cmd_history[idx] = self.scaled_command(self.hover_action[idx]).unsqueeze(1)
+
+    def seed_starts(self, seed: int) -> None:
+        """Draw the start positions of later resets from their own generator seeded at ``seed``
+        (evaluation: every controller and disturbance of a seed starts from the same points,
+        whatever else the env's generator has drawn)."""
+        self._start_generator = torch.Generator(device=self.device).manual_seed(int(seed))
 
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
         mask = None if tensordict is None else tensordict.get("_reset", None)
@@ -281,14 +290,19 @@ class TrackingEnv(EnvBase):
         idx = idx.clamp_max(self.table_len - 1)
         return torch.gather(self.ref_table, 1, idx.unsqueeze(-1).expand(-1, -1, 3))
 
-    def _observe(self, idx: torch.Tensor | None = None) -> tuple[TensorDict, torch.Tensor, torch.Tensor]:
+    def _observe(
+        self, idx: torch.Tensor | None = None, state: tuple | None = None
+    ) -> tuple[TensorDict, torch.Tensor, torch.Tensor]:
         """Observation, tracking error and cost for all drones, or only for rows ``idx``.
 
         With ``idx`` (partial reset) the other rows are left at zero: TorchRL keeps the previous
         observation of drones that were not reset, so computing them would be wasted work.
+        ``state``: ``(pos, vel, quat)`` the observation and cost read instead of the simulator's
+        state (``obs.timing = authors``: the state before the step); the tracking error always
+        reads the simulator's.
         """
         s = self.sim.state
-        pos, vel, quat = s.pos_m, s.vel_mps, s.quat
+        pos, vel, quat = (s.pos_m, s.vel_mps, s.quat) if state is None else state
         future = self._ref_future()
         kernel = self._observe_kernel
         if idx is not None:
@@ -296,6 +310,8 @@ class TrackingEnv(EnvBase):
             kernel = observe_and_cost  # eager: subset sizes vary, avoid recompiles
         measured = self._measure(pos, vel, quat)
         state, ref, err_m, cost = kernel(*measured, pos, vel, quat, future, self.params.obs, self.params.reward)
+        if pos is not s.pos_m and idx is None:
+            err_m = torch.linalg.vector_norm(s.pos_m - future[0], dim=-1, keepdim=True)
         if self.cmd_history.shape[1]:
             hist = self.cmd_history if idx is None else self.cmd_history[idx]
             state = torch.cat((state, hist.flatten(1)), dim=-1)
@@ -360,9 +376,13 @@ class TrackingEnv(EnvBase):
             self.cmd_history = torch.cat((self.cmd_history[:, 1:], self.scaled_command(cmd).unsqueeze(1)), dim=1)
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
+        before = None
+        if self.params.obs.timing == "authors":  # observation and reward read the state before the step
+            st = self.sim.state
+            before = (st.pos_m.clone(), st.vel_mps.clone(), st.quat.clone())
         s, cmd, d = self.advance_plant(tensordict.get("action"))
         self.adaptation.update(s, cmd, d)
-        out, err_m, cost = self._observe()
+        out, err_m, cost = self._observe(state=before)
 
         outside = (s.pos_m.abs() > self.box_m).any(-1, keepdim=True)
         terminated = outside | ~torch.isfinite(cost)

@@ -18,10 +18,11 @@ def episode_errors(err_m: torch.Tensor, crashed_at: torch.Tensor) -> torch.Tenso
     return (err_m * flown).sum(1) / flown.sum(1).clamp_min(1)
 
 
-def summarize(errors: torch.Tensor, crashed: torch.Tensor) -> dict:
-    """Mean ± std of per-episode errors over episodes that did not crash, and the crash count.
-    All crashed -> mean/std are NaN and the row reads "failed" in tables."""
-    ok = errors[~crashed]
+def summarize(errors: torch.Tensor, crashed: torch.Tensor, leave_out_crashed: bool = True) -> dict:
+    """Mean ± std of per-episode errors, and the crash count. ``leave_out_crashed``: the mean
+    runs over the episodes that did not crash (all crashed -> mean/std are NaN and the row reads
+    "failed" in tables); otherwise over every episode (the authors' accounting)."""
+    ok = errors[~crashed] if leave_out_crashed else errors
     mean = ok.mean().item() if len(ok) else math.nan
     std = ok.std(unbiased=False).item() if len(ok) > 1 else (0.0 if len(ok) else math.nan)
     return {
@@ -35,7 +36,7 @@ def summarize(errors: torch.Tensor, crashed: torch.Tensor) -> dict:
 
 
 def format_error(row: dict) -> str:
-    if row["episodes"] and row["crashes"] == row["episodes"]:
+    if row["episodes"] and row["crashes"] == row["episodes"] and not math.isfinite(row["mean_m"]):
         return "failed"
     text = f"{row['mean_m']:.3f} ± {row['std_m']:.3f}"
     return text + (f" ({row['crashes']} crashed)" if row["crashes"] else "")

@@ -3,7 +3,8 @@
 A bank is a set of named reference groups, each a family drawn with its own seed (so every
 controller, run and machine sees the same references). Default bank (``conf/bank/default.yaml``):
 10 zigzags (seed 1000), 10 smooth references (5 poly + 5 chained_poly, seeds 2000/2001) and the
-star. All drones start at rest at the origin (where every reference starts).
+star. Where the drones start and which steps count is the evaluation protocol
+(``eval.protocol``, :mod:`datt.eval.protocol`).
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ from datt.control.base import Controller
 from datt.envs.factory import make_env
 from datt.envs.params import OBS_NOISE_KEYS
 from datt.eval.metrics import episode_errors, summarize
+from datt.eval.protocol import apply_protocol, get_protocol
 from datt.refs.base import RefFamily
 from datt.refs.composite import Seeded
 
@@ -107,24 +109,31 @@ def build_bank(bank_cfg: DictConfig) -> tuple[list[str], list[int], RefFamily]:
 
 
 def evaluate(cfg: DictConfig, controller_factory, disturbance: str, adaptation: str, seed: int = 0) -> dict:
-    """Evaluate on ``cfg.eval.bank`` under the named disturbance/adaptation options.
+    """Evaluate on ``cfg.eval.bank`` under the named disturbance/adaptation options and the
+    protocol ``cfg.eval.protocol``.
 
     ``controller_factory(env) -> Controller``. Returns per-group summaries and the trace.
     """
     names, counts, bank = build_bank(cfg.eval.bank)
+    protocol = get_protocol(str(cfg.eval.protocol))
     env_cfg = with_options(cfg, disturbance=disturbance, adaptation=adaptation)
-    env_cfg.env.init_pos_range_m = 0.0
+    apply_protocol(env_cfg, protocol)
     # the bank measures tracking, not the sensor: no observation noise (the vehicle's randomisation,
     # env.quad.*, stays as configured: `randomization=deploy` evaluates on drawn vehicles)
     for key in OBS_NOISE_KEYS:
         env_cfg.env.obs[key] = 0.0
     env = make_env(env_cfg, num_envs=sum(counts), seed=seed, traj=bank)
+    env.seed_starts(seed)
     trace = run_controller(env, controller_factory(env))
-    errors = episode_errors(trace.err_m, trace.crashed_at)
     crashed = trace.crashed_at < trace.err_m.shape[1]
+    if protocol.count_every_step:
+        errors = trace.err_m.mean(1)
+    else:
+        errors = episode_errors(trace.err_m, trace.crashed_at)
     out, start = {}, 0
     for name, count in zip(names, counts):
         sl = slice(start, start + count)
-        out[name] = summarize(errors[sl], crashed[sl])
+        out[name] = summarize(errors[sl], crashed[sl], leave_out_crashed=not protocol.count_every_step)
+        out[name]["protocol"] = str(cfg.eval.protocol)
         start += count
     return {"groups": out, "trace": trace, "names": names, "counts": counts}

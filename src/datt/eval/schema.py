@@ -9,6 +9,7 @@ from typing import Any
 from omegaconf import MISSING
 
 from datt.errors import ConfigError
+from datt.eval.protocol import get_protocol
 
 
 @dataclass
@@ -32,6 +33,7 @@ class TimingParams:
 class EvalParams:
     """``eval`` of ``eval.py``: one controller over the seeded bank, per seed."""
 
+    protocol: str = MISSING  # datt.eval.protocol.PROTOCOLS
     seeds: list[int] = MISSING
     plots: bool = MISSING
     save_trace: bool = MISSING
@@ -40,6 +42,7 @@ class EvalParams:
     traj_count: int = MISSING  # references drawn when the command gives traj= (a bank of one group)
 
     def validate(self) -> None:
+        get_protocol(self.protocol)
         if not self.seeds:
             raise ConfigError("eval.seeds: must list at least one seed, e.g. [0] or [0,1,2]")
         if self.traj_count < 1:
@@ -51,12 +54,14 @@ class EvalParams:
 class EndOfRunEvalParams:
     """``eval`` of ``train.py``: conditions evaluated at the end of training."""
 
+    protocol: str = MISSING  # datt.eval.protocol.PROTOCOLS
     conditions: Any = MISSING  # name -> {disturbance, adaptation} (null drops a condition)
     seed: int = MISSING
     plots: bool = MISSING
     bank: Any = MISSING
 
     def validate(self) -> None:
+        get_protocol(self.protocol)
         for name, cond in (self.conditions or {}).items():
             if cond is not None and not {"disturbance", "adaptation"} <= set(cond):
                 raise ConfigError(f"eval.conditions.{name}: needs disturbance and adaptation, got {dict(cond)}")

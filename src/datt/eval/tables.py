@@ -295,6 +295,8 @@ def _group_error(metrics: dict, condition: str | None, group: str) -> float | No
     if cond is None or group not in cond["groups"]:
         return None
     row = cond["groups"][group]
+    if row.get("protocol") == "authors":  # every episode counts (datt.eval.protocol)
+        return row["mean_m"] if math.isfinite(row["mean_m"]) else None
     return None if row["crashes"] == row["episodes"] else row["mean_m"]
 
 
@@ -307,6 +309,8 @@ def _episodes(metrics: dict, group: str) -> tuple[list[float], int]:
         if row is None:
             continue
         crashed = row.get("per_episode_crashed", [False] * len(row["per_episode_m"]))
+        if row.get("protocol") == "authors":  # every episode counts; a non-finite one fails
+            crashed = [not math.isfinite(e) for e in row["per_episode_m"]]
         values += [e for e, c in zip(row["per_episode_m"], crashed) if not c]
         failed += sum(crashed)
     return values, failed

@@ -11,7 +11,13 @@ Both read the env's observation keys ``state [*, S]`` (S = 13, plus 4 per comman
 The paper's encoder: 3 Conv1d layers, 16 filters, kernel 3, ReLU, then a linear projection to
 32 dims. We pad the convolutions ("same" length) so every horizon H >= 1 works, including the
 H = 1 ablation. ``encoder=mlp`` (two linear layers over the flattened points) and ``none``
-(flattened points straight into the MLP) are alternatives. MLPs: 3 x 64 ReLU (paper).
+(flattened points straight into the MLP) are alternatives. ``encoder=authors`` is the encoder
+the authors trained with (``learning/utils/feedforward_feature_extractor.py``, KevinHuang8/DATT
+42ddfc8): Conv1d(3 → 8, k 3), ReLU, Conv1d(8 → 8, k 3), unpadded, flattened, so its width
+grows with H, 8 (H − 4) features; for H < 5 their convolutions do not fit the sequence and the
+only configuration their code can run is ``conv_extractor=False`` (``learning/train_policy.py``
+lines 177-180, SB3's flatten extractor): the raw points go to the MLP, as ``none``.
+MLPs: 3 x 64 ReLU (paper).
 """
 
 from __future__ import annotations
@@ -32,7 +38,8 @@ from datt.envs.tracking import action_center_half
 from datt.errors import ConfigError
 
 OBS_KEYS = ["state", "ref", "d_hat"]
-ENCODERS = ("conv", "mlp", "none")
+ENCODERS = ("conv", "mlp", "none", "authors")
+AUTHORS_MIN_HORIZON = 5  # two unpadded k-3 convolutions need 5 points for one output
 
 
 @dataclass
@@ -117,7 +124,12 @@ class RefEncoder(nn.Module):
         elif p.encoder == "mlp":
             self.net = nn.Sequential(nn.Linear(3 * horizon, 64), nn.ReLU(), nn.Linear(64, p.embed_dim))
             self.out_dim = p.embed_dim
-        else:
+        elif p.encoder == "authors" and horizon >= AUTHORS_MIN_HORIZON:
+            # no activation after the second conv: the MLP's first linear layer follows, as theirs
+            self.conv = nn.Sequential(nn.Conv1d(3, 8, 3), nn.ReLU(), nn.Conv1d(8, 8, 3))
+            self.out_dim = 8 * (horizon - 4)
+        else:  # none, and the authors' flatten extractor for H < 5
+            self.kind = "none"
             self.out_dim = 3 * horizon
 
     def forward(self, ref: torch.Tensor) -> torch.Tensor:
@@ -133,6 +145,8 @@ class RefEncoder(nn.Module):
                 else:
                     h = layer(h)
             out = torch.relu(self.proj(h.flatten(1)))  # h [B, C, 1, H]: same C-major order as [B, C, H]
+        elif self.kind == "authors":
+            out = self.conv(flat.transpose(1, 2)).flatten(1)  # [B, 8, H - 4], channel-major as theirs
         elif self.kind == "mlp":
             out = torch.relu(self.net(flat.flatten(1)))
         else:
@@ -256,7 +270,8 @@ class InferenceNet(nn.Module):
                 if i == 0:  # H-major input index -> channel-major column of the conv's matrix; error gain
                     weight = weight[:, torch.arange(3 * horizon).reshape(3, horizon).T.reshape(-1)] * scale
                 layers += [_linear(weight, bias), nn.ReLU()]
-        elif self.kind == "conv":
+        elif self.kind in ("conv", "authors"):
+            self.kind = "conv"
             layers += list(copy.deepcopy(enc.conv))
             with torch.no_grad():
                 layers[0].weight.mul_(scale)

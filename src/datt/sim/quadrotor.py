@@ -55,8 +55,10 @@ def resolve_dtype(name: str | torch.dtype) -> torch.dtype:
 class QuadrotorParams:
     """Simulator constants (config ``env.quad``; the step ``dt_s`` is ``env.dt_s``).
 
-    ``initial_thrust_mps2``: actuator thrust state after reset; ``None`` means hover (= g),
-    which avoids the spurious drop of the authors' sim that started every episode at zero thrust.
+    ``initial_thrust_mps2``: actuator thrust state after reset, and the thrust of the commands
+    "in flight" before the first one sent (an idle actuator was commanded what it holds);
+    ``None`` means hover (= g), which avoids the drop of the authors' sim that starts every
+    episode at zero thrust (``0.0`` reproduces it: ``eval.protocol=authors``).
 
     Domain randomisation, drawn per drone at every reset (0 / ``None`` / ``first_order`` = off):
     ``mass_spread`` and ``thrust_gain_spread``: the vehicle's mass and motor gain are
@@ -202,8 +204,9 @@ class Quadrotor:
         p = self.params
         kw = {"device": self.device, "dtype": self.dtype}
         self.gravity = torch.tensor([0.0, 0.0, -p.gravity_mps2], **kw)
-        self.hover_cmd = torch.tensor([p.gravity_mps2, 0.0, 0.0, 0.0], **kw)
         self.initial_thrust = p.gravity_mps2 if p.initial_thrust_mps2 is None else p.initial_thrust_mps2
+        # what the actuators are taken to have been commanded before the first command of an episode
+        self.idle_cmd = torch.tensor([self.initial_thrust, 0.0, 0.0, 0.0], **kw)
         n = self.n
         self.state = QuadState(
             pos_m=torch.zeros(n, 3, **kw),
@@ -214,8 +217,8 @@ class Quadrotor:
         )
         self.state.quat[:, 0] = 1.0
         self.state.thrust_mps2.fill_(self.initial_thrust)
-        self.latency = CommandLatency(p.latency_steps, self.hover_cmd, n, p.max_latency_steps)
-        self.last_applied_cmd = self.hover_cmd.expand(n, 4).clone()
+        self.latency = CommandLatency(p.latency_steps, self.idle_cmd, n, p.max_latency_steps)
+        self.last_applied_cmd = self.idle_cmd.expand(n, 4).clone()
         self._integrate = integrate
         # Domain randomisation state (None = nominal for every drone; see QuadrotorParams)
         self.thrust_scale: Tensor | None = None  # [N] thrust produced per unit of actuator thrust
@@ -238,7 +241,7 @@ class Quadrotor:
         s.rate_radps[idx] = 0.0
         s.thrust_mps2[idx] = self.initial_thrust
         self.latency.reset(idx)
-        self.last_applied_cmd[idx] = self.hover_cmd
+        self.last_applied_cmd[idx] = self.idle_cmd
         if self.rate_torque is not None:
             self.rate_torque[idx] = 0.0
 

@@ -9,7 +9,8 @@ epochs over minibatches of a few thousand and a larger learning rate (documented
 ``algo=sb3`` restores the authors' values.
 
 Curriculum (paper §4.1): the first ``curriculum.fixed_ref_steps`` frames fly one fixed
-reference (``curriculum.fixed``), then the configured family. Checkpoints (``last.pt`` every
+reference (``curriculum.fixed``), then the configured family (``curriculum.fixed_ref=whole_run``:
+the fixed reference for the whole run, as the authors' code ran it). Checkpoints (``last.pt`` every
 ``train.checkpoint_every`` iterations and at the end, ``best.pt`` on the best training tracking
 error) hold everything to resume: ``resume=true`` continues the run dir to the same total.
 """
@@ -167,6 +168,8 @@ class Trainer:
         if self.total_frames < 1:
             raise ConfigError(f"train.total_steps: must be >= 1, got {self.total_frames}")
         self.fixed_ref_steps = int(curriculum.fixed_ref_steps * budget)
+        if curriculum.fixed_ref == "whole_run" and self.fixed_ref_steps > 0:
+            self.fixed_ref_steps = self.total_frames
         self.main_traj = instantiate_option(cfg, "traj")
         self.fixed_traj = instantiate_option(cfg.curriculum, "fixed") if self.fixed_ref_steps > 0 else None
         seed = int(cfg.seed)

@@ -59,15 +59,29 @@ class TrainParams:
         _need(self.threads is None or self.threads >= 1, "train.threads", f"must be null or >= 1, got {self.threads}")
 
 
+FIXED_REF_MODES = ("steps", "whole_run")
+
+
 @dataclass
 class CurriculumParams:
-    """``curriculum``: the first ``fixed_ref_steps`` frames fly the one reference ``fixed``."""
+    """``curriculum``: the first ``fixed_ref_steps`` frames fly the one reference ``fixed``
+    (``fixed_ref: steps``, the paper's 2.5 M), or every frame of the run (``fixed_ref: whole_run``,
+    what the authors' code did: one zigzag of one seed until an env's 5000th episode,
+    ``reset_thresh`` in ``configuration/configuration.py`` line 139 and ``TrajectoryEnv.reset`` in
+    ``learning/tasks/trajectory_fbff.py`` lines 47-55, past the end of a 15-25 M-step run of 10
+    envs). ``fixed_ref_steps: 0`` skips the fixed reference under both (the no_fixed_ref ablation)."""
 
     fixed_ref_steps: int = MISSING
+    fixed_ref: str = MISSING  # steps | whole_run
     fixed: Any = MISSING  # a reference family node with _target_ (datt.refs.Fixed)
 
     def validate(self) -> None:
         _need(self.fixed_ref_steps >= 0, "curriculum.fixed_ref_steps", f"must be >= 0, got {self.fixed_ref_steps}")
+        _need(
+            self.fixed_ref in FIXED_REF_MODES,
+            "curriculum.fixed_ref",
+            f"unknown value {self.fixed_ref!r}; allowed: {', '.join(FIXED_REF_MODES)}",
+        )
 
 
 @dataclass
