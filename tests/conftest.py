@@ -24,10 +24,20 @@ def make_tracking_env():
 @pytest.fixture(scope="session")
 def tiny_policy_checkpoint(tmp_path_factory):
     """A policy checkpoint from a two-iteration training run (shape-correct, barely trained)."""
+    return train_tiny_policy(tmp_path_factory.mktemp("tiny_policy"))
+
+
+@pytest.fixture(scope="session")
+def tiny_authors_timing_checkpoint(tmp_path_factory):
+    """The same, trained with the authors' observation timing and encoder."""
+    run_dir = tmp_path_factory.mktemp("tiny_authors")
+    return train_tiny_policy(run_dir, "env.obs.timing=authors", "policy.encoder=authors")
+
+
+def train_tiny_policy(run_dir, *extra):
     from datt.train.loggers import CsvLogger
     from datt.train.ppo import Trainer
 
-    run_dir = tmp_path_factory.mktemp("tiny_policy")
     cfg = compose(
         "train",
         [
@@ -40,6 +50,7 @@ def tiny_policy_checkpoint(tmp_path_factory):
             "algo.epochs=1",
             "train.total_steps=512",
             "curriculum.fixed_ref_steps=0",
+            *extra,
         ],
     )
     trainer = Trainer(cfg, run_dir, CsvLogger(run_dir))

@@ -116,3 +116,22 @@ def test_sweep_runs_without_dash_m(tmp_path):
     """``+sweep=<table>`` sets hydra.mode=MULTIRUN itself (--cfg hydra shows it)."""
     proc = run([str(ROOT / "train.py"), "+sweep=horizon", "--cfg", "hydra"], tmp_path)
     assert proc.returncode == 0 and "mode: MULTIRUN" in proc.stdout, proc.stderr[-2000:]
+
+
+def test_a_policy_trained_with_the_authors_timing_evaluates_with_it_and_is_refused_by_deploy_and_export(
+    tmp_path, tiny_authors_timing_checkpoint
+):
+    from datt.configuration import compose
+    from datt.control.factory import build_controller
+    from datt.errors import ConfigError
+    from datt.export import export_spec
+
+    cfg = compose("eval", [f"checkpoint={tiny_authors_timing_checkpoint}"])
+    _, merged, _ = build_controller(cfg)
+    assert merged.env.obs.timing == "authors"  # the checkpoint carries the timing it was trained with
+    with pytest.raises(ConfigError, match=r"trained with env.obs.timing=authors .*the exported app"):
+        export_spec(compose("export", [f"checkpoint={tiny_authors_timing_checkpoint}"]))
+    proc = run([str(ROOT / "deploy.py"), f"checkpoint={tiny_authors_timing_checkpoint}", f"hydra.run.dir={tmp_path}"], tmp_path)
+    assert proc.returncode == 2, proc.stderr[-2000:]
+    line = proc.stderr.strip()
+    assert line.count("\n") == 0 and "env.obs.timing=authors" in line and "deploy feeds the newest state" in line

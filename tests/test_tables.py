@@ -65,6 +65,55 @@ def test_ablation_sweep_settings_and_budget(tmp_path):
     assert "brownian: null" in out.stdout
 
 
+def test_the_paper_setting_ablation_sweep_is_the_ablation_sweep_with_the_authors_options(tmp_path):
+    out = run("train.py", "+sweep=ablation_authors", "--cfg", "job", "--resolve", cwd=tmp_path)
+    assert out.returncode == 0, out.stderr[-2000:]
+    from omegaconf import OmegaConf
+
+    cfg = OmegaConf.create(out.stdout)
+    assert cfg.sweep_name == "ablation_authors" and cfg.train.total_steps == 15_000_000
+    assert cfg.env.obs.timing == "authors" and cfg.env.quad.initial_thrust_mps2 == 0.0
+    assert cfg.policy.encoder == "authors" and cfg.curriculum.fixed_ref == "whole_run"
+    assert cfg.eval.protocol == "authors" and cfg.eval.conditions.brownian is None
+    assert cfg.env.obs.action_history == 0 and cfg.traj._target_ == "datt.refs.Zigzag"
+
+
+def test_an_authors_protocol_row_counts_every_episode_and_the_title_names_the_protocol(tmp_path):
+    def metrics(values, crashed):
+        row = {
+            "mean_m": sum(values) / len(values),
+            "std_m": 0.0,
+            "crashes": sum(crashed),
+            "episodes": len(values),
+            "per_episode_m": values,
+            "per_episode_crashed": crashed,
+            "protocol": "authors",
+        }
+        return {"controller": "datt", "conditions": {"clean": {"groups": {"zigzag": row, "smooth": row}}}}
+
+    _job(tmp_path, 0, ["+sweep=ablation_authors", "ablation=none", "seed=0"], metrics([0.04, 0.08], [False, True]))
+    _job(tmp_path, 1, ["controller=datt"], metrics([0.05, float("nan")], [False, False]))
+    _job(tmp_path, 2, ["+sweep=ablation", "ablation=none", "seed=0"], _train_metrics(0.03))
+    jobs = tables.find_jobs([tmp_path])
+    spec = tables.get_spec("ablation_authors")
+    train_jobs = [jobs[0], jobs[2]]
+    rows, _ = tables.collect(spec, train_jobs)
+    assert rows["ablation=none@authors"][0].values == [pytest.approx(0.06)]  # the crashed episode counts
+    assert rows["ablation=none"][0].values == [0.03]
+    rendered = tables.render(spec, rows, train_jobs)
+    assert "evaluation protocol authors, project" in rendered["md"]
+    labels = [r[0] for r in rendered["rows"]]  # both protocols' rows side by side, each beside the paper's number
+    assert labels == [
+        "Feedforward horizon 10 (base, used in main experiments) [1 run]",
+        "Feedforward horizon 10 (base, used in main experiments) (authors' protocol) [1 run]",
+    ]
+    assert [r[-1] for r in rendered["rows"]] == ["0.055 ± 0.007"] * 2
+    main = tables.get_spec("main")
+    rows, _ = tables.collect(main, [jobs[1]])
+    zigzag = rows["datt@authors"][1]
+    assert zigzag.values == [0.05] and zigzag.failed == 1  # only a non-finite episode fails
+
+
 def test_launchers_compose_and_build(tmp_path):
     out = run("train.py", "hydra/launcher=joblib", "hydra.launcher.n_jobs=2", "--cfg", "hydra", cwd=tmp_path)
     assert "JoblibLauncher" in out.stdout and "n_jobs: 2" in out.stdout
@@ -158,6 +207,6 @@ def test_main_table_pools_seeds_and_reports_inference(tmp_path):
 def test_unknown_table_and_missing_sweep_are_one_line(tmp_path):
     out = run("tables.py", "nope", cwd=tmp_path)
     assert out.returncode == 2 and out.stderr.strip().count("\n") == 0
-    assert "table: unknown table 'nope'; allowed: ablation, horizon, rma, main, wind" in out.stderr
+    assert "table: unknown table 'nope'; allowed: ablation, ablation_authors, horizon, rma, main, wind" in out.stderr
     out = run("tables.py", "ablation", cwd=tmp_path)
     assert out.returncode == 2 and "python train.py +sweep=ablation" in out.stderr

@@ -35,3 +35,15 @@ def build_controller(cfg: DictConfig):
     OmegaConf.set_struct(merged, False)
     labels = {**labels, "checkpoint": str(cfg.checkpoint), "frames": int(data["frames"])}
     return DattController(actor, frozen=True), merged, labels
+
+
+def require_current_state_timing(merged: DictConfig, who: str) -> None:
+    """A vehicle feeds the policy its newest state estimate: refuse, in one line, a policy trained
+    to read the state one step old (``env.obs.timing=authors``)."""
+    if merged.env.obs.timing != "project":
+        from datt.errors import ConfigError
+
+        raise ConfigError(
+            f"checkpoint: trained with env.obs.timing={merged.env.obs.timing} (the state one step old); "
+            f"{who} feeds the newest state; allowed: a policy trained with env.obs.timing=project"
+        )

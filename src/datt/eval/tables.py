@@ -94,6 +94,16 @@ _ABLATION_LABELS = {
     "ablation=h15": "Feedforward horizon 15 (H = 0.9 s)",
     "ablation=h20": "Feedforward horizon 20 (H = 1.2 s)",
 }
+_ABLATION_PAPER = {
+    "ablation=no_body_frame": ["failed"],
+    "ablation=no_fixed_ref": ["0.437 ± 0.08"],
+    "ablation=no_feedback": ["0.077 ± 0.011"],
+    "ablation=h1": ["failed"],
+    "ablation=h5": ["0.240 ± 0.008"],
+    "ablation=none": ["0.055 ± 0.007"],
+    "ablation=h15": ["0.073 ± 0.010"],
+    "ablation=h20": ["0.101 ± 0.018"],
+}
 _CONTROLLERS = {
     "pid": "Nonlinear tracking control (PID)",
     "l1_pid": "L1 adaptive control (L1-PID)",
@@ -113,16 +123,19 @@ TABLES: dict[str, TableSpec] = {
         ["zigzag error (m)"],
         list(_ABLATION_LABELS),
         _ABLATION_LABELS,
-        {
-            "ablation=no_body_frame": ["failed"],
-            "ablation=no_fixed_ref": ["0.437 ± 0.08"],
-            "ablation=no_feedback": ["0.077 ± 0.011"],
-            "ablation=h1": ["failed"],
-            "ablation=h5": ["0.240 ± 0.008"],
-            "ablation=none": ["0.055 ± 0.007"],
-            "ablation=h15": ["0.073 ± 0.010"],
-            "ablation=h20": ["0.101 ± 0.018"],
-        },
+        _ABLATION_PAPER,
+        "paper Table 3 (15M steps, SB3, 5 runs each)",
+    ),
+    "ablation_authors": TableSpec(
+        "ablation_authors",
+        "train",
+        "Ablations in the paper's setting (the authors' observation timing, encoder, whole-run fixed "
+        "reference and zero-thrust starts): zigzag tracking error (m), no disturbance, no adaptation",
+        "train.py",
+        ["zigzag error (m)"],
+        list(_ABLATION_LABELS),
+        _ABLATION_LABELS,
+        _ABLATION_PAPER,
         "paper Table 3 (15M steps, SB3, 5 runs each)",
     ),
     "horizon": TableSpec(
@@ -271,14 +284,21 @@ def _progress(path: Path) -> str:
     return f"stopped at {int(float(last.get('frames', 0))):,} frames"
 
 
+AUTHORS_SUFFIX = "@authors"  # row key suffix of a job measured under eval.protocol=authors
+
+
 def _row_key(job: Job, spec: TableSpec, varying: set[str] | None = None) -> str:
     """Row of a job: its eval controller, or ``key=value`` of its swept overrides (the table's own
-    keys such as ``ablation``/``horizon`` plus any key that differs between jobs; not ``seed``)."""
+    keys such as ``ablation``/``horizon`` plus any key that differs between jobs; not ``seed``),
+    plus :data:`AUTHORS_SUFFIX` when it was measured under the authors' protocol (so a table of
+    two sweeps shows both protocols' rows side by side)."""
+    suffix = AUTHORS_SUFFIX if "authors" in job_protocols(job) else ""
     if spec.kind == "eval":
-        return (job.metrics or {}).get("controller", job.overrides.get("controller", "?"))
+        return (job.metrics or {}).get("controller", job.overrides.get("controller", "?")) + suffix
     own = {"ablation", "horizon"}
-    keys = sorted(k for k in job.overrides if k != "seed" and (k in own or varying is None or k in varying))
-    return ",".join(f"{k}={job.overrides[k]}" for k in keys) or "base"
+    skip = {"seed", "eval.protocol"}
+    keys = sorted(k for k in job.overrides if k not in skip and (k in own or varying is None or k in varying))
+    return (",".join(f"{k}={job.overrides[k]}" for k in keys) or "base") + suffix
 
 
 def varying_keys(jobs: list[Job]) -> set[str]:
@@ -334,8 +354,9 @@ def collect(spec: TableSpec, jobs: list[Job]) -> tuple[dict[str, list[Cell]], di
                 _group_error(m, "clean", "zigzag") if job.status == "finished" else None
             )
         elif spec.kind == "rma":
+            suffix = AUTHORS_SUFFIX if "authors" in job_protocols(job) else ""
             for cond in spec.row_order:
-                cells(cond)[0].add(_group_error(m, cond, "zigzag") if job.status == "finished" else None)
+                cells(cond + suffix)[0].add(_group_error(m, cond, "zigzag") if job.status == "finished" else None)
         elif spec.name == "main":
             key = _row_key(job, spec)
             row = cells(key)
@@ -373,18 +394,26 @@ def collect(spec: TableSpec, jobs: list[Job]) -> tuple[dict[str, list[Cell]], di
 
 # -- rendering -----------------------------------------------------------------------------
 def render(spec: TableSpec, rows: dict[str, list[Cell]], jobs: list[Job]) -> dict[str, str]:
-    order = [k for k in spec.row_order if k in rows] + sorted(k for k in rows if k not in spec.row_order)
+    known = [k + suffix for k in spec.row_order for suffix in ("", AUTHORS_SUFFIX)]
+    order = [k for k in known if k in rows] + sorted(k for k in rows if k not in known)
     header = ["method" if spec.kind != "train" else "ablation"] + spec.columns + [f"paper: {c}" for c in spec.columns]
     body = []
     for key in order:
-        label = spec.row_labels.get(key, key)
+        base = key.removesuffix(AUTHORS_SUFFIX)
+        label = spec.row_labels.get(base, base) + (" (authors' protocol)" if key != base else "")
         ours = [c.text(digits=2 if "ms" in col else 3) for c, col in zip(rows[key], spec.columns)]
         seeds = max(c.total for c in rows[key]) if spec.kind in ("train", "rma") else None
         if seeds:
             label += f" [{seeds} run{'s' if seeds > 1 else ''}]"
-        paper = spec.paper.get(key, ["—"] * len(spec.columns))
+        paper = spec.paper.get(base, ["—"] * len(spec.columns))
         body.append([label, *ours, *paper])
-    md = [f"**{spec.title}** (ours: simulation; paper: {spec.paper_note})", "", "| " + " | ".join(header) + " |"]
+    protocols = ", ".join(sorted(evaluation_protocols(jobs))) or "project"
+    md = [
+        f"**{spec.title}** (ours: simulation, evaluation protocol {protocols} (datt.eval.protocol); "
+        f"paper: {spec.paper_note})",
+        "",
+        "| " + " | ".join(header) + " |",
+    ]
     md.append("|" + "---|" * len(header))
     md += ["| " + " | ".join(r) + " |" for r in body]
     notes = job_notes(jobs)
@@ -399,6 +428,20 @@ def render(spec: TableSpec, rows: dict[str, list[Cell]], jobs: list[Job]) -> dic
     tex += [" & ".join(_tex(c) for c in r) + " \\\\" for r in body]
     tex += ["\\bottomrule", "\\end{tabular}"]
     return {"md": "\n".join(md) + "\n", "tex": "\n".join(tex) + "\n", "rows": body, "header": header}
+
+
+def job_protocols(job: Job) -> set[str]:
+    """The evaluation protocols a job's metrics were measured under (``project`` for records
+    written before the protocol was recorded)."""
+    found = set()
+    for cond in (job.metrics or {}).get("conditions", {}).values():
+        for row in cond.get("groups", {}).values():
+            found.add(row.get("protocol", "project"))
+    return found
+
+
+def evaluation_protocols(jobs: list[Job]) -> set[str]:
+    return set().union(*(job_protocols(job) for job in jobs)) if jobs else set()
 
 
 def _tex(text: str) -> str:
@@ -455,7 +498,7 @@ def get_spec(name: str) -> TableSpec:
 
 # -- plots ---------------------------------------------------------------------------------
 def _horizon_of(key: str) -> int | None:
-    for part in key.split(","):
+    for part in key.removesuffix(AUTHORS_SUFFIX).split(","):
         k, _, v = part.partition("=")
         if k == "horizon" and v.isdigit():
             return int(v)

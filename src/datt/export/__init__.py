@@ -11,7 +11,7 @@ from omegaconf import DictConfig
 from datt.adapt.l1 import L1Adaptation
 from datt.configuration import instantiate_option
 from datt.control.datt import DattController
-from datt.control.factory import build_controller
+from datt.control.factory import build_controller, require_current_state_timing
 from datt.envs.factory import make_env
 from datt.errors import ConfigError
 from datt.export.c_code import L1Spec, PolicySpec, generate, l1_spec, policy_spec
@@ -90,6 +90,7 @@ def export_spec(cfg: DictConfig, golden_steps: int = 40) -> tuple[PolicySpec, Da
     """The C export's spec for ``cfg.checkpoint`` with the L1 estimator of ``cfg.adaptation``
     (must be an L1 option) and a golden case recorded from a flight on ``cfg.traj``."""
     controller, merged, _ = build_controller(cfg)
+    require_current_state_timing(merged, "the exported app")
     if not isinstance(controller, DattController):
         raise ConfigError("controller: the export needs a DATT policy (datt, datt_l1, datt_rma)")
     l1 = instantiate_option(merged, "adaptation")

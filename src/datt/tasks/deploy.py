@@ -10,7 +10,7 @@ from urllib.parse import urlparse
 from omegaconf import DictConfig
 
 from datt.configuration import instantiate_option, with_options
-from datt.control.factory import build_controller
+from datt.control.factory import build_controller, require_current_state_timing
 from datt.control.pid import PidController
 from datt.deploy import mocap
 from datt.deploy.calibration import CalibrationFlight
@@ -86,6 +86,7 @@ def run_deploy(cfg: DictConfig, run_dir: Path | None = None, estop=None, server_
     run_dir.mkdir(parents=True, exist_ok=True)
     set_threads(cfg.threads)
     controller, merged, labels = build_controller(cfg)
+    require_current_state_timing(merged, "deploy")
     model_cfg = with_options(merged, disturbance="none")
     model_cfg.env.init_pos_range_m = 0.0
     model_cfg.env.compile = False

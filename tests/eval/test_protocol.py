@@ -1,0 +1,79 @@
+"""``eval.protocol``: where the bank's episodes start, with what thrust, how long they run and
+which steps count (the authors' protocol against its definition in datt.eval.protocol)."""
+
+import math
+
+import pytest
+import torch
+from omegaconf import OmegaConf
+
+from datt.configuration import compose
+from datt.control.base import Controller, HoverController
+from datt.errors import ConfigError
+from datt.eval.rollout import evaluate
+
+G = 9.81
+BANK = {"zigzag": [{"traj": "zigzag", "seed": 1000, "count": 40}], "star": [{"traj": "star", "seed": 0, "count": 1}]}
+
+
+def cfg_with(protocol, *extra):
+    cfg = compose("eval", [f"eval.protocol={protocol}", *extra])
+    OmegaConf.set_struct(cfg, False)
+    cfg.eval.bank = BANK
+    return cfg
+
+
+class Climb(Controller):
+    """Full thrust, level: every drone leaves the box and exceeds any tracking-error limit."""
+
+    def act(self, env, td):
+        action = env.hover_action.clone()
+        action[:, 0] = 30.0
+        return action
+
+
+def test_the_authors_protocol_starts_uniformly_within_half_a_metre_per_axis_from_the_same_points_for_every_condition():
+    cfg = cfg_with("authors")
+    starts = [
+        evaluate(cfg, lambda env: HoverController(), dist, adapt, seed=3)["trace"].pos_m[:, 0]
+        for dist, adapt in (("none", "none"), ("brownian", "privileged"))
+    ]
+    assert torch.equal(starts[0], starts[1])  # another disturbance draws from the env's stream, not the starts'
+    other_seed = evaluate(cfg, lambda env: HoverController(), "none", "none", seed=4)["trace"].pos_m[:, 0]
+    assert not torch.allclose(starts[0], other_seed)
+    u = starts[0].flatten()  # 41 drones x 3 axes, U(-0.5, 0.5): mean 0, std 1/sqrt(12) = 0.289
+    assert u.abs().max() <= 0.5
+    assert u.min() < -0.4 and u.max() > 0.4  # both tails reached
+    assert abs(u.mean().item()) < 0.08 and 0.23 < u.std().item() < 0.35
+
+
+def test_the_project_protocol_starts_on_the_reference_at_hover_thrust():
+    trace = evaluate(cfg_with("project"), lambda env: HoverController(), "none", "none", seed=3)["trace"]
+    assert torch.equal(trace.pos_m[:, 0], trace.ref_m[:, 0])
+    assert trace.pos_m[:, 1, 2].abs().max() < 1e-6  # hover thrust from the start: no drop
+
+
+def test_the_authors_protocol_starts_at_zero_thrust_for_five_hundred_counted_steps():
+    cfg = cfg_with("authors", "env.episode_steps=100")
+    trace = evaluate(cfg, lambda env: HoverController(), "none", "none", seed=0)["trace"]
+    assert trace.err_m.shape[1] == 500  # their t_end = 500 dt, whatever env.episode_steps says
+    dt = float(cfg.env.dt_s)
+    drop = trace.pos_m[:, 1, 2] - trace.pos_m[:, 0, 2]  # first step: no thrust, free fall from rest
+    assert torch.allclose(drop, torch.full_like(drop, -G * dt * dt / 2), atol=1e-6)
+
+
+def test_the_authors_protocol_counts_every_step_of_every_episode_and_still_counts_crashes():
+    res = {p: evaluate(cfg_with(p), lambda env: Climb(), "none", "none", seed=0) for p in ("project", "authors")}
+    project, authors = res["project"]["groups"]["zigzag"], res["authors"]["groups"]["zigzag"]
+    assert project["crashes"] == authors["crashes"] == 40
+    assert math.isnan(project["mean_m"])  # every episode crashed: left out, the row fails
+    trace = res["authors"]["trace"]
+    expect = trace.err_m[:40].mean(1)  # every step, also after leaving the box
+    assert authors["mean_m"] == pytest.approx(expect.mean().item(), rel=1e-5)
+    assert (trace.crashed_at[:40] < 100).all() and authors["mean_m"] > 10.0
+    assert authors["protocol"] == "authors" and project["protocol"] == "project"
+
+
+def test_an_unknown_protocol_is_refused_in_one_line():
+    with pytest.raises(ConfigError, match=r"eval.protocol: unknown value 'paper'; allowed: project, authors"):
+        evaluate(cfg_with("paper"), lambda env: HoverController(), "none", "none")
