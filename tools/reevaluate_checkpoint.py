@@ -19,6 +19,7 @@ from pathlib import Path
 
 from omegaconf import OmegaConf
 
+from datt.cli import run_tool
 from datt.configuration import compose
 from datt.eval.conditions import evaluate_end_of_run
 from datt.policies.loading import load_actor
@@ -44,4 +45,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_tool(main)

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 
+from datt.cli import run_tool
 from datt.configuration import compose
 from datt.control.factory import build_controller
 from datt.eval.rollout import evaluate
@@ -42,4 +43,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_tool(main)

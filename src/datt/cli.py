@@ -149,6 +149,15 @@ def _fail(message: str, code: int) -> None:
     sys.exit(code)
 
 
+def run_tool(main) -> None:
+    """Run a ``tools/`` script's ``main()`` with the entry points' error contract: a user error
+    (:class:`ConfigError`) is one line on stderr and exit 2."""
+    try:
+        main()
+    except ConfigError as exc:
+        _fail(str(exc), 2)
+
+
 # Failed jobs of the multirun that ran in this process (set by SweepReport, read by the entry).
 _failed_jobs = 0
 

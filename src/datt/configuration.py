@@ -200,13 +200,60 @@ def check_horizon(horizon: Any) -> int:
     return horizon
 
 
+_TARGET_LINE = re.compile(r"_target_\s*:\s*['\"]?([A-Za-z_][\w.]*)")
+_TARGETS_CACHE: dict[tuple[Path, ...], frozenset[str]] = {}
+
+
+def registered_targets(roots: list[Path] | None = None) -> frozenset[str]:
+    """Every ``_target_`` written in a YAML file of the config search path (the package's config
+    tree and a user's ``--config-dir``): the only classes and functions a config may build. A
+    user registers their own by writing an option for it in their config dir."""
+    key = tuple(roots or search_roots())
+    if key not in _TARGETS_CACHE:
+        found: set[str] = set()
+        for root in key:
+            for path in sorted(root.rglob("*.yaml")) if root.is_dir() else []:
+                found.update(_TARGET_LINE.findall(path.read_text(errors="replace")))
+        _TARGETS_CACHE[key] = frozenset(found)
+    return _TARGETS_CACHE[key]
+
+
+def check_targets(node: Any, where: str, source: str | None = None) -> None:
+    """Refuse, in one line, a ``_target_`` anywhere in ``node`` that is not a registered option's
+    (:func:`registered_targets`): a config read from a checkpoint, run dir or bank is data, and
+    may only select what the project's and the user's own options build. ``where``: the node's
+    key (``traj``); ``source``: the file it was read from, named in the error."""
+    allowed = None
+    stack: list[tuple[str, Any]] = [(where, node)]
+    while stack:
+        key, value = stack.pop()
+        if isinstance(value, DictConfig):
+            value = OmegaConf.to_container(value, resolve=False)
+        if isinstance(value, dict):
+            for k, v in value.items():
+                if k == "_target_":
+                    allowed = allowed if allowed is not None else registered_targets()
+                    if not isinstance(v, str) or v not in allowed:
+                        origin = f" (read from {source})" if source else ""
+                        raise ConfigError(
+                            f"{key}._target_: {v!r} is not the target of any config option{origin}; "
+                            "a config may only build what an option of the config tree or your --config-dir names"
+                        )
+                else:
+                    stack.append((f"{key}.{k}", v))
+        elif isinstance(value, list):
+            stack.extend((f"{key}[{i}]", v) for i, v in enumerate(value))
+
+
 def instantiate_option(cfg: DictConfig, group: str) -> Any:
-    """``hydra.utils.instantiate(cfg[group])`` with errors reduced to one line naming the group."""
+    """``hydra.utils.instantiate(cfg[group])`` with errors reduced to one line naming the group.
+    Only registered targets are built (:func:`check_targets`)."""
     from hydra.utils import instantiate
 
     node = cfg.get(group)
     if node is None:
         raise ConfigError(f"{group}: missing; choose one of {', '.join(available_options(group))}")
+    check_targets(node, group)
     try:
         return instantiate(node, _convert_="all")
     except Exception as exc:  # Hydra wraps constructor errors in InstantiationException

@@ -14,7 +14,7 @@ import yaml
 from omegaconf import DictConfig, OmegaConf
 
 from datt.checkpoint import load_checkpoint
-from datt.configuration import flat_leaves
+from datt.configuration import check_targets, flat_leaves
 from datt.errors import ConfigError
 from datt.paths import original_cwd, resolve_path
 from datt.runs import is_locked
@@ -80,7 +80,9 @@ def resume_config(cfg: DictConfig, run_dir: Path, groups: set[str]) -> DictConfi
     if path.is_file():
         saved = OmegaConf.load(path)
     else:  # a run trained through the library API: the checkpoint holds the config it trained with
-        saved = OmegaConf.create(load_checkpoint(run_dir / "last.pt", key="resume")["config_yaml"])
+        path = run_dir / "last.pt"
+        saved = OmegaConf.create(load_checkpoint(path, key="resume")["config_yaml"])
+    check_targets(saved, "resume", source=str(path))  # a file's config only selects registered options
     now = OmegaConf.to_container(cfg, resolve=True)
     before = OmegaConf.to_container(saved, resolve=True)
     now_leaves, before_leaves = flat_leaves(now), flat_leaves(before)

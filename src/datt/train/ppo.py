@@ -31,7 +31,7 @@ from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
 
 from datt.checkpoint import load_checkpoint, save_checkpoint
-from datt.configuration import instantiate_option, structured
+from datt.configuration import check_targets, instantiate_option, structured
 from datt.envs.factory import env_params_from_cfg, make_env
 from datt.errors import ConfigError, TrainingDiverged, TrainingInterrupted
 from datt.paths import resolve_path
@@ -250,7 +250,9 @@ class Trainer:
             )
         actor, critic = data["actor"], data["critic"]
         # the checkpoint's layout as load_actor reads it (no key: ObsParams' default, no commands)
-        old = env_params_from_cfg(OmegaConf.create(data["config_yaml"]).env).obs.action_history
+        parent_cfg = OmegaConf.create(data["config_yaml"])
+        check_targets(parent_cfg, "train.init_from", source=str(path))  # carried on in the lineage: data only
+        old = env_params_from_cfg(parent_cfg.env).obs.action_history
         new = self.env.params.obs.action_history
         if old > new:
             raise ConfigError(

@@ -1,0 +1,107 @@
+"""The trust boundary for files: a config read from a checkpoint or a run dir is data. A crafted
+``_target_`` in it is refused in one line naming the file and the key, through every entry point
+and tool that reads one, and its code never runs. The crafted node is the attack that works
+where Hydra's own blocklist (``exec``, ``eval``, ``os.system``) does not reach:
+``torch.load`` of a second file with ``weights_only: false``, whose pickle writes a marker file."""
+
+import pickle
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import yaml
+from omegaconf import OmegaConf
+
+from datt.checkpoint import load_checkpoint, save_checkpoint
+from datt.configuration import check_targets, registered_targets
+from datt.errors import ConfigError
+
+ROOT = Path(__file__).resolve().parents[1]
+PAYLOAD = "open('PWNED', 'w').write('ran')"
+
+
+class _Pickled:
+    def __reduce__(self):
+        return (exec, (PAYLOAD,))
+
+
+def evil_node(tmp_path: Path) -> dict:
+    """``torch.load`` of a pickle that runs ``PAYLOAD`` when loaded without ``weights_only``."""
+    bomb = tmp_path / "weights.pt"
+    bomb.write_bytes(pickle.dumps(_Pickled()))
+    return {"_target_": "torch.load", "f": str(bomb), "weights_only": False}
+
+
+def crafted(tmp_path: Path, source: Path, where: tuple[str, ...] = ("traj",)) -> Path:
+    """A copy of the checkpoint ``source`` whose config holds the crafted node at ``where`` and in
+    the end-of-run evaluation's first condition, with more steps to train than it has (so a
+    resume builds its references): the places the code before the boundary built from a file."""
+    data = load_checkpoint(source)
+    cfg = yaml.safe_load(data["config_yaml"])
+    node = cfg
+    for part in where[:-1]:
+        node = node[part]
+    node[where[-1]] = evil_node(tmp_path)
+    cfg["eval"]["conditions"]["clean"]["disturbance"] = evil_node(tmp_path)
+    cfg["train"]["total_steps"] = 10 * int(data["frames"])
+    data["config_yaml"] = yaml.safe_dump(cfg)
+    run_dir = tmp_path / "run"
+    return save_checkpoint(run_dir / "last.pt", {k: v for k, v in data.items() if k != "format"})
+
+
+def run(args, cwd):
+    return subprocess.run([sys.executable, *args], cwd=cwd, capture_output=True, text=True, timeout=300)
+
+
+@pytest.mark.parametrize(
+    "command",
+    [
+        ["train.py", "resume={run}", "logger=csv"],
+        ["train.py", "train.init_from={ckpt}", "logger=csv", "train.total_steps=1"],
+        ["train.py", "stage=rma", "base_checkpoint={ckpt}", "logger=csv"],
+        ["eval.py", "checkpoint={ckpt}"],
+        ["deploy.py", "checkpoint={ckpt}"],
+        ["tools/reevaluate_checkpoint.py", "{ckpt}", "{run}/metrics.json"],
+    ],
+    ids=["resume", "init_from", "rma", "eval", "deploy", "reevaluate_tool"],
+)
+def test_a_crafted_checkpoint_cannot_run_code_through_any_entry_point(tmp_path, tiny_policy_checkpoint, command):
+    ckpt = crafted(tmp_path, tiny_policy_checkpoint)
+    args = [c.format(ckpt=ckpt, run=ckpt.parent) for c in command]
+    proc = run([str(ROOT / args[0]), *args[1:]], tmp_path)
+    assert not (tmp_path / "PWNED").exists(), "the checkpoint's code ran"
+    assert proc.returncode == 2, (proc.returncode, proc.stderr[-2000:])
+    line = proc.stderr.strip().splitlines()[-1]
+    assert "Traceback" not in proc.stderr
+    assert "._target_: 'torch.load' is not the target of any config option" in line
+    assert str(ckpt) in line
+
+
+def test_a_crafted_run_dir_config_cannot_run_code_on_resume(tmp_path, tiny_policy_checkpoint):
+    ckpt = crafted(tmp_path, tiny_policy_checkpoint, ("curriculum", "fixed", "family"))
+    cfg = OmegaConf.create(load_checkpoint(ckpt)["config_yaml"])
+    cfg.curriculum.fixed.family = OmegaConf.create(evil_node(tmp_path))
+    (ckpt.parent / "config.yaml").write_text(OmegaConf.to_yaml(cfg))
+    proc = run([str(ROOT / "train.py"), f"resume={ckpt.parent}", "logger=csv"], tmp_path)
+    assert not (tmp_path / "PWNED").exists()
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr
+    assert "._target_: 'torch.load' is not the target of any config option" in proc.stderr
+    assert str(ckpt.parent / "config.yaml") in proc.stderr
+
+
+def test_the_registry_is_every_target_of_the_config_tree_and_a_users_config_dir(tmp_path):
+    package = registered_targets()
+    assert {"datt.refs.Zigzag", "datt.sim.Brownian", "datt.adapt.L1Adaptation", "datt.refs.Fixed"} <= package
+    assert not any(t.startswith(("builtins", "os", "subprocess", "torch")) for t in package)
+    user = tmp_path / "conf"
+    (user / "traj").mkdir(parents=True)
+    (user / "traj" / "figure8.yaml").write_text("_target_: my_refs.Figure8\nperiod_s: 4.0\n")
+    from datt.configuration import conf_dir
+
+    assert "my_refs.Figure8" in registered_targets([user, conf_dir()])
+    check_targets({"traj": {"_target_": "datt.refs.Mixed", "families": {"a": {"_target_": "datt.refs.Poly"}}}}, "cfg")
+    with pytest.raises(ConfigError, match=r"^cfg\.traj\.families\.a\._target_: 'os\.system' is not"):
+        check_targets({"traj": {"_target_": "datt.refs.Mixed", "families": {"a": {"_target_": "os.system"}}}}, "cfg")
+    with pytest.raises(ConfigError, match=r"cfg\[1\]\._target_: 'posix\.system'"):
+        check_targets([{"_target_": "datt.refs.Poly"}, {"_target_": "posix.system"}], "cfg")
