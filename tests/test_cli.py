@@ -131,7 +131,9 @@ def test_a_policy_trained_with_the_authors_timing_evaluates_with_it_and_is_refus
     assert merged.env.obs.timing == "authors"  # the checkpoint carries the timing it was trained with
     with pytest.raises(ConfigError, match=r"trained with env.obs.timing=authors .*the exported app"):
         export_spec(compose("export", [f"checkpoint={tiny_authors_timing_checkpoint}"]))
-    proc = run([str(ROOT / "deploy.py"), f"checkpoint={tiny_authors_timing_checkpoint}", f"hydra.run.dir={tmp_path}"], tmp_path)
+    proc = run(
+        [str(ROOT / "deploy.py"), f"checkpoint={tiny_authors_timing_checkpoint}", f"hydra.run.dir={tmp_path}"], tmp_path
+    )
     assert proc.returncode == 2, proc.stderr[-2000:]
     line = proc.stderr.strip()
     assert line.count("\n") == 0 and "env.obs.timing=authors" in line and "deploy feeds the newest state" in line

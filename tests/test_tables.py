@@ -210,3 +210,13 @@ def test_unknown_table_and_missing_sweep_are_one_line(tmp_path):
     assert "table: unknown table 'nope'; allowed: ablation, ablation_authors, horizon, rma, main, wind" in out.stderr
     out = run("tables.py", "ablation", cwd=tmp_path)
     assert out.returncode == 2 and "python train.py +sweep=ablation" in out.stderr
+
+
+def test_the_documented_sweep_override_form_parses_and_the_bare_form_says_how_to_quote(tmp_path):
+    documented = "sweep_overrides=['budget=0.2','eval.seeds=[0]']"  # conf/tables.yaml, docs/results.md
+    out = run("tables.py", "main", "run=true", documented, "--cfg", "job", cwd=tmp_path)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert "- budget=0.2\n- eval.seeds=[0]" in out.stdout
+    out = run("tables.py", "main", "run=true", "sweep_overrides=[budget=0.2]", cwd=tmp_path)
+    assert out.returncode == 2 and out.stderr.strip().count("\n") == 0
+    assert "quote each item of a list that holds overrides" in out.stderr

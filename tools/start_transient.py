@@ -32,7 +32,7 @@ def main() -> None:
         controller, merged, _ = build_controller(cfg)
         split = round(args.split_s / float(merged.env.dt_s))
         for seed in args.seeds[:1] if protocol == "project" else args.seeds:
-            res = evaluate(merged, lambda env: controller, "none", "none", seed=seed)
+            res = evaluate(merged, lambda env, c=controller: c, "none", "none", seed=seed)
             start = 0
             for name, count in zip(res["names"], res["counts"]):
                 err = res["trace"].err_m[start : start + count]

@@ -8,6 +8,7 @@ with the number of its jobs that did not finish.
 
 from __future__ import annotations
 
+import re
 import sys
 import tempfile
 import traceback
@@ -102,7 +103,10 @@ def check_composition(config_name: str, argv: list[str]) -> None:
     try:
         parsed = OverridesParser.create().parse_overrides(kept)
     except HydraException as exc:
-        raise ConfigError(f"overrides: {one_line(exc)}") from None
+        hint = ""
+        if any(re.match(r"[\w.]+=\[[^'\"\]]*=", o) for o in kept):  # key=[a=b]: an unquoted override in a list
+            hint = "; quote each item of a list that holds overrides: \"sweep_overrides=['budget=0.2']\""
+        raise ConfigError(f"overrides: {one_line(exc)}{hint}") from None
     firsts, variants = [], []
     for text, ov in zip(kept, parsed):
         if ov.is_sweep_override():

@@ -33,7 +33,9 @@ def test_each_step_pairs_the_documented_state_with_the_reference_at_the_new_time
     td = env.reset()
     gen = torch.Generator().manual_seed(1)
     # a command that changes every step: a constant one would hide an off-by-one in the pairing
-    actions = [env.hover_action + torch.randn(3, 4, generator=gen) * torch.tensor([3.0, 2.0, 2.0, 0.5]) for _ in range(STEPS)]
+    actions = [
+        env.hover_action + torch.randn(3, 4, generator=gen) * torch.tensor([3.0, 2.0, 2.0, 0.5]) for _ in range(STEPS)
+    ]
     states = hand_rollout(env, actions)
     for k, action in enumerate(actions):
         td["action"] = action

@@ -33,7 +33,10 @@ def test_paper_encoder_structure():
 def test_the_authors_encoder_is_two_unpadded_convs_whose_width_grows_with_the_horizon(horizon):
     enc = RefEncoder(horizon, PolicyParams(encoder="authors"))
     convs = [m for m in enc.conv if isinstance(m, torch.nn.Conv1d)]
-    assert [(c.in_channels, c.out_channels, c.kernel_size[0], c.padding[0]) for c in convs] == [(3, 8, 3, 0), (8, 8, 3, 0)]
+    assert [(c.in_channels, c.out_channels, c.kernel_size[0], c.padding[0]) for c in convs] == [
+        (3, 8, 3, 0),
+        (8, 8, 3, 0),
+    ]
     assert enc.out_dim == 8 * (horizon - 4)
     ref = torch.randn(4, horizon, 3)
     expect = convs[1](torch.relu(convs[0](ref.transpose(1, 2)))).flatten(1)  # no ReLU after the second

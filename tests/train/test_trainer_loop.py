@@ -152,7 +152,9 @@ def test_a_run_that_never_leaves_the_fixed_phase_still_has_a_best(tmp_path):
 
 
 @pytest.mark.parametrize("fixed_ref_steps, phases", [(BATCH, ["fixed"] * 3), (0, ["main"] * 3)])
-def test_the_whole_run_curriculum_flies_the_fixed_reference_to_the_end_unless_skipped(tmp_path, fixed_ref_steps, phases):
+def test_the_whole_run_curriculum_flies_the_fixed_reference_to_the_end_unless_skipped(
+    tmp_path, fixed_ref_steps, phases
+):
     trainer = _trainer(
         tmp_path,
         f"train.total_steps={3 * BATCH}",
