@@ -137,3 +137,19 @@ def test_a_policy_trained_with_the_authors_timing_evaluates_with_it_and_is_refus
     assert proc.returncode == 2, proc.stderr[-2000:]
     line = proc.stderr.strip()
     assert line.count("\n") == 0 and "env.obs.timing=authors" in line and "deploy feeds the newest state" in line
+
+
+@pytest.mark.parametrize(
+    "args, key",
+    [
+        (["controller=datt_rma", "adaptation=rma", "adaptation.checkpoint=/nope.pt"], "adaptation.checkpoint"),
+        (["controller=datt_l1", "adaptation=l1", "adaptation.cutoff_tau_s=-5"], "adaptation.cutoff_tau_s"),
+        (["controller=l1_pid", "adaptation=privileged"], "adaptation"),
+    ],
+)
+def test_an_adaptation_setting_a_controller_would_not_use_is_refused_not_dropped(tmp_path, args, key):
+    proc = run([str(ROOT / "eval.py"), *args, f"hydra.run.dir={tmp_path}"], tmp_path)
+    assert proc.returncode == 2, proc.stderr[-2000:]
+    line = proc.stderr.strip()
+    assert line.count("\n") == 0 and line.startswith(f"error: {key}: controller=")
+    assert "flies with its own estimator" in line and not (tmp_path / "metrics.json").exists()

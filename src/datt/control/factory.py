@@ -20,6 +20,8 @@ def build_controller(cfg: DictConfig):
     """
     node = OmegaConf.to_container(cfg.controller, resolve=True)
     name, forced = str(node.pop("name")), node.pop("adaptation", None)
+    if forced:
+        refuse_unused_adaptation_overrides(name, str(forced))
     # a resolved, non-struct copy, with the controller's own estimator if it fixes one
     merged = with_options(cfg, **({"adaptation": str(forced)} if forced else {}))
     labels = {
@@ -47,3 +49,26 @@ def require_current_state_timing(merged: DictConfig, who: str) -> None:
             f"checkpoint: trained with env.obs.timing={merged.env.obs.timing} (the state one step old); "
             f"{who} feeds the newest state; allowed: a policy trained with env.obs.timing=project"
         )
+
+
+def refuse_unused_adaptation_overrides(controller: str, forced: str) -> None:
+    """A controller option that fixes its estimator (``adaptation: l1`` in ``controller/datt_l1``)
+    would fly without the command line's ``adaptation`` settings: refuse them in one line rather
+    than drop them (what a run records must be what it ran)."""
+    try:
+        from hydra.core.hydra_config import HydraConfig
+
+        overrides = list(HydraConfig.get().overrides.task)
+    except (ImportError, ValueError):  # not a Hydra job: the caller composed the config itself
+        return
+    for text in overrides:
+        key, _, value = text.lstrip("+~").partition("=")
+        if key == "adaptation" and value == forced:
+            continue
+        if key == "adaptation" or key.startswith("adaptation."):
+            from datt.errors import ConfigError
+
+            raise ConfigError(
+                f"{key}: controller={controller} flies with its own estimator (adaptation={forced}) and would "
+                f"not use {text!r}; drop it, or choose datt, pid or mppi with adaptation=<option> and your settings"
+            )
