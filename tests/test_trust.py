@@ -56,12 +56,14 @@ def run(args, cwd):
 
 @pytest.mark.parametrize(
     "command",
-    [
+    [  # the two where the pickle ran before the boundary stay in the default suite
         ["train.py", "resume={run}", "logger=csv"],
-        ["train.py", "train.init_from={ckpt}", "logger=csv", "train.total_steps=1"],
-        ["train.py", "stage=rma", "base_checkpoint={ckpt}", "logger=csv"],
-        ["eval.py", "checkpoint={ckpt}"],
-        ["deploy.py", "checkpoint={ckpt}"],
+        pytest.param(
+            ["train.py", "train.init_from={ckpt}", "logger=csv", "train.total_steps=1"], marks=pytest.mark.slow
+        ),
+        pytest.param(["train.py", "stage=rma", "base_checkpoint={ckpt}", "logger=csv"], marks=pytest.mark.slow),
+        pytest.param(["eval.py", "checkpoint={ckpt}"], marks=pytest.mark.slow),
+        pytest.param(["deploy.py", "checkpoint={ckpt}"], marks=pytest.mark.slow),
         ["tools/reevaluate_checkpoint.py", "{ckpt}", "{run}/metrics.json"],
     ],
     ids=["resume", "init_from", "rma", "eval", "deploy", "reevaluate_tool"],
