@@ -50,6 +50,16 @@ def root_from_uri(uri: str, base: Path | None = None) -> Path | None:
     return path
 
 
+def command_overrides() -> list[str] | None:
+    """The overrides of the running Hydra job, without ``hydra.*`` (None outside Hydra)."""
+    try:
+        from hydra.core.hydra_config import HydraConfig
+
+        return [o for o in HydraConfig.get().overrides.task if not o.lstrip("+~").startswith("hydra")]
+    except (ImportError, ValueError):
+        return None
+
+
 def search_roots() -> list[Path]:
     """Directories of the current config search path: Hydra's (inside a job) or the package's."""
     try:

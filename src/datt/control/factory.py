@@ -4,9 +4,10 @@ from __future__ import annotations
 
 from omegaconf import DictConfig, OmegaConf
 
-from datt.configuration import hydra_choice, instantiate_option, with_options
+from datt.configuration import command_overrides, hydra_choice, instantiate_option, with_options
 from datt.control.datt import DattController
 from datt.envs.params import OBS_LAYOUT_KEYS
+from datt.errors import ConfigError
 from datt.policies.loading import load_actor
 
 
@@ -43,8 +44,6 @@ def require_current_state_timing(merged: DictConfig, who: str) -> None:
     """A vehicle feeds the policy its newest state estimate: refuse, in one line, a policy trained
     to read the state one step old (``env.obs.timing=authors``)."""
     if merged.env.obs.timing != "project":
-        from datt.errors import ConfigError
-
         raise ConfigError(
             f"checkpoint: trained with env.obs.timing={merged.env.obs.timing} (the state one step old); "
             f"{who} feeds the newest state; allowed: a policy trained with env.obs.timing=project"
@@ -55,19 +54,11 @@ def refuse_unused_adaptation_overrides(controller: str, forced: str) -> None:
     """A controller option that fixes its estimator (``adaptation: l1`` in ``controller/datt_l1``)
     would fly without the command line's ``adaptation`` settings: refuse them in one line rather
     than drop them (what a run records must be what it ran)."""
-    try:
-        from hydra.core.hydra_config import HydraConfig
-
-        overrides = list(HydraConfig.get().overrides.task)
-    except (ImportError, ValueError):  # not a Hydra job: the caller composed the config itself
-        return
-    for text in overrides:
+    for text in command_overrides() or []:  # none outside Hydra: the caller composed the config itself
         key, _, value = text.lstrip("+~").partition("=")
         if key == "adaptation" and value == forced:
             continue
         if key == "adaptation" or key.startswith("adaptation."):
-            from datt.errors import ConfigError
-
             raise ConfigError(
                 f"{key}: controller={controller} flies with its own estimator (adaptation={forced}) and would "
                 f"not use {text!r}; drop it, or choose datt, pid or mppi with adaptation=<option> and your settings"

@@ -291,18 +291,18 @@ class TrackingEnv(EnvBase):
         return torch.gather(self.ref_table, 1, idx.unsqueeze(-1).expand(-1, -1, 3))
 
     def _observe(
-        self, idx: torch.Tensor | None = None, state: tuple | None = None
+        self, idx: torch.Tensor | None = None, read_state: tuple | None = None
     ) -> tuple[TensorDict, torch.Tensor, torch.Tensor]:
         """Observation, tracking error and cost for all drones, or only for rows ``idx``.
 
         With ``idx`` (partial reset) the other rows are left at zero: TorchRL keeps the previous
         observation of drones that were not reset, so computing them would be wasted work.
-        ``state``: ``(pos, vel, quat)`` the observation and cost read instead of the simulator's
+        ``read_state``: ``(pos, vel, quat)`` the observation and cost read instead of the simulator's
         state (``obs.timing = authors``: the state before the step); the tracking error always
         reads the simulator's.
         """
         s = self.sim.state
-        pos, vel, quat = (s.pos_m, s.vel_mps, s.quat) if state is None else state
+        pos, vel, quat = (s.pos_m, s.vel_mps, s.quat) if read_state is None else read_state
         future = self._ref_future()
         kernel = self._observe_kernel
         if idx is not None:
@@ -310,7 +310,7 @@ class TrackingEnv(EnvBase):
             kernel = observe_and_cost  # eager: subset sizes vary, avoid recompiles
         measured = self._measure(pos, vel, quat)
         state, ref, err_m, cost = kernel(*measured, pos, vel, quat, future, self.params.obs, self.params.reward)
-        if pos is not s.pos_m and idx is None:
+        if read_state is not None:  # the metric: the simulator's state against the same-time reference
             err_m = torch.linalg.vector_norm(s.pos_m - future[0], dim=-1, keepdim=True)
         if self.cmd_history.shape[1]:
             hist = self.cmd_history if idx is None else self.cmd_history[idx]
@@ -382,7 +382,7 @@ class TrackingEnv(EnvBase):
             before = (st.pos_m.clone(), st.vel_mps.clone(), st.quat.clone())
         s, cmd, d = self.advance_plant(tensordict.get("action"))
         self.adaptation.update(s, cmd, d)
-        out, err_m, cost = self._observe(state=before)
+        out, err_m, cost = self._observe(read_state=before)
 
         outside = (s.pos_m.abs() > self.box_m).any(-1, keepdim=True)
         terminated = outside | ~torch.isfinite(cost)

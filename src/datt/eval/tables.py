@@ -30,6 +30,7 @@ import numpy as np
 import yaml
 
 from datt.errors import ConfigError
+from datt.eval.protocol import get_protocol
 from datt.runs import read_failure
 
 
@@ -292,7 +293,7 @@ def _row_key(job: Job, spec: TableSpec, varying: set[str] | None = None) -> str:
     keys such as ``ablation``/``horizon`` plus any key that differs between jobs; not ``seed``),
     plus :data:`AUTHORS_SUFFIX` when it was measured under the authors' protocol (so a table of
     two sweeps shows both protocols' rows side by side)."""
-    suffix = AUTHORS_SUFFIX if "authors" in job_protocols(job) else ""
+    suffix = _protocol_suffix(job)
     if spec.kind == "eval":
         return (job.metrics or {}).get("controller", job.overrides.get("controller", "?")) + suffix
     own = {"ablation", "horizon"}
@@ -315,7 +316,7 @@ def _group_error(metrics: dict, condition: str | None, group: str) -> float | No
     if cond is None or group not in cond["groups"]:
         return None
     row = cond["groups"][group]
-    if row.get("protocol") == "authors":  # every episode counts (datt.eval.protocol)
+    if _counts_every_episode(row):
         return row["mean_m"] if math.isfinite(row["mean_m"]) else None
     return None if row["crashes"] == row["episodes"] else row["mean_m"]
 
@@ -329,7 +330,7 @@ def _episodes(metrics: dict, group: str) -> tuple[list[float], int]:
         if row is None:
             continue
         crashed = row.get("per_episode_crashed", [False] * len(row["per_episode_m"]))
-        if row.get("protocol") == "authors":  # every episode counts; a non-finite one fails
+        if _counts_every_episode(row):  # a non-finite episode fails
             crashed = [not math.isfinite(e) for e in row["per_episode_m"]]
         values += [e for e, c in zip(row["per_episode_m"], crashed) if not c]
         failed += sum(crashed)
@@ -354,7 +355,7 @@ def collect(spec: TableSpec, jobs: list[Job]) -> tuple[dict[str, list[Cell]], di
                 _group_error(m, "clean", "zigzag") if job.status == "finished" else None
             )
         elif spec.kind == "rma":
-            suffix = AUTHORS_SUFFIX if "authors" in job_protocols(job) else ""
+            suffix = _protocol_suffix(job)
             for cond in spec.row_order:
                 cells(cond + suffix)[0].add(_group_error(m, cond, "zigzag") if job.status == "finished" else None)
         elif spec.name == "main":
@@ -438,6 +439,15 @@ def job_protocols(job: Job) -> set[str]:
         for row in cond.get("groups", {}).values():
             found.add(row.get("protocol", "project"))
     return found
+
+
+def _protocol_suffix(job: Job) -> str:
+    return AUTHORS_SUFFIX if "authors" in job_protocols(job) else ""
+
+
+def _counts_every_episode(row: dict) -> bool:
+    """Whether a summary row's mean runs over every episode (its protocol's accounting)."""
+    return get_protocol(row.get("protocol", "project")).count_every_step
 
 
 def evaluation_protocols(jobs: list[Job]) -> set[str]:

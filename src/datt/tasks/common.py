@@ -17,16 +17,6 @@ def hydra_run_dir() -> Path:
     return Path(HydraConfig.get().runtime.output_dir)
 
 
-def command_overrides() -> list[str] | None:
-    """The overrides of the running Hydra job, without ``hydra.*`` (None outside Hydra)."""
-    try:
-        from hydra.core.hydra_config import HydraConfig
-
-        return [o for o in HydraConfig.get().overrides.task if not o.lstrip("+~").startswith("hydra")]
-    except (ImportError, ValueError):
-        return None
-
-
 def joblib_threads() -> int | None:
     """Under ``hydra/launcher=joblib``: the cores divided by the parallel jobs (2 jobs on 2 cores
     use 1 thread each instead of oversubscribing); otherwise None."""

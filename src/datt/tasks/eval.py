@@ -8,11 +8,11 @@ from pathlib import Path
 
 from omegaconf import DictConfig, OmegaConf
 
-from datt.configuration import structured
+from datt.configuration import command_overrides, structured
 from datt.control.factory import build_controller
 from datt.eval.conditions import evaluate_conditions, measure_inference, print_metrics, write_metrics_csv
 from datt.eval.schema import EvalParams
-from datt.tasks.common import command_overrides, console, hydra_run_dir, set_threads
+from datt.tasks.common import console, hydra_run_dir, set_threads
 
 
 def bank_of_given_traj(cfg: DictConfig, count: int) -> DictConfig:

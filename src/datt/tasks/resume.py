@@ -14,11 +14,10 @@ import yaml
 from omegaconf import DictConfig, OmegaConf
 
 from datt.checkpoint import load_checkpoint
-from datt.configuration import check_targets, flat_leaves
+from datt.configuration import check_targets, command_overrides, flat_leaves
 from datt.errors import ConfigError
 from datt.paths import original_cwd, resolve_path
 from datt.runs import is_locked
-from datt.tasks.common import command_overrides
 from datt.tasks.phases import is_phased, phased_parent
 
 # Dotted keys (or prefixes ending in ".") an override may change on resume.
