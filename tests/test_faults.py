@@ -114,6 +114,25 @@ def test_01_resume_trains_on_with_the_runs_own_config(tmp_path, monkeypatch, cap
     assert not list(tmp_path.glob("outputs/*/*"))  # the resume command left no run dir of its own
 
 
+def test_01_resume_of_a_run_written_before_a_config_key_existed(tmp_path, monkeypatch, capsys):
+    """A run's config.yaml from before ``eval.protocol``, ``curriculum.fixed_ref`` and
+    ``env.obs.timing`` existed resumes with today's values for them (the values that keep what
+    the code did then), and its config.yaml then records them."""
+    run = train_run(tmp_path / "R", monkeypatch, capsys, "train.total_steps=2048", "algo.num_envs=32")
+    text = (run / "config.yaml").read_text()
+    for line in ("  protocol: project\n", "  fixed_ref: steps\n", "    timing: project\n"):
+        assert line in text
+        text = text.replace(line, "", 1)
+    (run / "config.yaml").write_text(text)
+    code, lines, out = run_cli(
+        "train", [*RESUME, f"resume={run}", "train.total_steps=4096"], tmp_path, monkeypatch, capsys
+    )
+    assert code == 0, lines
+    assert load_checkpoint(run / "last.pt")["frames"] == 4096
+    saved = (run / "config.yaml").read_text()
+    assert "  protocol: project\n" in saved and "  fixed_ref: steps\n" in saved and "    timing: project\n" in saved
+
+
 def test_01_resume_refuses_an_override_that_changes_the_run(tmp_path, monkeypatch, capsys):
     run = train_run(tmp_path / "R", monkeypatch, capsys, "train.total_steps=1024")
     before = snapshot(run)

@@ -24,6 +24,7 @@ from datt.configuration import compose
 from datt.eval.conditions import evaluate_end_of_run
 from datt.policies.loading import load_actor
 from datt.runs import write_json
+from datt.tasks.resume import KEYS_ADDED_SINCE
 
 
 def main() -> None:
@@ -34,6 +35,9 @@ def main() -> None:
     actor, train_cfg, _ = load_actor(args.checkpoint)
     cfg = train_cfg.copy()
     OmegaConf.update(cfg, "eval.bank", compose("train").eval.bank, merge=False)  # today's bank, whole
+    for key, value in KEYS_ADDED_SINCE.items():  # a config written before these keys existed
+        if OmegaConf.select(cfg, key, default="absent") == "absent":
+            OmegaConf.update(cfg, key, value, force_add=True)
     metrics = json.loads(args.metrics.read_text()) if args.metrics.exists() else {}
     with tempfile.TemporaryDirectory() as tmp:
         metrics["conditions"], hover = evaluate_end_of_run(cfg, actor, Path(tmp), False, "", int(cfg.eval.seed))

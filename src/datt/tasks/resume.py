@@ -59,6 +59,15 @@ def _phased_run(path: Path) -> bool:
     return (path / "config.yaml").is_file() and is_phased(OmegaConf.load(path / "config.yaml"))
 
 
+# Config keys added after runs may have been written, with the value that keeps what the code did
+# before the key existed: a resume of such a run fills them in (and its config.yaml then records them).
+KEYS_ADDED_SINCE: dict[str, object] = {
+    "eval.protocol": "project",
+    "curriculum.fixed_ref": "steps",
+    "env.obs.timing": "project",
+}
+
+
 def _resumable(key: str) -> bool:
     return any(key == k or (k.endswith(".") and key.startswith(k)) for k in RESUMABLE)
 
@@ -82,6 +91,9 @@ def resume_config(cfg: DictConfig, run_dir: Path, groups: set[str]) -> DictConfi
         path = run_dir / "last.pt"
         saved = OmegaConf.create(load_checkpoint(path, key="resume")["config_yaml"])
     check_targets(saved, "resume", source=str(path))  # a file's config only selects registered options
+    for key, value in KEYS_ADDED_SINCE.items():
+        if OmegaConf.select(saved, key, default="absent") == "absent":
+            OmegaConf.update(saved, key, value, force_add=True)
     now = OmegaConf.to_container(cfg, resolve=True)
     before = OmegaConf.to_container(saved, resolve=True)
     now_leaves, before_leaves = flat_leaves(now), flat_leaves(before)
