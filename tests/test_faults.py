@@ -154,22 +154,30 @@ def test_01_resume_of_a_finished_run_writes_nothing(tmp_path, monkeypatch, capsy
 
 def test_02_failing_and_diverging_jobs_do_not_stop_the_sweep(tmp_path, monkeypatch, capsys):
     sweep = tmp_path / "sweep"
-    args = [*TINY, "train.total_steps=1024", "algo.lr=1e-3,1e6,abc", f"hydra.sweep.dir={sweep}", "-m"]
-    code, lines, _ = run_cli("train", args, tmp_path, monkeypatch, capsys)
-    assert code == 2  # the number of jobs that did not finish
-    assert lines[-1] == f"sweep {sweep}: 3 jobs: 1 done, 1 diverged, 1 errored"
+    corrupt = tmp_path / "corrupt.pt"
+    corrupt.write_text("not a checkpoint")  # passes the up-front checks (it exists), fails to load
+    args = [*TINY, "train.total_steps=1024", "algo.lr=1e-3,1e6", f"train.init_from=null,{corrupt}"]
+    code, lines, _ = run_cli("train", [*args, f"hydra.sweep.dir={sweep}", "-m"], tmp_path, monkeypatch, capsys)
+    assert code == 3  # the number of jobs that did not finish
+    assert lines[-1] == f"sweep {sweep}: 4 jobs: 1 done, 1 diverged, 2 errored"
     assert (sweep / "0" / "metrics.json").is_file()
-    assert json.loads((sweep / "1" / "failed.json").read_text())["status"] == "diverged"
-    errored = json.loads((sweep / "2" / "failed.json").read_text())
-    assert errored == {
-        "status": "errored",
-        "message": "algo.lr: Value 'abc' of type 'str' could not be converted to Float",
-    }
-    # the table lists every job: the done one as a number, the diverged one as failed, the errored one with its reason
+    assert json.loads((sweep / "2" / "failed.json").read_text())["status"] == "diverged"
+    errored = json.loads((sweep / "1" / "failed.json").read_text())
+    assert errored["status"] == "errored" and errored["message"].startswith("train.init_from: ")
+    # the table lists every job: the done one as a number, the diverged one as failed, the errored ones with why
     md = ablation_table(sweep, tmp_path, monkeypatch, capsys)
     assert "algo.lr=0.001" in md and "| failed |" in md
-    assert f"- failed (diverged): `{sweep / '1'}`" in md
-    assert f"- errored: `{sweep / '2'}` algo.lr: Value 'abc'" in md
+    assert f"- failed (diverged): `{sweep / '2'}`" in md
+    assert f"- errored: `{sweep / '1'}` train.init_from: " in md
+
+
+def test_02_a_bad_value_in_any_variant_refuses_the_sweep_before_any_job(tmp_path, monkeypatch, capsys):
+    sweep = tmp_path / "sweep"
+    args = [*TINY, "train.total_steps=1024", "algo.lr=1e-3,1e6,abc", f"hydra.sweep.dir={sweep}", "-m"]
+    code, lines, _ = run_cli("train", args, tmp_path, monkeypatch, capsys)
+    assert code == 2
+    assert lines == ["error: algo.lr: Value 'abc' of type 'str' could not be converted to Float"]
+    assert not sweep.exists()
 
 
 def test_02_a_job_that_never_started_is_listed_as_missing(tmp_path, monkeypatch, capsys):
@@ -302,7 +310,7 @@ def test_05_eval_of_a_missing_csv_is_one_line(tmp_path, monkeypatch, capsys):
     "args, message",
     [
         (["seed=1.5"], "error: seed: Value '1.5' of type 'float' could not be converted to Integer"),
-        (["algo.lr_final_frac=-5"], "error: algo.lr_final_frac: must be in [0, 1], got -5.0"),
+        (["algo.lr_final_frac=-5"], "error: algo.lr_final_frac: must be a finite number in [0, 1], got -5.0"),
         (["ablation=h5", "horizon=15"], "error: horizon: 15 contradicts ablation=h5 (which sets horizon=5)"),
     ],
 )
@@ -479,3 +487,102 @@ def test_second_signal_during_a_stop_request_interrupts_at_once():
         with pytest.raises(KeyboardInterrupt):
             os.kill(os.getpid(), signal.SIGINT)
             time.sleep(0.1)
+
+
+def test_10_a_full_disk_while_checkpointing_is_one_line_and_keeps_the_log(tmp_path, monkeypatch, capsys):
+    """The checkpoint is serialised in memory and then written: a full disk is an OSError naming
+    the file (before, torch's zip writer raised ``RuntimeError: unexpected pos`` with a traceback).
+    Checked by hand on a 2 MB tmpfs too (docs/faults.md #10)."""
+    import contextlib
+    import errno
+
+    from datt import checkpoint
+
+    real = checkpoint.atomic_write
+
+    @contextlib.contextmanager
+    def full_disk(path, mode="w", **kw):
+        with real(path, mode, **kw) as f:
+            yield f
+            raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(checkpoint, "atomic_write", full_disk)
+    args = [*TINY, "train.total_steps=1024", "hydra.run.dir=r"]
+    code, lines, _ = run_cli("train", args, tmp_path, monkeypatch, capsys)
+    one_line((code, lines), f"error: {tmp_path / 'r'}/")
+    assert lines[0].split(": ", 2)[1].endswith(".pt") and "No space left on device; free some space" in lines[0]
+    assert (tmp_path / "r" / "metrics.csv").is_file() and not list((tmp_path / "r").glob("*.pt"))
+    assert not list((tmp_path / "r").glob(".*.tmp"))  # no half-written temp file left
+
+
+def test_10_resuming_on_a_read_only_mount_is_one_line(tmp_path, monkeypatch, capsys):
+    import errno
+
+    run = tmp_path / "r"
+    code, _, _ = run_cli(
+        "train", [*TINY, "train.total_steps=1024", f"hydra.run.dir={run}"], tmp_path, monkeypatch, capsys
+    )
+    assert code == 0
+    before = snapshot(run)
+
+    def read_only(self):
+        raise OSError(errno.EROFS, "Read-only file system", str(self.run_dir / ".lock"))
+
+    monkeypatch.setattr(RunLock, "acquire", read_only)
+    code, lines, _ = run_cli(
+        "train", [*RESUME, f"resume={run}", "train.total_steps=2048"], tmp_path, monkeypatch, capsys
+    )
+    one_line((code, lines), f"error: {run / '.lock'}: Read-only file system; copy the run to a writable place")
+    assert snapshot(run) == before
+
+
+def test_10_corrupt_job_files_are_listed_and_the_table_goes_on(tmp_path, monkeypatch, capsys):
+    sweep = tmp_path / "sweep"
+    code, _, _ = run_cli(
+        "train",
+        [*TINY, "train.total_steps=1024", "seed=0,1,2", f"hydra.sweep.dir={sweep}", "-m"],
+        tmp_path,
+        monkeypatch,
+        capsys,
+    )
+    assert code == 0
+    text = (sweep / "1" / "metrics.json").read_text()
+    (sweep / "1" / "metrics.json").write_text(text[: len(text) // 2])  # truncated
+    (sweep / "2" / ".hydra" / "overrides.yaml").write_bytes(b"\x00\x01 not yaml")
+    (sweep / "0" / "metrics.csv").write_text("frames,tracking_error_m\n12,")  # a torn last row
+    md = ablation_table(sweep, tmp_path, monkeypatch, capsys)
+    assert f"- errored: `{sweep / '1'}` metrics.json: unreadable (" in md
+    assert f"- errored: `{sweep / '2'}` .hydra/overrides.yaml: unreadable (" in md
+    code, lines, _ = run_cli(
+        "tables", ["ablation", f"runs={sweep}", f"out_dir={tmp_path / 'p'}"], tmp_path, monkeypatch, capsys
+    )
+    assert code == 0 and (tmp_path / "p" / "ablation_curves.png").is_file()  # plots skip what they cannot read
+
+
+def test_10_tables_run_stops_its_sweep_on_sigterm_and_keeps_what_finished(tmp_path):
+    """``tables.py ... run=true`` runs the sweep as a child in its own process group; SIGTERM is
+    passed to the whole group (no orphan keeps training), and the command exits 130 naming the
+    sweep dir. Before, the child sweep kept running after tables.py died."""
+    overrides = [o for o in TINY if not o.startswith("hydra")] + ["train.total_steps=100000000", "seed=0,1"]
+    quoted = ",".join(f"'{o}'" for o in overrides)
+    proc = subprocess.Popen(
+        [sys.executable, str(ROOT / "tables.py"), "ablation", "run=true", f"sweep_overrides=[{quoted}]"],
+        cwd=tmp_path,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    deadline = time.time() + 240
+    while time.time() < deadline and not list(tmp_path.glob("outputs/sweeps/ablation/*/0/metrics.csv")):
+        time.sleep(0.5)
+    assert list(tmp_path.glob("outputs/sweeps/ablation/*/0/metrics.csv")), "the sweep did not start training"
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=240)
+    lines = [ln for ln in err.splitlines() if ln.strip() and "warn" not in ln.lower()]
+    assert proc.returncode == 130, err[-2000:]
+    assert lines[-1].startswith("error: interrupted by SIGTERM: the ablation sweep was stopped"), lines
+    (sweep,) = tmp_path.glob("outputs/sweeps/ablation/*")
+    assert (sweep / "0" / "last.pt").is_file()  # the running job saved its checkpoint
+    time.sleep(1.0)
+    ps = subprocess.run(["ps", "-eo", "args"], capture_output=True, text=True).stdout
+    assert str(sweep) not in ps  # no process of the sweep outlived the command

@@ -9,6 +9,7 @@ checkpoints the weights were fine-tuned from (``train.init_from``, oldest first)
 
 from __future__ import annotations
 
+import io
 from pathlib import Path
 from typing import Any
 
@@ -25,8 +26,10 @@ def save_checkpoint(path: str | Path, payload: dict[str, Any]) -> Path:
     a crash mid-write leaves the previous checkpoint intact."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
+    buffer = io.BytesIO()  # serialise first: a full disk is then an OSError naming the file, not torch's zip error
+    torch.save({"format": FORMAT, **payload}, buffer)
     with atomic_write(path, "wb") as f:
-        torch.save({"format": FORMAT, **payload}, f)
+        f.write(buffer.getbuffer())
     return path
 
 

@@ -8,6 +8,7 @@ with the number of its jobs that did not finish.
 
 from __future__ import annotations
 
+import errno
 import re
 import sys
 import tempfile
@@ -89,8 +90,9 @@ def _overrides_of(argv: list[str]) -> list[str] | None:
 
 
 def check_composition(config_name: str, argv: list[str]) -> None:
-    """Compose the config the command line asks for (each value of a sweep list in turn), so an
-    unknown key or option is one line before any job starts, not Hydra's multi-line report."""
+    """Compose the config the command line asks for (each value of a sweep list in turn) and
+    check it against the schemas (:mod:`datt.tasks.validation`), so an unknown key or option and
+    a value out of its range are one line before any job starts, not Hydra's multi-line report."""
     from hydra.core.override_parser.overrides_parser import OverridesParser
     from hydra.errors import HydraException
 
@@ -119,9 +121,12 @@ def check_composition(config_name: str, argv: list[str]) -> None:
             variants += [(len(firsts) - 1, f"{key}={v}") for v in values[1:]]
         else:
             firsts.append(text)
-    compose(config_name, firsts)
-    for index, text in variants:
-        compose(config_name, [*firsts[:index], text, *firsts[index + 1 :]])
+    from datt.configuration import preflight_command
+    from datt.tasks.validation import validate_composed
+
+    for chosen in [firsts, *([*firsts[:i], text, *firsts[i + 1 :]] for i, text in variants)]:
+        with preflight_command(_argv_search_roots(argv), chosen):
+            validate_composed(config_name, compose(config_name, chosen))
 
 
 def check_output_dir(argv: list[str]) -> None:
@@ -146,6 +151,22 @@ def check_output_dir(argv: list[str]) -> None:
             problem = f"cannot write in {base} ({exc.strerror})"
     if problem:
         raise ConfigError(f"{key}: {path}: {problem}; run from a writable directory or set {key}=<writable dir>")
+
+
+# what the machine, not the code, refuses: a full disk, a read-only mount, no permission
+FILE_FAULTS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM, errno.EIO})
+
+
+def file_fault_line(exc: OSError) -> str:
+    """One line for a file the command could not write or read (what was already written is
+    kept: checkpoints and records are written atomically)."""
+    where = f"{exc.filename}: " if exc.filename else ""
+    hint = {
+        errno.ENOSPC: "free some space (or set hydra.run.dir=<another disk>)",
+        errno.EDQUOT: "free some space (or set hydra.run.dir=<another disk>)",
+        errno.EROFS: "copy the run to a writable place and run it there (or set hydra.run.dir=<writable dir>)",
+    }.get(exc.errno or 0, "check the path's permissions (or set hydra.run.dir=<writable dir>)")
+    return f"{where}{exc.strerror or one_line(exc)}; {hint}; files written before are kept"
 
 
 def _fail(message: str, code: int) -> None:
@@ -257,6 +278,15 @@ def hydra_main(config_name: str, task: Callable[[DictConfig], object]) -> Callab
             if not multirun:
                 _fail(f"training diverged: {exc}", 3)
             _job_failed("diverged", f"training diverged: {exc}")
+        except OSError as exc:
+            if exc.errno not in FILE_FAULTS:
+                if not multirun:
+                    raise
+                _job_failed("errored", f"{type(exc).__name__}: {one_line(exc)}", traceback.format_exc())
+                return
+            if not multirun:
+                _fail(file_fault_line(exc), 2)
+            _job_failed("errored", file_fault_line(exc))
         except Exception as exc:  # a crash in one job must not take the sweep's other jobs with it
             if not multirun:
                 raise

@@ -8,10 +8,13 @@ user's options are found everywhere a group is listed or loaded.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import re
 import secrets
-from dataclasses import dataclass, field, fields
+import typing
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass, field, fields, is_dataclass
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -50,6 +53,22 @@ def root_from_uri(uri: str, base: Path | None = None) -> Path | None:
     return path
 
 
+# the command line being checked before its job starts: (search roots, overrides)
+_PREFLIGHT: list[tuple[list[Path], list[str]]] = []
+
+
+@contextlib.contextmanager
+def preflight_command(roots: list[Path], overrides: list[str]) -> Iterator[None]:
+    """While a command line is checked before its job starts, :func:`search_roots` is ``roots``
+    (its ``--config-dir`` and ``hydra.searchpath`` before the package's tree) and
+    :func:`command_overrides` its ``overrides``, as they will be inside the job."""
+    _PREFLIGHT.append((list(roots), list(overrides)))
+    try:
+        yield
+    finally:
+        _PREFLIGHT.pop()
+
+
 def command_overrides() -> list[str] | None:
     """The overrides of the running Hydra job, without ``hydra.*`` (None outside Hydra)."""
     try:
@@ -57,17 +76,18 @@ def command_overrides() -> list[str] | None:
 
         return [o for o in HydraConfig.get().overrides.task if not o.lstrip("+~").startswith("hydra")]
     except (ImportError, ValueError):
-        return None
+        return [o for o in _PREFLIGHT[-1][1] if not o.lstrip("+~").startswith("hydra")] if _PREFLIGHT else None
 
 
 def search_roots() -> list[Path]:
-    """Directories of the current config search path: Hydra's (inside a job) or the package's."""
+    """Directories of the current config search path: Hydra's (inside a job), the command
+    line's (while it is checked before the job) or the package's."""
     try:
         from hydra.core.hydra_config import HydraConfig
 
         sources = HydraConfig.get().runtime.config_sources
     except (ImportError, ValueError):
-        return [conf_dir()]
+        return _PREFLIGHT[-1][0] if _PREFLIGHT else [conf_dir()]
     roots = []
     for src in sources:
         if src.schema in ("file", "pkg") and src.provider not in ("hydra", "schema"):
@@ -109,6 +129,14 @@ def load_option(group: str, name: str) -> DictConfig:
     raise ConfigError(f"{group}: unknown option {name!r}; allowed: {', '.join(available_options(group, roots))}")
 
 
+def check_option(group: str, name: Any, key: str) -> None:
+    """``name`` is an option of config group ``group`` (over the search path); else one line
+    naming ``key`` and the allowed options."""
+    allowed = available_options(group)
+    if not isinstance(name, str) or name not in allowed:
+        raise ConfigError(f"{key}: unknown value {name!r}; allowed: {', '.join(allowed)}")
+
+
 def with_options(cfg: DictConfig, **choices) -> DictConfig:
     """Copy of ``cfg`` with whole option nodes swapped: a name loads ``<group>/<name>.yaml``
     (``with_options(cfg, disturbance="none")``), a mapping is used as the node itself."""
@@ -121,34 +149,70 @@ def with_options(cfg: DictConfig, **choices) -> DictConfig:
 
 @dataclass(frozen=True)
 class Range:
-    """The values a numeric schema field accepts: finite, within ``low``..``high`` (each bound
-    open or closed); ``optional``: None is accepted too. Declared once per field with
-    :func:`ranged`, checked by :func:`check_ranges` (list fields: every element)."""
+    """The values a schema field accepts, declared once per field with :func:`ranged` (or per
+    constructor argument in a class's ``ARG_RANGES``) and checked by :func:`check_ranges`.
+
+    Numbers: finite, within ``low``..``high`` (each bound open or closed), whole numbers when
+    ``integer``. ``choices``: the field is one of these values instead (names such as
+    ``first_order``). ``optional``: None is accepted too. A list field: every element, and the
+    list holds ``length`` elements when given (else at least one)."""
 
     low: float = -math.inf
     high: float = math.inf
     low_open: bool = False
     high_open: bool = False
     optional: bool = False
+    integer: bool = False
+    choices: tuple = ()
+    length: int | None = None
 
     def accepts(self, value: Any) -> bool:
         if value is None:
             return self.optional
+        if self.choices:
+            return value in self.choices
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            return False
+        if self.integer and not float(value).is_integer():
             return False
         above = value > self.low if self.low_open else value >= self.low
         below = value < self.high if self.high_open else value <= self.high
         return above and below
 
     def text(self) -> str:
-        bounds = []
-        if self.low > -math.inf:
-            bounds.append(f"{'>' if self.low_open else '>='} {self.low:g}")
-        if self.high < math.inf:
-            bounds.append(f"{'<' if self.high_open else '<='} {self.high:g}")
-        return (
-            "a finite number" + (" " + " and ".join(bounds) if bounds else "") + (" or null" if self.optional else "")
-        )
+        if self.choices:
+            return "one of " + ", ".join(str(c) for c in self.choices) + (" or null" if self.optional else "")
+        kind = "an integer" if self.integer else "a finite number"
+        low, high = self.low > -math.inf, self.high < math.inf
+        if low and high:
+            left, right = "(" if self.low_open else "[", ")" if self.high_open else "]"
+            bounds = f" in {left}{_number(self.low)}, {_number(self.high)}{right}"
+        elif low:
+            bounds = f" {'>' if self.low_open else '>='} {_number(self.low)}"
+        elif high:
+            bounds = f" {'<' if self.high_open else '<='} {_number(self.high)}"
+        else:
+            bounds = ""
+        return kind + bounds + (" or null" if self.optional else "")
+
+    def check(self, value: Any, key: str) -> None:
+        """One ConfigError naming ``key``, the value and the allowed values, unless ``value``
+        (a list: each element) is allowed."""
+        if isinstance(value, (list, tuple)) and not self.choices:
+            size_ok = len(value) == self.length if self.length is not None else bool(value)
+            if not size_ok or not all(self.accepts(v) for v in value):
+                size = f"{self.length} elements" if self.length is not None else "a list"
+                raise ConfigError(f"{key}: must be {size}, each {self.text()}, got {list(value)!r}")
+        elif self.choices and not self.accepts(value):
+            allowed = ", ".join(str(c) for c in self.choices) + (", null" if self.optional else "")
+            raise ConfigError(f"{key}: unknown value {value!r}; allowed: {allowed}")
+        elif not self.accepts(value):
+            raise ConfigError(f"{key}: must be {self.text()}, got {value!r}")
+
+
+def _number(x: float) -> str:
+    """A bound as a reader writes it: 1024, 0.5, 1e-05 (not 1.024e+03)."""
+    return str(int(x)) if float(x).is_integer() and abs(x) < 1e16 else f"{x:g}"
 
 
 def ranged(default: Any, rng: Range, **kwargs: Any) -> Any:
@@ -159,29 +223,79 @@ def ranged(default: Any, rng: Range, **kwargs: Any) -> Any:
 
 
 def check_ranges(obj: Any, key: str) -> None:
-    """Every field of the dataclass ``obj`` declared with :func:`ranged` holds allowed values;
-    else one ConfigError naming the key, the value and the allowed range."""
+    """Every field of the dataclass ``obj`` declared with :func:`ranged` holds allowed values,
+    nested dataclasses included; else one ConfigError naming the key, the value and the
+    allowed range."""
     for f in fields(obj):
-        rng = f.metadata.get("range")
-        if rng is None:
-            continue
         value = getattr(obj, f.name)
-        items = value if isinstance(value, (list, tuple)) else [value]
-        if not items or not all(rng.accepts(v) for v in items):
-            what = f"a list, each element {rng.text()}" if isinstance(value, (list, tuple)) else rng.text()
-            raise ConfigError(f"{key}.{f.name}: must be {what}, got {value!r}")
+        rng = f.metadata.get("range")
+        if rng is not None:
+            rng.check(value, f"{key}.{f.name}" if key else f.name)
+        elif is_dataclass(value) and not isinstance(value, type):
+            check_ranges(value, f"{key}.{f.name}" if key else f.name)
+
+
+def check_arg_ranges(cls: type, args: dict[str, Any], key: str) -> None:
+    """The constructor arguments ``args`` of ``cls`` (a ``_target_``) against the ranges the
+    class declares in ``ARG_RANGES`` (its bases' too): one ConfigError naming ``key.<arg>``."""
+    ranges: dict[str, Range] = {}
+    for base in reversed(cls.__mro__):
+        ranges.update(getattr(base, "ARG_RANGES", None) or {})
+    try:
+        hints = typing.get_type_hints(cls.__init__)
+    except Exception:  # an annotation that does not resolve: no type to check against
+        hints = {}
+    for name, value in args.items():
+        if hints.get(name) is bool and not isinstance(value, bool):
+            raise ConfigError(f"{key}.{name}: must be true or false, got {value!r}")
+        if name not in ranges:
+            continue
+        if isinstance(value, Mapping):  # a mapping argument (weights per family): each value
+            for sub, item in value.items():
+                ranges[name].check(item, f"{key}.{name}.{sub}")
+        else:
+            ranges[name].check(value, f"{key}.{name}")
 
 
 POSITIVE = Range(0.0, low_open=True)
 POSITIVE_OR_NONE = Range(0.0, low_open=True, optional=True)
 NON_NEGATIVE = Range(0.0)
 FINITE = Range()
+UNIT_INTERVAL = Range(0.0, 1.0)
+FRACTION = Range(0.0, 1.0, low_open=True)  # (0, 1]
+# Counts get a ceiling as well: a typo of a few zeros must be one line, not an hour of
+# allocation and an out-of-memory kill.
+COUNT = Range(1, 1e12, integer=True)
+NON_NEGATIVE_COUNT = Range(0, 1e12, integer=True)
+SEED = Range(0, 2**32 - 1, integer=True)  # what numpy, torch and Python all accept
+BATCH = Range(1, 1 << 20, integer=True)  # drones in one tensor, minibatch sizes
+THREADS = Range(1, 1024, integer=True)
+
+
+def check_bools(cls: type, node: Any, key: str) -> None:
+    """A field typed ``bool`` takes true or false only: OmegaConf would turn ``1``, ``0`` or
+    ``"yes"`` into a bool, and the run would record one value and use another."""
+    if isinstance(node, DictConfig):
+        node = OmegaConf.to_container(node, resolve=True)
+    if not isinstance(node, Mapping):
+        return
+    hints = typing.get_type_hints(cls)
+    for f in fields(cls):
+        if f.name not in node:
+            continue
+        value, hint = node[f.name], hints.get(f.name)
+        where = f"{key}.{f.name}" if key else f.name
+        if hint is bool and not isinstance(value, bool):
+            raise ConfigError(f"{where}: must be true or false, got {value!r}")
+        if isinstance(hint, type) and is_dataclass(hint):
+            check_bools(hint, value, where)
 
 
 def structured(cls, node, key: str):
     """Merge ``node`` onto the dataclass schema ``cls`` (type-checked; a field the YAML does not
     give is an error), build it and call its ``validate()``; errors become one-line
     ConfigErrors under ``key`` (``""``: the node is the config's top level)."""
+    check_bools(cls, node, key)
     try:
         merged = OmegaConf.merge(OmegaConf.structured(cls), node or {})
         obj = OmegaConf.to_object(merged)
@@ -189,6 +303,7 @@ def structured(cls, node, key: str):
         sub = getattr(exc, "full_key", "") or ""
         where = ".".join(k for k in (key, sub) if k) or cls.__name__
         raise ConfigError(f"{where}: {one_line(exc)}") from None
+    check_ranges(obj, key)
     obj.validate()
     return obj
 
@@ -203,10 +318,13 @@ def flat_leaves(tree: Any, prefix: str = "") -> dict[str, object]:
     return {prefix[:-1]: tree}
 
 
+HORIZON = Range(1, 1000, integer=True)  # future reference points the policy reads
+
+
 def check_horizon(horizon: Any) -> int:
     """The policy horizon H (number of future reference points)."""
-    if isinstance(horizon, bool) or not isinstance(horizon, int) or horizon < 1:
-        raise ConfigError(f"horizon: must be an integer >= 1 (number of future reference points), got {horizon!r}")
+    if isinstance(horizon, float) or not HORIZON.accepts(horizon):
+        raise ConfigError(f"horizon: must be {HORIZON.text()} (number of future reference points), got {horizon!r}")
     return horizon
 
 
@@ -253,6 +371,35 @@ def check_targets(node: Any, where: str, source: str | None = None) -> None:
                     stack.append((f"{key}.{k}", v))
         elif isinstance(value, list):
             stack.extend((f"{key}[{i}]", v) for i, v in enumerate(value))
+
+
+def check_target_args(node: Any, where: str) -> None:
+    """Every ``_target_`` in ``node`` registered (:func:`check_targets`) and its arguments inside
+    the ranges its class declares (``ARG_RANGES``): one ConfigError naming the key, before
+    anything is built. Arguments that are themselves nodes (nested options) are checked in turn."""
+    from hydra.utils import get_object
+
+    check_targets(node, where)
+    stack: list[tuple[str, Any]] = [(where, node)]
+    while stack:
+        key, value = stack.pop()
+        if isinstance(value, DictConfig):
+            value = OmegaConf.to_container(value, resolve=True)
+        if isinstance(value, dict):
+            target = value.get("_target_")
+            if isinstance(target, str):
+                try:
+                    built = get_object(target)
+                except Exception as exc:  # Hydra reports a missing module as a bare Exception
+                    raise ConfigError(f"{key}._target_: {target!r} cannot be imported ({one_line(exc)})") from None
+                if isinstance(built, type):
+                    literal = {
+                        k: v
+                        for k, v in value.items()
+                        if not k.startswith("_") and not (isinstance(v, dict) and "_target_" in v)
+                    }
+                    check_arg_ranges(built, literal, key)
+            stack.extend((f"{key}.{k}", v) for k, v in value.items() if isinstance(v, dict) and "_target_" in v)
 
 
 def instantiate_option(cfg: DictConfig, group: str) -> Any:

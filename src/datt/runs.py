@@ -67,8 +67,10 @@ def atomic_write(path: str | Path, mode: str = "w", **open_kwargs: Any) -> Itera
             os.fsync(f.fileno())
         public_mode(tmp)
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as exc:
         Path(tmp).unlink(missing_ok=True)
+        if isinstance(exc, OSError) and exc.filename is None:
+            exc.filename = str(path)  # a write to the temp file's descriptor names no file
         raise
 
 
@@ -206,3 +208,31 @@ class StopRequest:
 
     def __exit__(self, *exc: object) -> None:
         self._handlers.close()
+
+
+def run_stoppable(cmd: list[str], cwd: str | Path | None = None) -> tuple[int, str | None]:
+    """Run ``cmd`` as a child in its own process group and wait for it; a SIGINT/SIGTERM to this
+    process is passed on to the whole group (the child's own workers too), and the child is
+    waited for, so it can save what it has and no process outlives the command. Returns the
+    child's exit code and the name of the signal that stopped it (None: it ran to its end)."""
+    import subprocess
+
+    proc = subprocess.Popen(cmd, cwd=cwd, start_new_session=True)
+    sent: set[str] = set()
+    with StopRequest() as stop:
+        while True:
+            try:
+                code = proc.wait(timeout=0.2)
+                break
+            except subprocess.TimeoutExpired:
+                pass
+            except KeyboardInterrupt:  # a second signal: stop the group at once
+                stop.signal = stop.signal or "SIGINT"
+                sent.add("SIGKILL")
+                with contextlib.suppress(ProcessLookupError):
+                    os.killpg(proc.pid, signal.SIGKILL)
+            if stop.signal and stop.signal not in sent:
+                sent.add(stop.signal)
+                with contextlib.suppress(ProcessLookupError):
+                    os.killpg(proc.pid, getattr(signal, stop.signal))
+    return code, stop.signal

@@ -97,7 +97,7 @@ def test_policy_checkpoint_is_not_an_rma_checkpoint(tiny_policy_checkpoint):
 
 def test_bad_rma_lr_final_frac_is_one_line(tmp_path, tiny_policy_checkpoint):
     cfg = tiny_rma_cfg(tiny_policy_checkpoint, "rma.lr_final_frac=0")
-    with pytest.raises(ConfigError, match=r"^rma.lr_final_frac: must be in \(0, 1\], got 0.0$"):
+    with pytest.raises(ConfigError, match=r"^rma.lr_final_frac: must be a finite number in \(0, 1\], got 0.0$"):
         train_rma(cfg, tmp_path)
 
 

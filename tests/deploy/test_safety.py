@@ -176,18 +176,18 @@ def test_safety_params_are_the_deploy_config_defaults():
         ({"battery_filter_s": 0.5}, None),
         ({"max_state_age_s": 0.0}, "deploy.safety.max_state_age_s: must be a finite number > 0, got 0.0"),
         # values that would disable a check (NaN compares false, inf never breached): refused
-        ({"max_tilt_deg": math.nan}, "deploy.safety.max_tilt_deg: must be a finite number > 0 and <= 180, got nan"),
-        ({"max_tilt_deg": 181.0}, "deploy.safety.max_tilt_deg: must be a finite number > 0 and <= 180, got 181.0"),
+        ({"max_tilt_deg": math.nan}, "deploy.safety.max_tilt_deg: must be a finite number in (0, 180], got nan"),
+        ({"max_tilt_deg": 181.0}, "deploy.safety.max_tilt_deg: must be a finite number in (0, 180], got 181.0"),
         ({"geofence_margin_m": math.nan}, "deploy.safety.geofence_margin_m: must be a finite number >= 0, got nan"),
         (
             {"geofence_max_m": [math.inf, math.inf, math.inf]},
-            "deploy.safety.geofence_max_m: must be a list, each element a finite number, got [inf, inf, inf]",
+            "deploy.safety.geofence_max_m: must be a list, each a finite number, got [inf, inf, inf]",
         ),
         ({"max_speed_mps": math.inf}, "deploy.safety.max_speed_mps: must be a finite number > 0, got inf"),
         ({"kill_battery_v": math.nan}, "deploy.safety.kill_battery_v: must be a finite number >= 0, got nan"),
         (
             {"max_rate_radps": [20.0, math.nan, 2.0]},
-            "deploy.safety.max_rate_radps: must be a list, each element a finite number > 0, got [20.0, nan, 2.0]",
+            "deploy.safety.max_rate_radps: must be a list, each a finite number > 0, got [20.0, nan, 2.0]",
         ),
     ],
 )

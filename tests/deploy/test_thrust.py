@@ -151,7 +151,7 @@ def test_simulated_motors_are_the_vehicles_not_the_controllers():
     c = ThrustMap().hover_command  # the controller's hover point for the nominal vehicle
     assert weak.thrust_mps2(round(c), 4.1) == pytest.approx(0.9 * 9.81, rel=1e-4)
     assert heavy.thrust_mps2(round(c), 4.1) == pytest.approx(9.81 / 1.1, rel=1e-4)
-    with pytest.raises(ConfigError, match=r"^deploy.server.thrust_gain: must be > 0, got 0.0$"):
+    with pytest.raises(ConfigError, match=r"^deploy.server.thrust_gain: must be a finite number > 0, got 0.0$"):
         FirmwareMotors(MotorParams(thrust_gain=0.0))
 
 

@@ -182,24 +182,26 @@ def assert_at_rest_at_the_origin_with_hover_in_flight(quad):
     assert torch.equal(quad.latency.in_flight(), cmd(3, G).expand(quad.params.latency_steps, 3, 4))
 
 
-IN_0_1 = "must be in (0, 1], got"
-HALF_WIDTH = "must be in [0, 1) (a relative half-width), got"
+IN_0_1 = "must be a finite number in (0, 1], got"
+HALF_WIDTH = "must be a finite number in [0, 1), got"
 LATENCY_MAX = "must be null or an integer >= latency_steps (1), got"
+LATENCY_RANGE = "must be an integer in [0, 100] or null, got"
 REFUSED_PARAMS = [
     ({"k_thrust": 0.0}, f"k_thrust: {IN_0_1} 0.0"),
     ({"k_thrust": 1.01}, f"k_thrust: {IN_0_1} 1.01"),
     ({"k_rate": 0.0}, f"k_rate: {IN_0_1} 0.0"),
     ({"k_rate": 1.5}, f"k_rate: {IN_0_1} 1.5"),
-    ({"latency_steps": -1}, "latency_steps: must be >= 0, got -1"),
-    ({"max_thrust_mps2": 0.0}, "max_thrust_mps2: must be > 0, got 0.0"),
-    ({"max_rate_radps": 0.0}, "max_rate_radps: must be > 0, got 0.0"),
+    ({"latency_steps": -1}, "latency_steps: must be an integer in [0, 100], got -1"),
+    ({"max_thrust_mps2": 0.0}, "max_thrust_mps2: must be a finite number > 0, got 0.0"),
+    ({"max_thrust_mps2": float("inf")}, "max_thrust_mps2: must be a finite number > 0, got inf"),
+    ({"max_rate_radps": 0.0}, "max_rate_radps: must be a finite number > 0, got 0.0"),
     ({"mass_spread": -0.1}, f"mass_spread: {HALF_WIDTH} -0.1"),
     ({"mass_spread": 1.0}, f"mass_spread: {HALF_WIDTH} 1.0"),
     ({"thrust_gain_spread": -0.01}, f"thrust_gain_spread: {HALF_WIDTH} -0.01"),
     ({"thrust_gain_spread": 1.0}, f"thrust_gain_spread: {HALF_WIDTH} 1.0"),
     ({"latency_steps_max": 0}, f"latency_steps_max: {LATENCY_MAX} 0"),
-    ({"latency_steps_max": 2.5}, f"latency_steps_max: {LATENCY_MAX} 2.5"),
-    ({"latency_steps_max": True}, f"latency_steps_max: {LATENCY_MAX} True"),
+    ({"latency_steps_max": 2.5}, f"latency_steps_max: {LATENCY_RANGE} 2.5"),
+    ({"latency_steps_max": True}, f"latency_steps_max: {LATENCY_RANGE} True"),
     (
         {"rate_model": "third_order"},
         "rate_model: unknown value 'third_order'; allowed: first_order, second_order, mixed",

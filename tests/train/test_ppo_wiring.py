@@ -413,21 +413,24 @@ def test_crash_rate_is_the_share_of_ended_episodes_that_crashed():
 
 
 ALGO_BAD = [
-    ("num_envs", 0, "must be >= 1, got 0"),
-    ("rollout_steps", 0, "must be >= 1, got 0"),
-    ("epochs", 0, "must be >= 1, got 0"),
-    ("minibatch_size", 0, "must be >= 1, got 0"),
-    ("lr", 0.0, "must be > 0, got 0.0"),
-    ("lr_final_frac", -0.1, "must be in [0, 1], got -0.1"),
-    ("lr_final_frac", 1.5, "must be in [0, 1], got 1.5"),
-    ("reward_scale", 0.0, "must be > 0, got 0.0"),
-    ("gamma", 0.0, "must be in (0, 1], got 0.0"),
-    ("gamma", 1.01, "must be in (0, 1], got 1.01"),
-    ("lmbda", -0.1, "must be in [0, 1], got -0.1"),
-    ("lmbda", 1.01, "must be in [0, 1], got 1.01"),
+    ("num_envs", 0, "must be an integer in [1, 1048576], got 0"),
+    ("rollout_steps", 0, "must be an integer in [1, 100000], got 0"),
+    ("epochs", 0, "must be an integer in [1, 1000], got 0"),
+    ("minibatch_size", 0, "must be an integer in [1, 1048576], got 0"),
+    ("lr", 0.0, "must be a finite number > 0, got 0.0"),
+    ("lr_final_frac", -0.1, "must be a finite number in [0, 1], got -0.1"),
+    ("lr_final_frac", 1.5, "must be a finite number in [0, 1], got 1.5"),
+    ("reward_scale", 0.0, "must be a finite number > 0, got 0.0"),
+    ("gamma", 0.0, "must be a finite number in (0, 1], got 0.0"),
+    ("gamma", 1.01, "must be a finite number in (0, 1], got 1.01"),
+    ("lmbda", -0.1, "must be a finite number in [0, 1], got -0.1"),
+    ("lmbda", 1.01, "must be a finite number in [0, 1], got 1.01"),
     ("loss_critic_type", "huber", "unknown value 'huber'; allowed: l1, l2, smooth_l1"),
-    ("desired_kl", 0.0, "must be > 0, got 0.0"),
-    ("lr_min", 0.0, "must be > 0, got 0.0"),
+    ("desired_kl", 0.0, "must be a finite number > 0, got 0.0"),
+    ("lr_min", 0.0, "must be a finite number > 0, got 0.0"),
+    ("max_grad_norm", -1.0, "must be a finite number > 0, got -1.0"),
+    ("clip_epsilon", -0.2, "must be a finite number in (0, 1], got -0.2"),
+    ("entropy_coeff", float("nan"), "must be a finite number >= 0, got nan"),
 ]
 
 

@@ -147,7 +147,7 @@ def test_nan_guard_stops_with_last_good_checkpoint(tmp_path):
 
 
 def test_bad_train_values_are_config_errors():
-    with pytest.raises(ConfigError, match="algo.num_envs: must be >= 1"):
+    with pytest.raises(ConfigError, match=r"algo.num_envs: must be an integer in \[1, 1048576\], got 0"):
         Trainer(tiny_cfg("algo.num_envs=0"), "/tmp/unused", CsvLogger("/tmp"))
     allowed = "allowed: constant, linear, exponential, adaptive_kl"
     with pytest.raises(ConfigError, match=f"algo.lr_schedule: unknown value 'cosine'; {allowed}"):
@@ -164,9 +164,11 @@ def test_bad_train_values_are_config_errors():
             "error: traj: unknown option 'nope'; allowed: chained_poly, csv, fixed, mixed, poly, polygon, star, "
             "train_mix, train_mix_fast, zigzag, zigzag_fast, zigzag_iid",
         ),
-        (["horizon=-1"], "error: horizon: must be an integer >= 1"),
-        (["algo.epochs=0"], "error: algo.epochs: must be >= 1"),
-        (["resume=/nonexistent/run"], "error: resume: '/nonexistent/run' has no last.pt"),
+        (["horizon=-1"], "error: horizon: must be an integer in [1, 1000]"),
+        (["algo.epochs=0"], "error: algo.epochs: must be an integer in [1, 1000]"),
+        (["resume=/nonexistent/run"], "error: resume: '/nonexistent/run' does not exist"),
+        (["disturbance.sigma2=nan"], "error: disturbance.sigma2: must be a finite number >= 0, got nan"),
+        (["env.dt_s=inf"], "error: env.dt_s: must be a finite number in (0, 1], got inf"),
     ],
 )
 def test_train_py_bad_override_one_line(tmp_path, args, message):

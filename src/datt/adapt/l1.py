@@ -36,12 +36,20 @@ import torch
 from torch import Tensor
 
 from datt.adapt.base import Adaptation
+from datt.configuration import FRACTION, NON_NEGATIVE, Range, check_arg_ranges
 from datt.sim.frames import BODY_Z_QUADRATIC_FORM, quat_body_z, quat_body_z_bilinear
 
 COMPILE_MIN_BATCH = 1024
 
 
 class L1Adaptation(Adaptation):
+    ARG_RANGES = {
+        "a_s": Range(high=0.0, high_open=True),  # Hurwitz
+        "cutoff_tau_s": NON_NEGATIVE,
+        "k_thrust": FRACTION,
+        "latency_steps": Range(0, 100, integer=True),
+    }
+
     def __init__(
         self,
         a_s: float = -0.01,
@@ -51,12 +59,7 @@ class L1Adaptation(Adaptation):
         k_thrust: float = 0.4,
         latency_steps: int = 1,
     ) -> None:
-        if not a_s < 0:
-            raise ValueError(f"adaptation.a_s: must be < 0 (Hurwitz), got {a_s}")
-        if not cutoff_tau_s >= 0:
-            raise ValueError(f"adaptation.cutoff_tau_s: must be >= 0, got {cutoff_tau_s}")
-        if not 0 < k_thrust <= 1 or latency_steps < 0:
-            raise ValueError("adaptation.k_thrust must be in (0, 1] and adaptation.latency_steps >= 0")
+        check_arg_ranges(L1Adaptation, locals(), "adaptation")
         self.a_s = float(a_s)
         self.cutoff_tau_s = float(cutoff_tau_s)
         self.predictor_uses_filtered = predictor_uses_filtered

@@ -22,12 +22,22 @@ from __future__ import annotations
 import torch
 from tensordict import TensorDictBase
 
+from datt.configuration import BATCH, NON_NEGATIVE, POSITIVE, SEED, Range, check_arg_ranges
 from datt.control.base import Controller
 from datt.sim.quadrotor import integrate
 
 
 class MppiController(Controller):
     name = "mppi"
+    ARG_RANGES = {
+        "num_samples": BATCH,
+        "horizon_steps": Range(1, 10_000, integer=True),
+        "temperature": POSITIVE,
+        "noise_std": Range(0.0, length=4),  # thrust, wx, wy, wz
+        "pos_weight": NON_NEGATIVE,
+        "att_weight": NON_NEGATIVE,
+        "seed": SEED,
+    }
 
     def __init__(
         self,
@@ -41,14 +51,7 @@ class MppiController(Controller):
         seed: int = 0,
         compile: bool = True,
     ) -> None:
-        if int(num_samples) < 1:
-            raise ValueError(f"controller.num_samples: must be >= 1, got {num_samples}")
-        if int(horizon_steps) < 1:
-            raise ValueError(f"controller.horizon_steps: must be >= 1, got {horizon_steps}")
-        if not temperature > 0:
-            raise ValueError(f"controller.temperature: must be > 0, got {temperature}")
-        if len(noise_std) != 4 or min(noise_std) < 0:
-            raise ValueError(f"controller.noise_std: must be 4 values >= 0 (thrust, wx, wy, wz), got {list(noise_std)}")
+        check_arg_ranges(MppiController, locals(), "controller")
         self.num_samples, self.horizon = int(num_samples), int(horizon_steps)
         self.temperature = float(temperature)
         self.noise_std = torch.tensor([float(s) for s in noise_std])

@@ -22,12 +22,14 @@ from __future__ import annotations
 import torch
 from tensordict import TensorDictBase
 
+from datt.configuration import NON_NEGATIVE, check_arg_ranges
 from datt.control.base import Controller
 from datt.sim.frames import quat_rotate_inverse, quat_yaw, wrap_angle
 
 
 class PidController(Controller):
     name = "pid"
+    ARG_RANGES = dict.fromkeys(("kp", "ki", "kd", "k_tilt", "k_yaw", "integral_limit_m_s"), NON_NEGATIVE)
 
     def __init__(
         self,
@@ -39,8 +41,7 @@ class PidController(Controller):
         integral_limit_m_s: float = 2.0,
         use_d_hat: bool = False,
     ) -> None:
-        if min(kp, ki, kd, k_tilt, k_yaw) < 0 or integral_limit_m_s < 0:
-            raise ValueError("controller: gains and integral_limit_m_s must be >= 0")
+        check_arg_ranges(PidController, locals(), "controller")
         self.kp, self.ki, self.kd = kp, ki, kd
         self.k_tilt, self.k_yaw = k_tilt, k_yaw
         self.integral_limit = integral_limit_m_s

@@ -9,6 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
+from datt.configuration import BATCH, NON_NEGATIVE, POSITIVE, POSITIVE_OR_NONE, Range, check_ranges, ranged
 from datt.errors import ConfigError
 from datt.sim.quadrotor import QuadrotorParams
 
@@ -21,11 +22,11 @@ class RewardParams:
     discounted cost of staying 3 m off for the rest of an episode at γ = 0.99 (five times it at
     the training default γ = 0.95)."""
 
-    pos: float = 1.0
-    yaw: float = 0.5
-    vel: float = 0.1
-    vel_cap_mps: float = 1.0
-    crash_penalty: float = 300.0
+    pos: float = ranged(1.0, NON_NEGATIVE)
+    yaw: float = ranged(0.5, NON_NEGATIVE)
+    vel: float = ranged(0.1, NON_NEGATIVE)
+    vel_cap_mps: float = ranged(1.0, NON_NEGATIVE)
+    crash_penalty: float = ranged(300.0, NON_NEGATIVE)
 
 
 # ObsParams keys that shape what a policy reads (a checkpoint carries them to eval and deploy)
@@ -69,13 +70,27 @@ class ObsParams:
 
     body_frame: bool = True
     feedback: bool = True
-    pos_noise_std_m: float = 0.0
-    vel_noise_std_mps: float = 0.0
-    att_noise_std_rad: float = 0.0
-    action_history: int = 0
-    critic_ref_points: int = 0
-    critic_ref_spacing_s: float = 0.1
-    timing: str = "project"
+    pos_noise_std_m: float = ranged(0.0, NON_NEGATIVE)
+    vel_noise_std_mps: float = ranged(0.0, NON_NEGATIVE)
+    att_noise_std_rad: float = ranged(0.0, NON_NEGATIVE)
+    action_history: int = ranged(0, Range(0, 100, integer=True))
+    critic_ref_points: int = ranged(0, Range(0, 1000, integer=True))
+    critic_ref_spacing_s: float = ranged(0.1, POSITIVE)  # and a whole multiple of env.dt_s
+    timing: str = ranged("project", Range(choices=OBS_TIMINGS))
+
+
+def check_device(device: str) -> None:
+    """``env.device``: a torch device this machine has (cpu, cuda, cuda:<index>)."""
+    import torch
+
+    try:
+        dev = torch.device(device)
+    except (RuntimeError, TypeError):
+        raise ConfigError(f"env.device: unknown value {device!r}; allowed: cpu, cuda, cuda:<index>") from None
+    if dev.type == "cuda" and not torch.cuda.is_available():
+        raise ConfigError(f"env.device: {device!r} but this machine has no CUDA device; use env.device=cpu")
+    if dev.type not in ("cpu", "cuda"):
+        raise ConfigError(f"env.device: unknown value {device!r}; allowed: cpu, cuda, cuda:<index>")
 
 
 @dataclass
@@ -83,16 +98,16 @@ class EnvParams:
     """Tracking env settings (``conf/env/default.yaml``). Units in the names; see
     :class:`datt.envs.TrackingEnv` for their meaning."""
 
-    num_envs: int = 1024
-    dt_s: float = 0.02
-    episode_steps: int = 500
-    ref_spacing_s: float = 0.06
-    init_pos_range_m: float = 0.5
-    safety_box_m: list[float] = field(default_factory=lambda: [3.0, 3.0, 3.0])
-    max_tracking_error_m: Any = None
-    thrust_offset_bounds_mps2: list[float] = field(default_factory=lambda: [-9.8, 30.0])
-    rate_bounds_radps: list[float] = field(default_factory=lambda: [20.0, 20.0, 2.0])
-    dtype: str = "float32"
+    num_envs: int = ranged(1024, BATCH)
+    dt_s: float = ranged(0.02, Range(0.0, 1.0, low_open=True))
+    episode_steps: int = ranged(500, Range(1, 10**7, integer=True))
+    ref_spacing_s: float = ranged(0.06, POSITIVE)  # and a whole multiple of dt_s
+    init_pos_range_m: float = ranged(0.5, NON_NEGATIVE)
+    safety_box_m: list[float] = ranged([3.0, 3.0, 3.0], Range(0.0, low_open=True, length=3))
+    max_tracking_error_m: Any = ranged(None, POSITIVE_OR_NONE)
+    thrust_offset_bounds_mps2: list[float] = ranged([-9.8, 30.0], Range(length=2))  # [low, high]
+    rate_bounds_radps: list[float] = ranged([20.0, 20.0, 2.0], Range(0.0, low_open=True, length=3))
+    dtype: str = ranged("float32", Range(choices=("float32", "float64")))
     device: str = "cpu"
     compile: bool = False
     quad: QuadrotorParams = field(default_factory=QuadrotorParams)
@@ -100,65 +115,29 @@ class EnvParams:
     reward: RewardParams = field(default_factory=RewardParams)
 
     def validate(self) -> None:
+        """Rules across fields (each field's own range is declared with it, :func:`ranged`)."""
+
         def need(ok: bool, key: str, msg: str) -> None:
             if not ok:
                 raise ConfigError(f"env.{key}: {msg}")
 
-        need(self.num_envs >= 1, "num_envs", f"must be >= 1, got {self.num_envs}")
-        need(self.dt_s > 0, "dt_s", f"must be > 0, got {self.dt_s}")
-        need(self.episode_steps >= 1, "episode_steps", f"must be >= 1, got {self.episode_steps}")
-        need(self.ref_spacing_s > 0, "ref_spacing_s", f"must be > 0, got {self.ref_spacing_s}")
-        ratio = self.ref_spacing_s / self.dt_s
-        need(
-            abs(ratio - round(ratio)) < 1e-6,
-            "ref_spacing_s",
-            f"must be a whole multiple of env.dt_s={self.dt_s}, got {self.ref_spacing_s}",
-        )
-        need(self.init_pos_range_m >= 0, "init_pos_range_m", f"must be >= 0, got {self.init_pos_range_m}")
-        need(
-            len(self.safety_box_m) == 3 and all(b > 0 for b in self.safety_box_m),
-            "safety_box_m",
-            f"must be three half-extents > 0, got {list(self.safety_box_m)}",
-        )
-        need(
-            self.max_tracking_error_m is None or float(self.max_tracking_error_m) > 0,
-            "max_tracking_error_m",
-            f"must be null or > 0, got {self.max_tracking_error_m}",
-        )
-        lo, hi = (list(self.thrust_offset_bounds_mps2) + [None, None])[:2]
-        need(
-            len(self.thrust_offset_bounds_mps2) == 2 and lo < hi,
-            "thrust_offset_bounds_mps2",
-            f"must be [low, high] with low < high, got {list(self.thrust_offset_bounds_mps2)}",
-        )
+        check_ranges(self, "env")
+        for key, spacing in (
+            ("ref_spacing_s", self.ref_spacing_s),
+            ("obs.critic_ref_spacing_s", self.obs.critic_ref_spacing_s),
+        ):
+            ratio = spacing / self.dt_s
+            need(
+                abs(ratio - round(ratio)) < 1e-6 and round(ratio) >= 1,
+                key,
+                f"must be a whole multiple of env.dt_s={self.dt_s}, got {spacing}",
+            )
+        lo, hi = self.thrust_offset_bounds_mps2
+        need(lo < hi, "thrust_offset_bounds_mps2", f"must be [low, high] with low < high, got {[lo, hi]}")
         need(
             lo + self.quad.gravity_mps2 >= 0,
             "thrust_offset_bounds_mps2",
             f"low + g must be >= 0 (thrust cannot pull down), got {lo}",
         )
-        need(
-            len(self.rate_bounds_radps) == 3 and all(r > 0 for r in self.rate_bounds_radps),
-            "rate_bounds_radps",
-            f"must be three values > 0, got {list(self.rate_bounds_radps)}",
-        )
-        need(self.dtype in ("float32", "float64"), "dtype", f"unknown value {self.dtype!r}; allowed: float32, float64")
-        for key in OBS_NOISE_KEYS:
-            val = getattr(self.obs, key)
-            need(val >= 0, f"obs.{key}", f"must be >= 0, got {val}")
-        for key in ("action_history", "critic_ref_points"):
-            k = getattr(self.obs, key)
-            whole = isinstance(k, int) and not isinstance(k, bool) and k >= 0
-            need(whole, f"obs.{key}", f"must be an integer >= 0, got {k!r}")
-        need(
-            self.obs.timing in OBS_TIMINGS,
-            "obs.timing",
-            f"unknown value {self.obs.timing!r}; allowed: {', '.join(OBS_TIMINGS)}",
-        )
-        ratio = self.obs.critic_ref_spacing_s / self.dt_s
-        need(
-            self.obs.critic_ref_spacing_s > 0 and abs(ratio - round(ratio)) < 1e-6,
-            "obs.critic_ref_spacing_s",
-            f"must be a whole multiple > 0 of env.dt_s={self.dt_s}, got {self.obs.critic_ref_spacing_s}",
-        )
         self.quad.validate("env.quad")
-        need(self.reward.crash_penalty >= 0, "reward.crash_penalty", f"must be >= 0, got {self.reward.crash_penalty}")
+        check_device(self.device)

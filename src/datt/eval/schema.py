@@ -3,65 +3,96 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 from omegaconf import MISSING
 
+from datt.configuration import SEED, THREADS, Range, check_option, ranged
 from datt.errors import ConfigError
-from datt.eval.protocol import get_protocol
+from datt.eval.protocol import PROTOCOLS
+
+STEPS = Range(0, 10**7, integer=True)
+BANK_COUNT = Range(1, 100_000, integer=True)  # references of one bank entry
+
+
+def check_bank(bank: Any, key: str) -> None:
+    """``eval.bank``: group name -> non-empty list of ``{traj: <traj option or node>, seed, count}``."""
+    if not isinstance(bank, Mapping) or not bank:
+        raise ConfigError(f"{key}: must map group names to lists of {{traj, seed, count}}, got {bank!r}")
+    for group, items in bank.items():
+        where = f"{key}.{group}"
+        if not isinstance(items, Sequence) or isinstance(items, str) or not items:
+            raise ConfigError(f"{where}: must be a non-empty list of {{traj, seed, count}}, got {items!r}")
+        for i, item in enumerate(items):
+            if not isinstance(item, Mapping) or set(item) != {"traj", "seed", "count"}:
+                raise ConfigError(f"{where}[{i}]: must be {{traj, seed, count}}, got {item!r}")
+            traj = item["traj"]
+            if isinstance(traj, str):
+                check_option("traj", traj, f"{where}[{i}].traj")
+            elif not isinstance(traj, Mapping) or "_target_" not in traj:
+                raise ConfigError(f"{where}[{i}].traj: must name a traj option or be a _target_ node, got {traj!r}")
+            SEED.check(item["seed"], f"{where}[{i}].seed")
+            BANK_COUNT.check(item["count"], f"{where}[{i}].count")
+
+
+def check_conditions(conditions: Any, key: str) -> None:
+    """``eval.conditions`` of a training run: name -> ``{disturbance, adaptation}`` option names
+    (null drops a condition)."""
+    if not isinstance(conditions, Mapping):
+        raise ConfigError(f"{key}: must map condition names to {{disturbance, adaptation}}, got {conditions!r}")
+    for name, cond in conditions.items():
+        if cond is None:
+            continue
+        if not isinstance(cond, Mapping) or set(cond) != {"disturbance", "adaptation"}:
+            raise ConfigError(f"{key}.{name}: needs disturbance and adaptation, got {cond!r}")
+        for group in ("disturbance", "adaptation"):
+            check_option(group, cond[group], f"{key}.{name}.{group}")
 
 
 @dataclass
 class TimingParams:
     """``eval.timing``: per-step inference time at batch 1 (``steps: 0`` skips)."""
 
-    steps: int = MISSING
-    warmup_steps: int = MISSING
-    threads: int = MISSING  # torch threads while timing (a control loop on one core)
+    steps: int = ranged(MISSING, STEPS)
+    warmup_steps: int = ranged(MISSING, STEPS)
+    threads: int = ranged(MISSING, THREADS)  # torch threads while timing (a control loop on one core)
     compile: bool = MISSING  # torch.compile the observation kernel and adaptation update
 
     def validate(self) -> None:
-        if self.steps < 0 or self.warmup_steps < 0 or self.threads < 1:
-            raise ConfigError(
-                f"eval.timing: steps and warmup_steps must be >= 0 and threads >= 1, got "
-                f"{self.steps}, {self.warmup_steps}, {self.threads}"
-            )
+        pass  # every rule is a field's own range
 
 
 @dataclass
 class EvalParams:
     """``eval`` of ``eval.py``: one controller over the seeded bank, per seed."""
 
-    protocol: str = MISSING  # datt.eval.protocol.PROTOCOLS
-    seeds: list[int] = MISSING
+    protocol: str = ranged(MISSING, Range(choices=tuple(PROTOCOLS)))
+    seeds: list[int] = ranged(MISSING, SEED)
     plots: bool = MISSING
     save_trace: bool = MISSING
     timing: TimingParams = field(default_factory=TimingParams)
     bank: Any = MISSING
-    traj_count: int = MISSING  # references drawn when the command gives traj= (a bank of one group)
+    traj_count: int = ranged(
+        MISSING, Range(1, 100_000, integer=True)
+    )  # references drawn when the command gives traj= (a bank of one group)
 
     def validate(self) -> None:
-        get_protocol(self.protocol)
-        if not self.seeds:
-            raise ConfigError("eval.seeds: must list at least one seed, e.g. [0] or [0,1,2]")
-        if self.traj_count < 1:
-            raise ConfigError(f"eval.traj_count: must be >= 1, got {self.traj_count}")
         self.timing.validate()
+        check_bank(self.bank, "eval.bank")
 
 
 @dataclass
 class EndOfRunEvalParams:
     """``eval`` of ``train.py``: conditions evaluated at the end of training."""
 
-    protocol: str = MISSING  # datt.eval.protocol.PROTOCOLS
+    protocol: str = ranged(MISSING, Range(choices=tuple(PROTOCOLS)))
     conditions: Any = MISSING  # name -> {disturbance, adaptation} (null drops a condition)
-    seed: int = MISSING
+    seed: int = ranged(MISSING, SEED)
     plots: bool = MISSING
     bank: Any = MISSING
 
     def validate(self) -> None:
-        get_protocol(self.protocol)
-        for name, cond in (self.conditions or {}).items():
-            if cond is not None and not {"disturbance", "adaptation"} <= set(cond):
-                raise ConfigError(f"eval.conditions.{name}: needs disturbance and adaptation, got {dict(cond)}")
+        check_conditions(self.conditions, "eval.conditions")
+        check_bank(self.bank, "eval.bank")

@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from datt.errors import ConfigError
+from datt.errors import ConfigError, one_line
 from datt.eval.protocol import get_protocol
 from datt.runs import read_failure
 
@@ -263,26 +263,47 @@ def _override_dict(items) -> dict[str, str]:
 
 
 def read_job(path: Path) -> Job:
+    """A job dir as the table reads it. A file that cannot be read (truncated, not text, no
+    permission) makes the job ``errored`` with the file named: the table lists it and goes on."""
     ov_file = path / ".hydra" / "overrides.yaml"
-    overrides = _override_dict(yaml.safe_load(ov_file.read_text()) or []) if ov_file.is_file() else {}
+    try:
+        overrides = _override_dict(yaml.safe_load(ov_file.read_text()) or []) if ov_file.is_file() else {}
+    except (OSError, ValueError, yaml.YAMLError) as exc:
+        return Job(path, {}, None, "errored", _unreadable(ov_file, exc))
     failure = read_failure(path)
     if failure is not None:
         status = "diverged" if failure["status"] == "diverged" else "errored"
         return Job(path, overrides, None, status, str(failure.get("message", "")))
-    if (path / "metrics.json").is_file():
-        return Job(path, overrides, json.loads((path / "metrics.json").read_text()), "finished")
+    metrics_file = path / "metrics.json"
+    if metrics_file.is_file():
+        try:
+            metrics = json.loads(metrics_file.read_text())
+        except (OSError, ValueError) as exc:
+            return Job(path, overrides, None, "errored", _unreadable(metrics_file, exc))
+        if not isinstance(metrics, dict):
+            return Job(path, overrides, None, "errored", f"{metrics_file.name}: not a metrics record")
+        return Job(path, overrides, metrics, "finished")
     return Job(path, overrides, None, "incomplete", _progress(path))
+
+
+def _unreadable(path: Path, exc: BaseException) -> str:
+    """``<file relative to its job dir>: unreadable (<reason>)``."""
+    name = f".hydra/{path.name}" if path.parent.name == ".hydra" else path.name
+    return f"{name}: unreadable ({one_line(exc)})"
 
 
 def _progress(path: Path) -> str:
     rows = path / "metrics.csv"
     if not rows.is_file():
         return "no progress logged"
-    lines = rows.read_text().strip().splitlines()
-    if len(lines) < 2:
-        return "no progress logged"
-    last = dict(zip(lines[0].split(","), lines[-1].split(",")))
-    return f"stopped at {int(float(last.get('frames', 0))):,} frames"
+    try:
+        lines = rows.read_text().strip().splitlines()
+        if len(lines) < 2:
+            return "no progress logged"
+        last = dict(zip(lines[0].split(","), lines[-1].split(",")))
+        return f"stopped at {int(float(last.get('frames', 0))):,} frames"
+    except (OSError, ValueError) as exc:
+        return _unreadable(rows, exc)
 
 
 AUTHORS_SUFFIX = "@authors"  # row key suffix of a job measured under eval.protocol=authors
@@ -557,12 +578,15 @@ def plot_train_sweep(spec: TableSpec, rows: dict[str, list[Cell]], jobs: list[Jo
         f = job.path / "metrics.csv"
         if not f.is_file():
             continue
-        with open(f) as fh:
-            data = list(csv.DictReader(fh))
-        if data and "tracking_error_m" in data[0]:
-            x = np.array([float(r["frames"]) for r in data])
-            y = np.array([float(r["tracking_error_m"]) for r in data])
-            curves.setdefault(_row_key(job, spec, varying), []).append((x, y))
+        try:
+            with open(f) as fh:
+                data = list(csv.DictReader(fh))
+            if data and "tracking_error_m" in data[0]:
+                x = np.array([float(r["frames"]) for r in data])
+                y = np.array([float(r["tracking_error_m"]) for r in data])
+                curves.setdefault(_row_key(job, spec, varying), []).append((x, y))
+        except (OSError, ValueError, TypeError, KeyError):  # a truncated or hand-edited log: no curve
+            continue
     if curves:
         fig, ax = plt.subplots(figsize=(7, 4))
         for key in [k for k in spec.row_order if k in curves] + sorted(k for k in curves if k not in spec.row_order):
@@ -596,8 +620,11 @@ def plot_side_by_side_from_jobs(jobs: list[Job], group: str, index: int, path: P
         files = sorted(job.path.glob("trace_seed*.pt"))
         if job.metrics is None or not files:
             continue
-        data = torch.load(files[0], weights_only=True)
-        if group not in data["names"]:
+        try:
+            data = torch.load(files[0], weights_only=True)
+        except Exception:  # a truncated or foreign file: this controller has no trace to show
+            continue
+        if not isinstance(data, dict) or group not in data.get("names", ()):
             continue
         start = sum(data["counts"][: data["names"].index(group)])
         traces[job.metrics.get("controller", job.path.name)] = (SimpleNamespace(**data), start + index)

@@ -33,12 +33,15 @@ from torch import nn
 from torch.nn import functional as F
 from torchrl.modules import ProbabilisticActor, TanhNormal, ValueOperator
 
+from datt.configuration import POSITIVE, POSITIVE_OR_NONE, Range, check_ranges, ranged
 from datt.envs.observations import FEEDBACK, STATE_DIM
 from datt.envs.tracking import action_center_half
 from datt.errors import ConfigError
 
 OBS_KEYS = ["state", "ref", "d_hat"]
 ENCODERS = ("conv", "mlp", "none", "authors")
+WIDTH = Range(1, 1 << 16, integer=True)  # layer widths and channel counts
+INIT_STD = Range(0.0, low_open=True, length=4)  # thrust, wx, wy, wz
 AUTHORS_MIN_HORIZON = 5  # two unpadded k-3 convolutions need 5 points for one output
 
 
@@ -46,12 +49,12 @@ AUTHORS_MIN_HORIZON = 5  # two unpadded k-3 convolutions need 5 points for one o
 class PolicyParams:
     """``conf/policy/datt.yaml``."""
 
-    encoder: str = "conv"
-    conv_channels: int = 16
-    conv_layers: int = 3
-    kernel_size: int = 3
-    embed_dim: int = 32
-    hidden: list[int] = field(default_factory=lambda: [64, 64, 64])
+    encoder: str = ranged("conv", Range(choices=ENCODERS))
+    conv_channels: int = ranged(16, WIDTH)
+    conv_layers: int = ranged(3, Range(1, 64, integer=True))
+    kernel_size: int = ranged(3, Range(1, 99, integer=True))  # and odd
+    embed_dim: int = ranged(32, WIDTH)
+    hidden: list[int] = ranged([64, 64, 64], WIDTH)
     use_d_hat: bool = True
     # Pre-tanh std of the initial policy per action (thrust, wx, wy, wz). Rates need a small one:
     # rate noise integrates into an attitude random walk (0.15 x 20 rad/s tips drones over
@@ -63,37 +66,30 @@ class PolicyParams:
     # trained with (tensordict's default), so checkpoints without this key keep their function.
     # Without entropy bonus PPO shrinks the std as far as it helps the return: the former shipped
     # policy (datt_h10_iid.pt) sits at the floor on every action (docs/training.md).
-    min_std: float = 0.01
+    min_std: float = ranged(0.01, POSITIVE)  # and below every init_std
     # Ceiling of the pre-tanh std, every action; null = none (the mapping above). With a ceiling
     # the std is min_std + (max_std − min_std) · sigmoid(head), bounded on both sides. Without
     # one, training at γ = 0.95 let the yaw-rate and thrust std grow without bound in some
     # states (bang-bang noise: crashes, slower steps; docs/training.md).
-    max_std: float | None = None
+    max_std: float | None = ranged(None, POSITIVE_OR_NONE)  # and above every init_std
     # Fixed gain on the tracking-error inputs (feedback and feedforward, metres) before the net.
     # Tracking errors are O(0.01-0.1 m) while the other inputs are O(1): unscaled, a 2 cm error
     # moves the first layer by ~1e-3, and PPO (Adam steps of ~lr per weight) takes a long time to
     # grow the large input weights a precise controller needs. 1 = the paper's raw inputs (and
     # what checkpoints without this key were trained with).
-    error_scale: float = 1.0
+    error_scale: float = ranged(1.0, POSITIVE)
 
     def validate(self) -> None:
-        if not self.error_scale > 0:
-            raise ConfigError(f"policy.error_scale: must be > 0, got {self.error_scale}")
-        if self.encoder not in ENCODERS:
-            raise ConfigError(f"policy.encoder: unknown value {self.encoder!r}; allowed: {', '.join(ENCODERS)}")
-        if self.kernel_size < 1 or self.kernel_size % 2 == 0:
+        """Rules across fields (each field's own range is declared with it, :func:`ranged`)."""
+        check_ranges(self, "policy")
+        if self.kernel_size % 2 == 0:
             raise ConfigError(f"policy.kernel_size: must be odd and >= 1, got {self.kernel_size}")
-        if self.conv_layers < 1 or self.conv_channels < 1 or self.embed_dim < 1:
-            raise ConfigError("policy.conv_layers/conv_channels/embed_dim: must be >= 1")
-        if not self.hidden or any(h < 1 for h in self.hidden):
-            raise ConfigError(f"policy.hidden: must be a non-empty list of sizes >= 1, got {list(self.hidden)}")
         if isinstance(self.init_std, (int, float)):
             self.init_std = [float(self.init_std)] * 4
+        if not isinstance(self.init_std, (list, tuple)):
+            raise ConfigError(f"policy.init_std: must be four values > 0 (thrust, wx, wy, wz), got {self.init_std!r}")
+        INIT_STD.check(list(self.init_std), "policy.init_std")
         self.init_std = [float(s) for s in self.init_std]
-        if len(self.init_std) != 4 or not all(s > 0 for s in self.init_std):
-            raise ConfigError(
-                f"policy.init_std: must be four values > 0 (thrust, wx, wy, wz), got {list(self.init_std)}"
-            )
         lowest = min(self.init_std)
         if not 0 < self.min_std < lowest:
             raise ConfigError(

@@ -7,6 +7,7 @@ from collections.abc import Mapping
 import torch
 from torch import Tensor
 
+from datt.configuration import NON_NEGATIVE, SEED, check_arg_ranges
 from datt.refs.base import RefFamily
 
 
@@ -14,7 +15,10 @@ class Seeded(RefFamily):
     """``family`` drawn with its own generator seeded at ``seed`` on every call: the same n
     references come back each time, whatever the env's generator (evaluation banks)."""
 
+    ARG_RANGES = {"seed": SEED}
+
     def __init__(self, family: RefFamily, seed: int = 0) -> None:
+        check_arg_ranges(Seeded, {"seed": seed}, "traj")
         self.family = family
         self.seed = int(seed)
 
@@ -47,6 +51,8 @@ class Mixed(RefFamily):
     omitted). ``families``: name -> family (Hydra instantiates the nested configs). Mean speed of
     ``traj=mixed`` (authors' zigzag, poly, chained_poly; 1000 draws): ≈ 0.82 m/s."""
 
+    ARG_RANGES = {"weights": NON_NEGATIVE}  # per family; their sum must be > 0
+
     def __init__(self, families: Mapping[str, RefFamily], weights: Mapping[str, float] | None = None) -> None:
         if not families:
             raise ValueError("traj.families: needs at least one family")
@@ -57,7 +63,7 @@ class Mixed(RefFamily):
         if unknown:
             raise ValueError(f"traj.weights: unknown families {sorted(unknown)}; allowed: {self.names}")
         w = torch.tensor([float(weights.get(k, 1.0)) for k in self.names])
-        if (w < 0).any() or w.sum() <= 0:
+        if not torch.isfinite(w).all() or (w < 0).any() or w.sum() <= 0:
             raise ValueError("traj.weights: must be >= 0 with a positive sum")
         self.probs = w / w.sum()
 

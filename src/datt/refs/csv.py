@@ -9,6 +9,7 @@ from pathlib import Path
 import torch
 from torch import Tensor
 
+from datt.configuration import POSITIVE, check_arg_ranges
 from datt.errors import ConfigError
 from datt.refs.base import RefFamily, piecewise_linear
 
@@ -92,6 +93,8 @@ class CsvReference(RefFamily):
     file should end where it starts).
     """
 
+    ARG_RANGES = {"time_scale": POSITIVE, "max_abs_m": POSITIVE}
+
     def __init__(
         self,
         path: str,
@@ -100,10 +103,7 @@ class CsvReference(RefFamily):
         loop: bool = False,
         max_abs_m: float = 20.0,
     ) -> None:
-        if time_scale <= 0:
-            raise ConfigError(f"traj.time_scale: must be > 0, got {time_scale}")
-        if max_abs_m <= 0:
-            raise ConfigError(f"traj.max_abs_m: must be > 0, got {max_abs_m}")
+        check_arg_ranges(CsvReference, locals(), "traj")
         t, pos = load_csv_reference(path)
         self.path = path
         self.t_s = t * time_scale

@@ -7,6 +7,8 @@ import math
 import torch
 from torch import Tensor
 
+from datt.configuration import NON_NEGATIVE, POSITIVE, check_arg_ranges
+from datt.errors import ConfigError
 from datt.refs.base import RefFamily, planar
 
 
@@ -78,6 +80,13 @@ class Poly(RefFamily):
     that amplitude (keeps the end positions at the origin). After ``duration_s`` the reference
     holds the origin. Mean speed (``traj=poly``, 1000 draws): ≈ 0.41 m/s."""
 
+    ARG_RANGES = {
+        "duration_s": POSITIVE,
+        "vel_max_mps": NON_NEGATIVE,
+        "acc_max_mps2": NON_NEGATIVE,
+        "max_amplitude_m": POSITIVE,
+    }
+
     def __init__(
         self,
         duration_s: float = 10.0,
@@ -85,8 +94,7 @@ class Poly(RefFamily):
         acc_max_mps2: float = 1.0,
         max_amplitude_m: float = 1.5,
     ) -> None:
-        if duration_s <= 0 or vel_max_mps < 0 or acc_max_mps2 < 0 or max_amplitude_m <= 0:
-            raise ValueError("traj: duration_s > 0, vel_max_mps >= 0, acc_max_mps2 >= 0, max_amplitude_m > 0")
+        check_arg_ranges(Poly, locals(), "traj")
         self.duration_s = duration_s
         self.vel_max = vel_max_mps
         self.acc_max = acc_max_mps2
@@ -123,9 +131,12 @@ class ChainedPoly(RefFamily):
     Mean speed (``traj=chained_poly``, 1000 draws): ≈ 0.72 m/s.
     """
 
+    ARG_RANGES = {"piece_min_s": POSITIVE, "piece_max_s": POSITIVE, "knot_vel_max_mps": NON_NEGATIVE}
+
     def __init__(self, piece_min_s: float = 1.5, piece_max_s: float = 4.0, knot_vel_max_mps: float = 1.5) -> None:
-        if not 0 < piece_min_s <= piece_max_s:
-            raise ValueError(f"traj.piece_min_s/piece_max_s: need 0 < min <= max, got {piece_min_s}, {piece_max_s}")
+        check_arg_ranges(ChainedPoly, locals(), "traj")
+        if not piece_min_s <= piece_max_s:
+            raise ConfigError(f"traj.piece_min_s/piece_max_s: need 0 < min <= max, got {piece_min_s}, {piece_max_s}")
         self.piece_min_s = piece_min_s
         self.piece_max_s = piece_max_s
         self.knot_vel_max = knot_vel_max_mps

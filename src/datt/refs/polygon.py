@@ -7,7 +7,11 @@ import math
 import torch
 from torch import Tensor
 
+from datt.configuration import FINITE, NON_NEGATIVE, POSITIVE, Range, check_arg_ranges
+from datt.errors import ConfigError
 from datt.refs.base import RefFamily, piecewise_linear, planar
+
+POINTS = Range(3, 1000, integer=True)  # corners of one polygon
 
 
 class Polygon(RefFamily):
@@ -27,6 +31,17 @@ class Polygon(RefFamily):
     step 2, r = 0.7 m, first vertex (0.7, 0), 1 m/s (≈ 0.99 m/s with the lead-in), 1 s lead-in.
     """
 
+    ARG_RANGES = {
+        "points_min": POINTS,
+        "points_max": POINTS,
+        "step": Range(1, 1000, integer=True),
+        "radius_m": POSITIVE,
+        "speed_min_mps": POSITIVE,
+        "speed_max_mps": POSITIVE,
+        "lead_in_s": NON_NEGATIVE,
+        "phase_deg": FINITE,
+    }
+
     def __init__(
         self,
         points_min: int = 3,
@@ -40,12 +55,15 @@ class Polygon(RefFamily):
         phase_deg: float = 90.0,
         random_rotation: bool = True,
     ) -> None:
-        if not 3 <= points_min <= points_max:
-            raise ValueError(f"traj.points_min/points_max: need 3 <= min <= max, got {points_min}, {points_max}")
+        check_arg_ranges(Polygon, locals(), "traj")
+        if not points_min <= points_max:
+            raise ConfigError(f"traj.points_min/points_max: need 3 <= min <= max, got {points_min}, {points_max}")
         if step < 1 or any(math.gcd(p, step) != 1 for p in range(points_min, points_max + 1)):
-            raise ValueError(f"traj.step: must be >= 1 and coprime with every point count, got {step}")
-        if radius_m <= 0 or not 0 < speed_min_mps <= speed_max_mps or lead_in_s < 0:
-            raise ValueError("traj: radius_m > 0, 0 < speed_min_mps <= speed_max_mps, lead_in_s >= 0 required")
+            raise ConfigError(f"traj.step: must be >= 1 and coprime with every point count, got {step}")
+        if not speed_min_mps <= speed_max_mps:
+            raise ConfigError(
+                f"traj.speed_min_mps/speed_max_mps: need min <= max, got {speed_min_mps}, {speed_max_mps}"
+            )
         self.points = (points_min, points_max)
         self.step = step
         self.radius_m = radius_m

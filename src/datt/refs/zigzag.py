@@ -7,6 +7,8 @@ import math
 import torch
 from torch import Tensor
 
+from datt.configuration import NON_NEGATIVE, POSITIVE, Range, check_arg_ranges
+from datt.errors import ConfigError
 from datt.refs.base import RefFamily, piecewise_linear, planar
 
 WAYPOINT_LAWS = ("alternating", "iid")
@@ -28,6 +30,13 @@ class Zigzag(RefFamily):
     2.0 m/s, the paper's "≈ 2 m/s"; ``traj=zigzag_iid`` (iid, 0.5-1.5 s) ≈ 1.0 m/s.
     """
 
+    ARG_RANGES = {
+        "seg_min_s": POSITIVE,
+        "seg_max_s": POSITIVE,
+        "range_m": NON_NEGATIVE,
+        "waypoints": Range(choices=WAYPOINT_LAWS),
+    }
+
     def __init__(
         self,
         seg_min_s: float = 0.6,
@@ -35,12 +44,9 @@ class Zigzag(RefFamily):
         range_m: float = 1.0,
         waypoints: str = "alternating",
     ) -> None:
-        if not 0 < seg_min_s <= seg_max_s:
-            raise ValueError(f"traj.seg_min_s/seg_max_s: need 0 < min <= max, got {seg_min_s}, {seg_max_s}")
-        if range_m < 0:
-            raise ValueError(f"traj.range_m: must be >= 0, got {range_m}")
-        if waypoints not in WAYPOINT_LAWS:
-            raise ValueError(f"traj.waypoints: unknown value {waypoints!r}; allowed: {', '.join(WAYPOINT_LAWS)}")
+        check_arg_ranges(Zigzag, locals(), "traj")
+        if not seg_min_s <= seg_max_s:
+            raise ConfigError(f"traj.seg_min_s/seg_max_s: need 0 < min <= max, got {seg_min_s}, {seg_max_s}")
         self.seg_min_s = seg_min_s
         self.seg_max_s = seg_max_s
         self.range_m = range_m

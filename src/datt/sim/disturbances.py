@@ -21,6 +21,8 @@ from collections.abc import Sequence
 import torch
 from torch import Tensor
 
+from datt.configuration import NON_NEGATIVE, POSITIVE, Range, check_arg_ranges
+from datt.errors import ConfigError
 from datt.sim.frames import quat_body_z, quat_rotate, quat_rotate_inverse
 from datt.sim.quadrotor import QuadState
 
@@ -64,9 +66,10 @@ NoDisturbance = Disturbance
 class ConstantForce(Disturbance):
     """Per-episode constant vector, each axis uniform in ``[-max_mps2, max_mps2]`` (paper: 3.5)."""
 
+    ARG_RANGES = {"max_mps2": NON_NEGATIVE}
+
     def __init__(self, max_mps2: float = 3.5) -> None:
-        if max_mps2 < 0:
-            raise ValueError(f"disturbance.max_mps2: must be >= 0, got {max_mps2}")
+        check_arg_ranges(ConstantForce, locals(), "disturbance")
         self.max_mps2 = float(max_mps2)
 
     def reset(self, idx: Tensor, state: QuadState) -> None:
@@ -78,10 +81,11 @@ class Brownian(ConstantForce):
     every step with ``Σ = sigma2 I`` (paper: 0.01, units m²/s⁵ so that d's variance grows by
     ``sigma2`` per second)."""
 
+    ARG_RANGES = {"sigma2": NON_NEGATIVE}
+
     def __init__(self, max_mps2: float = 3.5, sigma2: float = 0.01) -> None:
         super().__init__(max_mps2)
-        if sigma2 < 0:
-            raise ValueError(f"disturbance.sigma2: must be >= 0, got {sigma2}")
+        check_arg_ranges(Brownian, locals(), "disturbance")
         self.sigma2 = float(sigma2)
 
     def update(self, state: QuadState) -> Tensor:
@@ -109,6 +113,19 @@ class Wind(Disturbance):
     per unit mass per (m/s)²). At 3 m/s relative speed the default 0.25 gives 2.25 m/s².
     """
 
+    ARG_RANGES = {
+        "speed_min_mps": NON_NEGATIVE,
+        "speed_max_mps": NON_NEGATIVE,
+        "drag_coef_per_m": NON_NEGATIVE,
+        "num_modes": Range(0, 100, integer=True),
+        "spatial_amp": NON_NEGATIVE,
+        "wavelength_min_m": POSITIVE,
+        "wavelength_max_m": POSITIVE,
+        "gust_std_mps": NON_NEGATIVE,
+        "gust_tau_s": POSITIVE,
+        "gust_vertical_ratio": NON_NEGATIVE,
+    }
+
     def __init__(
         self,
         speed_min_mps: float = 1.5,
@@ -122,10 +139,11 @@ class Wind(Disturbance):
         gust_tau_s: float = 0.5,
         gust_vertical_ratio: float = 0.3,
     ) -> None:
-        if not 0 <= speed_min_mps <= speed_max_mps:
-            raise ValueError("disturbance.speed_min_mps/speed_max_mps: need 0 <= min <= max")
-        if drag_coef_per_m < 0 or gust_std_mps < 0 or gust_tau_s <= 0 or num_modes < 0:
-            raise ValueError("disturbance: drag_coef_per_m, gust_std_mps, num_modes must be >= 0 and gust_tau_s > 0")
+        check_arg_ranges(Wind, locals(), "disturbance")
+        if not speed_min_mps <= speed_max_mps:
+            raise ConfigError("disturbance.speed_min_mps/speed_max_mps: need 0 <= min <= max")
+        if not wavelength_min_m <= wavelength_max_m:
+            raise ConfigError("disturbance.wavelength_min_m/wavelength_max_m: need 0 < min <= max")
         self.speed_min_mps = speed_min_mps
         self.speed_max_mps = speed_max_mps
         self.drag_coef = drag_coef_per_m
@@ -201,14 +219,15 @@ class DragPlate(Disturbance):
     plate faces body x (a vertical plate), so drag is largest along x.
     """
 
+    ARG_RANGES = {"mass_ratio": NON_NEGATIVE, "drag_coef_body_per_m": Range(0.0, length=3)}  # body x, y, z
+
     def __init__(
         self,
         mass_ratio: float = 0.15,
         drag_coef_body_per_m: Sequence[float] = (0.6, 0.1, 0.2),
         wind: Wind | None = None,
     ) -> None:
-        if mass_ratio < 0 or any(c < 0 for c in drag_coef_body_per_m) or len(drag_coef_body_per_m) != 3:
-            raise ValueError("disturbance: mass_ratio >= 0 and three drag_coef_body_per_m >= 0 required")
+        check_arg_ranges(DragPlate, locals(), "disturbance")
         self.mass_ratio = float(mass_ratio)
         self.drag_coef = tuple(float(c) for c in drag_coef_body_per_m)
         self.wind = wind

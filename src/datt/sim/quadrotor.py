@@ -36,10 +36,13 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
+from datt.configuration import FRACTION, POSITIVE, Range, check_ranges, ranged
 from datt.sim.frames import quat_body_z, quat_exp_rotvec, quat_mul, quat_normalize
 
 _DTYPES = {"float32": torch.float32, "float64": torch.float64}
 RATE_MODELS = ("first_order", "second_order", "mixed")
+LATENCY_STEPS = Range(0, 100, integer=True)  # whole control steps of command delay
+SPREAD = Range(0.0, 1.0, high_open=True)  # a relative half-width: U(1 - s, 1 + s) stays positive
 
 
 def resolve_dtype(name: str | torch.dtype) -> torch.dtype:
@@ -68,55 +71,35 @@ class QuadrotorParams:
     model with ``kw_rate``, ``kt_rate``) or ``mixed`` (each drone draws one of the two).
     """
 
-    gravity_mps2: float = 9.81
-    k_thrust: float = 0.4
-    k_rate: float = 0.4
-    latency_steps: int = 1
-    initial_thrust_mps2: float | None = None
-    max_thrust_mps2: float = 40.0
-    max_rate_radps: float = 40.0
-    mass_spread: float = 0.0
-    thrust_gain_spread: float = 0.0
-    latency_steps_max: int | None = None
-    rate_model: str = "first_order"
-    kw_rate: float = 0.4
-    kt_rate: float = 0.6
+    gravity_mps2: float = ranged(9.81, POSITIVE)
+    k_thrust: float = ranged(0.4, FRACTION)
+    k_rate: float = ranged(0.4, FRACTION)
+    latency_steps: int = ranged(1, LATENCY_STEPS)
+    initial_thrust_mps2: float | None = ranged(None, Range(0.0, optional=True))
+    max_thrust_mps2: float = ranged(40.0, POSITIVE)
+    max_rate_radps: float = ranged(40.0, POSITIVE)
+    mass_spread: float = ranged(0.0, SPREAD)
+    thrust_gain_spread: float = ranged(0.0, SPREAD)
+    latency_steps_max: int | None = ranged(None, Range(0, 100, integer=True, optional=True))
+    rate_model: str = ranged("first_order", Range(choices=RATE_MODELS))
+    kw_rate: float = ranged(0.4, FRACTION)
+    kt_rate: float = ranged(0.6, FRACTION)
 
     @property
     def max_latency_steps(self) -> int:
         return self.latency_steps if self.latency_steps_max is None else int(self.latency_steps_max)
 
     def validate(self, prefix: str = "env.quad") -> None:
+        """Rules across fields (each field's own range is declared with it, :func:`ranged`)."""
         from datt.errors import ConfigError
 
-        for key in ("k_thrust", "k_rate"):
-            val = getattr(self, key)
-            if not 0.0 < val <= 1.0:
-                raise ConfigError(f"{prefix}.{key}: must be in (0, 1], got {val}")
-        if self.latency_steps < 0:
-            raise ConfigError(f"{prefix}.latency_steps: must be >= 0, got {self.latency_steps}")
-        if not self.max_thrust_mps2 > 0:
-            raise ConfigError(f"{prefix}.max_thrust_mps2: must be > 0, got {self.max_thrust_mps2}")
-        if not self.max_rate_radps > 0:
-            raise ConfigError(f"{prefix}.max_rate_radps: must be > 0, got {self.max_rate_radps}")
-        for key in ("mass_spread", "thrust_gain_spread"):
-            val = getattr(self, key)
-            if not 0.0 <= val < 1.0:
-                raise ConfigError(f"{prefix}.{key}: must be in [0, 1) (a relative half-width), got {val}")
+        check_ranges(self, prefix)
         top = self.latency_steps_max
-        if top is not None and (isinstance(top, bool) or int(top) != top or top < self.latency_steps):
+        if top is not None and top < self.latency_steps:
             raise ConfigError(
                 f"{prefix}.latency_steps_max: must be null or an integer >= latency_steps "
                 f"({self.latency_steps}), got {top!r}"
             )
-        if self.rate_model not in RATE_MODELS:
-            raise ConfigError(
-                f"{prefix}.rate_model: unknown value {self.rate_model!r}; allowed: {', '.join(RATE_MODELS)}"
-            )
-        for key in ("kw_rate", "kt_rate"):
-            val = getattr(self, key)
-            if not 0.0 < val <= 1.0:
-                raise ConfigError(f"{prefix}.{key}: must be in (0, 1], got {val}")
 
 
 @dataclass

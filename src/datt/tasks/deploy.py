@@ -81,6 +81,9 @@ def _mocap_source(params: DeployParams, server):
 def run_deploy(cfg: DictConfig, run_dir: Path | None = None, estop=None, server_hook=None) -> dict:
     """Fly (or calibrate) once; returns the flight summary written to ``events.json``.
     ``server_hook(server, runner)`` lets tests inject faults once the flight objects exist."""
+    from datt.tasks.validation import validate_config
+
+    validate_config("deploy", cfg)
     params, flight, safety, thrust = deploy_params(cfg.deploy)
     run_dir = run_dir or hydra_run_dir()
     run_dir.mkdir(parents=True, exist_ok=True)

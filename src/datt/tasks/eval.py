@@ -13,6 +13,7 @@ from datt.control.factory import build_controller
 from datt.eval.conditions import evaluate_conditions, measure_inference, print_metrics, write_metrics_csv
 from datt.eval.schema import EvalParams
 from datt.tasks.common import console, hydra_run_dir, set_threads
+from datt.tasks.validation import validate_config
 
 
 def bank_of_given_traj(cfg: DictConfig, count: int) -> DictConfig:
@@ -32,6 +33,7 @@ def bank_of_given_traj(cfg: DictConfig, count: int) -> DictConfig:
 
 def run_eval(cfg: DictConfig, run_dir: Path | None = None) -> dict:
     """Evaluate ``cfg.controller``; writes ``metrics.json``, ``metrics.csv`` (and traces/plots)."""
+    validate_config("eval", cfg)
     params = structured(EvalParams, cfg.eval, "eval")
     cfg = bank_of_given_traj(cfg, params.traj_count)
     run_dir = run_dir or hydra_run_dir()

@@ -16,7 +16,8 @@ from datt.tasks.common import console, hydra_run_dir, set_threads
 FORMATS = ("c", "app", "torchscript", "onnx")
 
 
-def run_export(cfg: DictConfig, run_dir: Path | None = None) -> list[Path]:
+def check_export_options(cfg: DictConfig) -> None:
+    """``format`` and ``prefix`` of ``conf/export.yaml``."""
     fmt = str(cfg.format)
     if fmt not in FORMATS:
         raise ConfigError(f"format: unknown value {fmt!r}; allowed: {', '.join(FORMATS)}")
@@ -25,6 +26,13 @@ def run_export(cfg: DictConfig, run_dir: Path | None = None) -> list[Path]:
         raise ConfigError(f"prefix: must be a C identifier, got {prefix!r}")
     if fmt == "app" and prefix != "datt":
         raise ConfigError(f"prefix: format=app uses the prefix datt (its sources call datt_*), got {prefix!r}")
+
+
+def run_export(cfg: DictConfig, run_dir: Path | None = None) -> list[Path]:
+    from datt.tasks.validation import validate_config
+
+    validate_config("export", cfg)
+    fmt, prefix = str(cfg.format), str(cfg.prefix)
     set_threads(cfg.threads)
     out = Path(str(cfg.out_dir)) if cfg.out_dir else (run_dir or hydra_run_dir())
     if not out.is_absolute():

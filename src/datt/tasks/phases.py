@@ -22,7 +22,7 @@ import shutil
 from pathlib import Path
 from typing import Any
 
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig, ListConfig, OmegaConf
 
 from datt.errors import ConfigError, TrainingInterrupted
 from datt.runs import atomic_write, finite_json, read_failure, write_json
@@ -40,7 +40,8 @@ def phase_plan(cfg: DictConfig) -> list[tuple[str, int, dict[str, Any]]]:
     """``train.phases`` checked: ``[(dir name, steps, {dotted key: value})]``. Every key must exist
     in the config (a typo would silently train the wrong schedule), and the phases' steps must add
     up to ``train.total_steps`` (the run's total, which budget, resume and tables read)."""
-    phases = OmegaConf.to_container(cfg.train.phases, resolve=True)
+    node = cfg.train.phases
+    phases = OmegaConf.to_container(node, resolve=True) if isinstance(node, ListConfig | DictConfig) else node
     if not isinstance(phases, list):
         raise ConfigError(f"train.phases: must be a list of {{name, steps, set}} or null, got {phases!r}")
     plan, names = [], set()

@@ -3,7 +3,6 @@ paper's table as Markdown, CSV and LaTeX, with plots."""
 
 from __future__ import annotations
 
-import subprocess
 import sys
 import time
 from dataclasses import dataclass, field
@@ -13,21 +12,21 @@ from typing import Any
 from omegaconf import MISSING, DictConfig
 from rich.table import Table
 
-from datt.configuration import structured
-from datt.errors import ConfigError
+from datt.configuration import Range, ranged, structured
+from datt.errors import ConfigError, TrainingInterrupted
 from datt.eval import tables
 from datt.paths import original_cwd, resolve_path
+from datt.runs import run_stoppable
 from datt.tasks.common import console
 
 
 @dataclass
 class SideBySide:
     group: str = MISSING
-    index: int = MISSING
+    index: int = ranged(MISSING, Range(0, 100_000, integer=True))
 
     def validate(self) -> None:
-        if self.index < 0:
-            raise ConfigError(f"side_by_side.index: must be >= 0, got {self.index}")
+        pass  # every rule is a field's own range
 
 
 @dataclass
@@ -48,7 +47,7 @@ class TablesParams:
 
 def run_tables(cfg: DictConfig, run_dir: Path | None = None) -> dict:
     """Build one table; returns the files written, its rows and the number of jobs read."""
-    params = structured(TablesParams, cfg, "tables")
+    params = structured(TablesParams, cfg, "")
     spec = tables.get_spec(params.table)
     outputs = original_cwd() / "outputs"
     if params.run:
@@ -57,7 +56,12 @@ def run_tables(cfg: DictConfig, run_dir: Path | None = None) -> dict:
         overrides = [*params.sweep_overrides, f"hydra.sweep.dir={sweep_dir}"]
         cmd = [sys.executable, "-m", "datt", command, f"+sweep={spec.name}", *overrides]
         console.print("running: " + " ".join(cmd[1:]))
-        code = subprocess.run(cmd, cwd=original_cwd()).returncode
+        code, stopped_by = run_stoppable(cmd, cwd=original_cwd())
+        if stopped_by:
+            raise TrainingInterrupted(
+                f"{stopped_by}: the {spec.name} sweep was stopped; its finished jobs are kept in {sweep_dir} "
+                f"(the table of what finished: python tables.py {spec.name} runs={sweep_dir})"
+            )
         if code != 0 and not (sweep_dir / "multirun.yaml").is_file():  # refused before any job started
             raise ConfigError(f"run: the {spec.name} sweep did not start (see its output above)")
         if code != 0:

@@ -18,6 +18,7 @@ from datt.runs import RunLock, finite_json, record_failure, write_json
 from datt.tasks.common import console, hydra_run_dir, set_threads
 from datt.tasks.phases import is_phased, phase_plan, run_phases
 from datt.tasks.resume import finished_frames, resume_config, resume_dir
+from datt.tasks.validation import validate_config
 from datt.train.loggers import CsvLogger, MultiLogger, WandbLogger
 from datt.train.ppo import Trainer
 from datt.train.schema import TrainParams, budget_factor, check_ablation, run_params
@@ -45,6 +46,7 @@ def run_train(cfg: DictConfig, run_dir: Path | None = None) -> dict:
 
     ``resume=<run>`` carries on that run with its own saved config (:mod:`datt.tasks.resume`);
     the run dir is locked while this process writes it."""
+    validate_config("train", cfg)
     run = run_params(cfg)
     train = structured(TrainParams, cfg.train, "train")
     check_ablation(cfg)
@@ -58,6 +60,7 @@ def run_train(cfg: DictConfig, run_dir: Path | None = None) -> dict:
     resumed = resume_dir(run.resume)
     if resumed is not None:
         cfg = resume_config(cfg, resumed, config_groups(search_roots()))
+        validate_config("train", cfg)  # the run's saved config is a file: checked like a command line
         _drop_own_hydra_dir(resumed, run_dir)
         done = finished_frames(resumed, int(int(cfg.train.total_steps) * budget_factor(cfg)))
         if done is not None:  # report, write nothing

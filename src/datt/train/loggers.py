@@ -8,11 +8,35 @@ import csv
 import math
 import os
 from collections.abc import Mapping
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from omegaconf import MISSING
+
+from datt.configuration import Range, ranged
 from datt.errors import ConfigError, one_line
 from datt.runs import atomic_write
+
+WANDB_MODES = ("offline", "online", "disabled")
+
+
+@dataclass
+class LoggerParams:
+    """``logger`` (``conf/logger/csv.yaml``: CSV only; ``wandb.yaml``: CSV + wandb). The wandb
+    keys are unused (and may be left out) when ``wandb`` is false."""
+
+    wandb: bool = MISSING
+    mode: str | None = ranged(None, Range(choices=WANDB_MODES, optional=True))
+    project: str | None = None
+    group: str | None = None
+    tags: list[str] = field(default_factory=list)
+
+    def validate(self) -> None:
+        if self.wandb and self.mode is None:
+            raise ConfigError(f"logger.mode: must be one of {', '.join(WANDB_MODES)} with logger.wandb=true")
+        if self.wandb and not self.project:
+            raise ConfigError("logger.project: must name the wandb project with logger.wandb=true")
 
 
 class Logger:

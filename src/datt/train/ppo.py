@@ -31,7 +31,20 @@ from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
 
 from datt.checkpoint import load_checkpoint, save_checkpoint
-from datt.configuration import check_targets, instantiate_option, structured
+from datt.configuration import (
+    BATCH,
+    FRACTION,
+    NON_NEGATIVE,
+    POSITIVE,
+    POSITIVE_OR_NONE,
+    UNIT_INTERVAL,
+    Range,
+    check_ranges,
+    check_targets,
+    instantiate_option,
+    ranged,
+    structured,
+)
 from datt.envs.factory import env_params_from_cfg, make_env
 from datt.errors import ConfigError, TrainingDiverged, TrainingInterrupted
 from datt.paths import resolve_path
@@ -58,11 +71,11 @@ def adapt_lr(lr: float, kl: float, algo: AlgoParams) -> float:
 class AlgoParams:
     """``conf/algo/ppo.yaml``."""
 
-    num_envs: int = 1024
-    rollout_steps: int = 32
-    epochs: int = 4
-    minibatch_size: int = 2048
-    lr: float = 1e-3
+    num_envs: int = ranged(1024, BATCH)
+    rollout_steps: int = ranged(32, Range(1, 100_000, integer=True))
+    epochs: int = ranged(4, Range(1, 1000, integer=True))
+    minibatch_size: int = ranged(2048, BATCH)
+    lr: float = ranged(1e-3, POSITIVE)
     # constant | linear | exponential: to lr_final_frac * lr along a straight line, or
     # geometrically (the same factor every frame, so more of the run at low lr); adaptive_kl:
     # start at lr and, before every gradient step, divide it by 1.5 when the minibatch's KL from
@@ -70,46 +83,35 @@ class AlgoParams:
     # is below desired_kl / 2, within [lr_min, lr_max] (the rule of rsl_rl's PPO; lr_max null =
     # lr: the schedule only ever lowers the configured lr). The step size then follows the
     # policy's own sensitivity instead of the frame count.
-    lr_schedule: str = "linear"
-    lr_final_frac: float = 0.05
-    desired_kl: float = 0.05
-    lr_min: float = 1e-5
-    lr_max: float | None = None
+    lr_schedule: str = ranged("linear", Range(choices=LR_SCHEDULES))
+    lr_final_frac: float = ranged(0.05, UNIT_INTERVAL)
+    desired_kl: float = ranged(0.05, POSITIVE)
+    lr_min: float = ranged(1e-5, POSITIVE)
+    lr_max: float | None = ranged(None, POSITIVE_OR_NONE)
     # 0.95 (a return horizon of ~20 steps, 0.4 s) rather than SB3's 0.99 (~2 s): the policy sees
     # the reference 0.54 s ahead, so with 0.99 most of the return depends on reference it cannot
     # see, and that noise swamps the advantage of a precise action (docs/training.md).
-    gamma: float = 0.95
-    lmbda: float = 0.95
-    clip_epsilon: float = 0.2
-    entropy_coeff: float = 0.0
-    critic_coeff: float = 0.5
-    loss_critic_type: str = "l2"
-    max_grad_norm: float = 0.5
+    gamma: float = ranged(0.95, FRACTION)
+    lmbda: float = ranged(0.95, UNIT_INTERVAL)
+    clip_epsilon: float = ranged(0.2, Range(0.0, 1.0, low_open=True))
+    entropy_coeff: float = ranged(0.0, NON_NEGATIVE)
+    critic_coeff: float = ranged(0.5, POSITIVE)
+    loss_critic_type: str = ranged("l2", Range(choices=("l1", "l2", "smooth_l1")))
+    max_grad_norm: float = ranged(0.5, POSITIVE)
     normalize_advantage: bool = True
     # Rewards are multiplied by this before GAE (returns here are O(100): 500-step episodes, the
     # crash penalty). 0.01 ≈ (1 − γ) keeps values O(1), but measured by time to accuracy the
     # unscaled rewards learned faster (docs/training.md), so 1.0 is the default.
-    reward_scale: float = 1.0
+    reward_scale: float = ranged(1.0, POSITIVE)
 
     def validate(self) -> None:
+        """Rules across fields (each field's own range is declared with it, :func:`ranged`)."""
+
         def need(ok: bool, key: str, msg: str) -> None:
             if not ok:
                 raise ConfigError(f"algo.{key}: {msg}")
 
-        need(self.num_envs >= 1, "num_envs", f"must be >= 1, got {self.num_envs}")
-        need(self.rollout_steps >= 1, "rollout_steps", f"must be >= 1, got {self.rollout_steps}")
-        need(self.epochs >= 1, "epochs", f"must be >= 1, got {self.epochs}")
-        need(self.minibatch_size >= 1, "minibatch_size", f"must be >= 1, got {self.minibatch_size}")
-        need(self.lr > 0, "lr", f"must be > 0, got {self.lr}")
-        need(0 <= self.lr_final_frac <= 1, "lr_final_frac", f"must be in [0, 1], got {self.lr_final_frac}")
-        need(self.reward_scale > 0, "reward_scale", f"must be > 0, got {self.reward_scale}")
-        need(
-            self.lr_schedule in LR_SCHEDULES,
-            "lr_schedule",
-            f"unknown value {self.lr_schedule!r}; allowed: {', '.join(LR_SCHEDULES)}",
-        )
-        need(self.desired_kl > 0, "desired_kl", f"must be > 0, got {self.desired_kl}")
-        need(self.lr_min > 0, "lr_min", f"must be > 0, got {self.lr_min}")
+        check_ranges(self, "algo")
         need(
             self.lr_schedule != "adaptive_kl" or self.lr_min <= self.lr <= self.lr_cap,
             "lr",
@@ -119,13 +121,6 @@ class AlgoParams:
             self.lr_schedule != "exponential" or self.lr_final_frac > 0,
             "lr_final_frac",
             "must be > 0 with lr_schedule=exponential (a geometric decay never reaches 0)",
-        )
-        need(0 < self.gamma <= 1, "gamma", f"must be in (0, 1], got {self.gamma}")
-        need(0 <= self.lmbda <= 1, "lmbda", f"must be in [0, 1], got {self.lmbda}")
-        need(
-            self.loss_critic_type in ("l1", "l2", "smooth_l1"),
-            "loss_critic_type",
-            f"unknown value {self.loss_critic_type!r}; allowed: l1, l2, smooth_l1",
         )
 
     @property

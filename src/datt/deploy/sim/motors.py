@@ -15,6 +15,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from datt.configuration import NON_NEGATIVE, POSITIVE, POSITIVE_OR_NONE, check_ranges, ranged
 from datt.errors import ConfigError
 
 UINT16_MAX = 65535
@@ -26,15 +27,15 @@ VMOTOR2THRUST_21_PLUS = (-0.02476537915958403, 0.06523793527519485, -0.026792504
 class MotorParams:
     """``deploy.server`` motor keys: the simulated vehicle and the firmware it runs."""
 
-    mass_kg: float = 0.034
-    thrust_max_n: float = 0.12  # the simulated firmware's THRUST_MAX (0.1125 before 2025-11)
-    thrust_min_n: float = 0.012817578393224994  # THRUST_MIN: below it the firmware stops the motor
-    thrust_gain: float = 1.0  # real motor force / the firmware's fit
+    mass_kg: float | None = ranged(0.034, POSITIVE_OR_NONE)  # null in the config: deploy.thrust.mass_kg
+    thrust_max_n: float = ranged(0.12, POSITIVE)  # the simulated firmware's THRUST_MAX (0.1125 before 2025-11)
+    thrust_min_n: float = ranged(0.012817578393224994, NON_NEGATIVE)  # THRUST_MIN: below it the motor stops
+    thrust_gain: float = ranged(1.0, POSITIVE)  # real motor force / the firmware's fit
 
     def validate(self) -> None:
-        for key in ("mass_kg", "thrust_max_n", "thrust_gain"):
-            if not getattr(self, key) > 0:
-                raise ConfigError(f"deploy.server.{key}: must be > 0, got {getattr(self, key)}")
+        check_ranges(self, "deploy.server")
+        if self.mass_kg is None:
+            raise ConfigError("deploy.server.mass_kg: the simulated vehicle needs a mass")
 
 
 class FirmwareMotors:

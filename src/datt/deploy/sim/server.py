@@ -58,10 +58,11 @@ import struct
 import threading
 import time
 import zlib
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 
 import torch
 
+from datt.configuration import NON_NEGATIVE, SEED, Range, ranged
 from datt.deploy import crtp
 from datt.deploy.onboard import READ_ONLY as APP_READ_ONLY
 from datt.deploy.sim.motors import FirmwareMotors, MotorParams
@@ -153,26 +154,63 @@ def _toc_crc(entries: list[tuple]) -> int:
 class SimCrazyflieParams:
     host: str = "127.0.0.1"
     port: int = 19850
-    dt_s: float = 0.02
-    battery_v: float = 4.1
-    battery_drain_vps: float = 0.002
-    start_pos_m: tuple = (0.0, 0.0, 0.0)
+    dt_s: float = ranged(0.02, Range(0.0, 1.0, low_open=True))
+    battery_v: float = ranged(4.1, Range(2.5, 4.5))  # a 1S LiPo
+    battery_drain_vps: float = ranged(0.002, NON_NEGATIVE)
+    start_pos_m: tuple = ranged((0.0, 0.0, 0.0), Range(length=3))
     motors: MotorParams = field(default_factory=MotorParams)  # the vehicle's own (datt.deploy.sim.motors)
     decks: tuple = ()  # deck param names present, e.g. ("bcLighthouse4",): 0 = any then picks Kalman
-    boot_yaw_deg: float = 0.0  # heading at start-up in the mocap frame (onboard yaw is relative to it)
-    dead_reckoning_drift_mps: float = 0.2  # Kalman estimate error growth without measurements (along x)
-    radio_latency_s: float = 0.005  # each way (host -> vehicle, vehicle -> host): 10 ms round trip
-    radio_loss: float = 0.0  # probability a setpoint, mocap or log packet is lost (after the radio's retries)
-    radio_seed: int = 0
+    boot_yaw_deg: float = ranged(
+        0.0, Range(-360.0, 360.0)
+    )  # heading at start-up in the mocap frame (onboard yaw is relative to it)
+    dead_reckoning_drift_mps: float = ranged(
+        0.2, NON_NEGATIVE
+    )  # Kalman estimate error growth without measurements (along x)
+    radio_latency_s: float = ranged(
+        0.005, Range(0.0, 1.0)
+    )  # each way (host -> vehicle, vehicle -> host): 10 ms round trip
+    radio_loss: float = ranged(
+        0.0, Range(0.0, 1.0, high_open=True)
+    )  # probability a setpoint, mocap or log packet is lost (after the radio's retries)
+    radio_seed: int = ranged(0, SEED)
     onboard_library: str | None = None  # the DATT app's C as a shared library (datt.export.app); None = no app
-    radio_cut_after_start_s: float | None = None  # the radio goes silent this long after the app starts
+    radio_cut_after_start_s: float | None = ranged(
+        None, Range(0.0, optional=True)
+    )  # the radio goes silent this long after the app starts
     refuse_arming: bool = False  # the supervisor refuses to arm (a firmware whose preflight checks fail)
-    radio_jitter_s: float = 0.0  # each packet's delay: radio_latency_s + U(0, radio_jitter_s), in order
-    radio_burst_len: float = 1.0  # mean length of a run of lost packets (<= 1 / (1 - radio_loss): independent)
-    vel_noise_std_mps: float = 0.0  # the estimate's velocity error (first-order, 0.2 s correlation)
-    att_noise_std_rad: float = 0.0  # the estimate's roll/pitch/yaw error (first-order, 0.2 s correlation)
+    radio_jitter_s: float = ranged(
+        0.0, Range(0.0, 1.0)
+    )  # each packet's delay: radio_latency_s + U(0, radio_jitter_s), in order
+    radio_burst_len: float = ranged(
+        1.0, Range(1.0, 1000.0)
+    )  # mean length of a run of lost packets (<= 1 / (1 - radio_loss): independent)
+    vel_noise_std_mps: float = ranged(
+        0.0, NON_NEGATIVE
+    )  # the estimate's velocity error (first-order, 0.2 s correlation)
+    att_noise_std_rad: float = ranged(
+        0.0, NON_NEGATIVE
+    )  # the estimate's roll/pitch/yaw error (first-order, 0.2 s correlation)
     boot_params: dict = field(default_factory=dict)  # parameter values at power-on ("group.name": value),
     # e.g. what an earlier flight left: parameters persist until a reboot
+
+
+def check_server_settings(node: dict, key: str = "deploy.server") -> None:
+    """``deploy.server`` (the vehicle's keys of :class:`SimCrazyflieParams` and its motors'
+    :class:`~datt.deploy.sim.motors.MotorParams`): every key known, every value in its range."""
+    known = {f.name: f for f in fields(SimCrazyflieParams) if f.name not in ("host", "port", "motors")}
+    known.update({f.name: f for f in fields(MotorParams)})
+    for name, value in node.items():
+        if name not in known:
+            raise ConfigError(f"{key}.{name}: no such setting; allowed: {', '.join(sorted(known))}")
+        rng = known[name].metadata.get("range")
+        if rng is not None:
+            rng.check(list(value) if isinstance(value, (list, tuple)) else value, f"{key}.{name}")
+        if name == "refuse_arming" and not isinstance(value, bool):
+            raise ConfigError(f"{key}.{name}: must be true or false, got {value!r}")
+        if name == "decks" and (
+            not isinstance(value, (list, tuple)) or any(deck not in POSITIONING_DECKS for deck in value)
+        ):
+            raise ConfigError(f"{key}.decks: must be a list of {', '.join(POSITIONING_DECKS)} (or []), got {value!r}")
 
 
 class SimCrazyflie:
