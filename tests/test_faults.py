@@ -586,3 +586,23 @@ def test_10_tables_run_stops_its_sweep_on_sigterm_and_keeps_what_finished(tmp_pa
     time.sleep(1.0)
     ps = subprocess.run(["ps", "-eo", "args"], capture_output=True, text=True).stdout
     assert str(sweep) not in ps  # no process of the sweep outlived the command
+
+
+def test_10_sigterm_ends_an_evaluation_in_one_line(tmp_path):
+    """A command without its own stop point (eval) ends on SIGTERM as on Ctrl-C: one line, 130
+    (it used to die by the signal with no message)."""
+    proc = subprocess.Popen(
+        [sys.executable, str(ROOT / "eval.py"), "controller=mppi", f"hydra.run.dir={tmp_path / 'e'}"],
+        cwd=tmp_path,
+        stderr=subprocess.PIPE,
+        stdout=subprocess.DEVNULL,
+        text=True,
+    )
+    deadline = time.time() + 120
+    while time.time() < deadline and not (tmp_path / "e").is_dir():
+        time.sleep(0.2)
+    time.sleep(2.0)  # inside the task
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=120)
+    lines = [ln for ln in err.splitlines() if ln.strip() and "warn" not in ln.lower()]
+    assert proc.returncode == 130 and lines == ["error: interrupted by SIGTERM"], err[-2000:]

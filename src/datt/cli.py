@@ -8,12 +8,15 @@ with the number of its jobs that did not finish.
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import re
+import signal
 import sys
 import tempfile
+import threading
 import traceback
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 from omegaconf import DictConfig
@@ -242,6 +245,27 @@ class SweepReport(_HydraCallback):
         print(f"sweep {sweep_dir}: {sum(counts.values())} jobs: {states or 'none'}", file=sys.stderr)
 
 
+@contextlib.contextmanager
+def sigterm_as_interrupt() -> Iterator[None]:
+    """SIGTERM ends a command like Ctrl-C (one line, exit 130; what was written stays), where the
+    task installs no handler of its own (training and flights stop at a safe point themselves)."""
+    if threading.current_thread() is not threading.main_thread() or signal.getsignal(signal.SIGTERM) not in (
+        signal.SIG_DFL,
+        None,
+    ):
+        yield
+        return
+
+    def interrupt(signum: int, frame: object) -> None:
+        raise KeyboardInterrupt("SIGTERM")
+
+    previous = signal.signal(signal.SIGTERM, interrupt)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
 def hydra_main(config_name: str, task: Callable[[DictConfig], object]) -> Callable[[], None]:
     """``task`` wrapped in ``@hydra.main`` (config tree from the package) with one-line errors.
 
@@ -255,7 +279,8 @@ def hydra_main(config_name: str, task: Callable[[DictConfig], object]) -> Callab
     def _main(cfg: DictConfig) -> None:
         multirun = _in_multirun()
         try:
-            task(cfg)
+            with sigterm_as_interrupt():
+                task(cfg)
         except ConfigError as exc:
             if not multirun:
                 _fail(str(exc), 2)
@@ -271,9 +296,9 @@ def hydra_main(config_name: str, task: Callable[[DictConfig], object]) -> Callab
         except FlightStopped as exc:
             ignore_stop_signals()
             _fail(f"flight {exc}", 130)
-        except KeyboardInterrupt:
+        except KeyboardInterrupt as exc:
             ignore_stop_signals()
-            _fail("interrupted", 130)
+            _fail(f"interrupted by {exc.args[0] if exc.args else 'SIGINT'}", 130)
         except TrainingDiverged as exc:
             if not multirun:
                 _fail(f"training diverged: {exc}", 3)
