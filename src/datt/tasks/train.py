@@ -19,7 +19,7 @@ from datt.tasks.common import console, hydra_run_dir, set_threads
 from datt.tasks.phases import is_phased, phase_plan, run_phases
 from datt.tasks.resume import finished_frames, resume_config, resume_dir
 from datt.tasks.validation import validate_config
-from datt.train.loggers import CsvLogger, MultiLogger, WandbLogger
+from datt.train.loggers import CsvLogger, MultiLogger, WandbLogger, eval_summary
 from datt.train.ppo import Trainer
 from datt.train.schema import TrainParams, budget_factor, check_ablation, run_params
 
@@ -121,13 +121,20 @@ def _train_locked(cfg: DictConfig, run_dir: Path, resumed: bool) -> dict:
     logger = trainer.logger
     console.print(f"run dir: {run_dir}")
     try:
+        return _train_and_evaluate(cfg, run_dir, trainer, run, train, end_eval)
+    finally:  # the wandb run holds the evaluation too: it closes after it (or on any error)
+        logger.close()
+
+
+def _train_and_evaluate(cfg, run_dir: Path, trainer, run, train, end_eval) -> dict:
+    """Train, then the end-of-run evaluation; every result goes to metrics.json and the loggers
+    (wandb's summary gets ``eval/<condition>/<group>/<stat>``, the plots and the table)."""
+    try:
         history = trainer.train()
     except TrainingDiverged as exc:
         # tables.py reports this run as "failed" (as the paper does for diverged ablations)
         record_failure(run_dir, "diverged", f"training diverged: {exc}", frames=trainer.frames)
         raise
-    finally:
-        logger.close()
     metrics = {
         "frames": trainer.frames,
         "train_wall_s": trainer.train_wall_s,  # summed over every segment of a resumed run
@@ -144,4 +151,16 @@ def _train_locked(cfg: DictConfig, run_dir: Path, resumed: bool) -> dict:
         metrics["hover_reference"] = hover
         print_metrics(console, f"evaluation ({run_dir.name})", {**metrics["conditions"], "hover (reference)": hover})
     write_json(run_dir / "metrics.json", metrics)
+    summary = {"frames": trainer.frames, "train_wall_s": trainer.train_wall_s}
+    summary.update(eval_summary(metrics.get("conditions") or {}))
+    rows = [
+        [cond, group, stats.get("mean_m"), stats.get("std_m"), stats.get("crashes"), stats.get("episodes")]
+        for cond, result in (metrics.get("conditions") or {}).items()
+        for group, stats in (result.get("groups") or {}).items()
+    ]
+    trainer.logger.results(
+        summary,
+        images={p.stem: p for p in sorted(run_dir.glob("*.png"))},
+        tables={"eval/table": (["condition", "group", "mean_m", "std_m", "crashes", "episodes"], rows)} if rows else {},
+    )
     return finite_json(metrics)

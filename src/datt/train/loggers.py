@@ -39,9 +39,32 @@ class LoggerParams:
             raise ConfigError("logger.project: must name the wandb project with logger.wandb=true")
 
 
+def eval_summary(conditions: Mapping[str, Any], prefix: str = "eval") -> dict[str, float]:
+    """An evaluation's conditions (``metrics.json``'s ``conditions``) as flat summary keys:
+    ``eval/<condition>/<group>/{mean_m, std_m, crashes, episodes}``."""
+    out: dict[str, float] = {}
+    for cond, result in conditions.items():
+        for group, stats in (result.get("groups") or {}).items():
+            for key in ("mean_m", "std_m", "crashes", "episodes"):
+                if key in stats:
+                    value = _plain(stats[key])
+                    # a group where every episode crashed has no mean: null, as in metrics.json
+                    out[f"{prefix}/{cond}/{group}/{key}"] = None if isinstance(value, str) else value
+    return out
+
+
 class Logger:
     def log(self, metrics: Mapping[str, float], step: int) -> None:
         raise NotImplementedError
+
+    def results(
+        self,
+        summary: Mapping[str, Any],
+        images: Mapping[str, Path] | None = None,
+        tables: Mapping[str, tuple[list[str], list[list[Any]]]] | None = None,
+    ) -> None:
+        """A run's results, once: ``summary`` keys (the numbers a table sorts by), plots and
+        tables (name -> (columns, rows)). CSV keeps them in metrics.json; wandb in the run."""
 
     def close(self) -> None:
         pass
@@ -120,6 +143,17 @@ class WandbLogger(Logger):
     def log(self, metrics: Mapping[str, float], step: int) -> None:
         self.run.log({k: _plain(v) for k, v in metrics.items()}, step=step)
 
+    def results(self, summary, images=None, tables=None) -> None:
+        self.run.summary.update({k: _plain(v) for k, v in summary.items()})
+        media: dict[str, Any] = {}
+        for name, path in (images or {}).items():
+            if Path(path).is_file():
+                media[name] = self._wandb.Image(str(path))
+        for name, (columns, rows) in (tables or {}).items():
+            media[name] = self._wandb.Table(columns=list(columns), data=[list(r) for r in rows])
+        if media:
+            self.run.log(media, commit=True)
+
     def close(self) -> None:
         self.run.finish()
 
@@ -131,6 +165,10 @@ class MultiLogger(Logger):
     def log(self, metrics: Mapping[str, float], step: int) -> None:
         for logger in self.loggers:
             logger.log(metrics, step)
+
+    def results(self, summary, images=None, tables=None) -> None:
+        for logger in self.loggers:
+            logger.results(summary, images, tables)
 
     def close(self) -> None:
         for logger in self.loggers:

@@ -1,0 +1,60 @@
+"""Read what an offline wandb run recorded: its ``run-<id>.wandb`` file, wandb's LevelDB-style
+log of protobuf ``Record`` messages (a 7-byte header ``:W&B`` + magic + version, then 32 KiB
+blocks of chunks: crc32 (4), length (2, little-endian), type (1: full, 2: first, 3: middle,
+4: last)). wandb 0.31 ships no Python reader for it, so the tests parse it with its protobuf."""
+
+from __future__ import annotations
+
+import json
+import struct
+from pathlib import Path
+
+HEADER_LEN = 7
+BLOCK_LEN = 32768
+CHUNK_HEADER = 7
+FULL, FIRST, MIDDLE, LAST = 1, 2, 3, 4
+
+
+def records(path: Path):
+    """Every Record of a ``.wandb`` file, in order."""
+    from wandb.proto import wandb_internal_pb2
+
+    data = Path(path).read_bytes()
+    assert data[:4] == b":W&B", f"{path} is not a wandb run record"
+    pos, pending = HEADER_LEN, b""
+    while pos + CHUNK_HEADER <= len(data):
+        left_in_block = BLOCK_LEN - pos % BLOCK_LEN
+        if left_in_block < CHUNK_HEADER:  # the block's tail is padding
+            pos += left_in_block
+            continue
+        _crc, length, kind = struct.unpack("<IHB", data[pos : pos + CHUNK_HEADER])
+        chunk = data[pos + CHUNK_HEADER : pos + CHUNK_HEADER + length]
+        pos += CHUNK_HEADER + length
+        if kind == 0 and length == 0:
+            continue
+        pending = chunk if kind in (FULL, FIRST) else pending + chunk
+        if kind in (FULL, LAST):
+            rec = wandb_internal_pb2.Record()
+            rec.ParseFromString(pending)
+            yield rec
+            pending = b""
+
+
+def summary_and_history(run_dir: Path) -> tuple[dict, set[str], list[str]]:
+    """(the run's final summary, the keys ever logged to its history, its run ids) over every
+    ``.wandb`` file under ``run_dir/wandb`` (a resumed run appends a second file)."""
+    summary: dict = {}
+    history: set[str] = set()
+    ids: list[str] = []
+    for path in sorted(Path(run_dir).glob("wandb/*run-*/run-*.wandb")):
+        for rec in records(path):
+            kind = rec.WhichOneof("record_type")
+            if kind == "run":
+                ids.append(rec.run.run_id)
+            elif kind == "summary":
+                for item in rec.summary.update:
+                    summary[item.key or "/".join(item.nested_key)] = json.loads(item.value_json)
+            elif kind == "history":
+                for item in rec.history.item:
+                    history.add(item.key or "/".join(item.nested_key))
+    return summary, history, ids
