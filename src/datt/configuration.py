@@ -19,7 +19,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig, ListConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
 from datt.errors import ConfigError, one_line
@@ -346,31 +346,35 @@ def registered_targets(roots: list[Path] | None = None) -> frozenset[str]:
     return _TARGETS_CACHE[key]
 
 
+def _dict_nodes(node: Any, where: str, resolve: bool) -> Iterator[tuple[str, dict]]:
+    """Every mapping in the config tree ``node`` (through lists), with its dotted key."""
+    stack: list[tuple[str, Any]] = [(where, node)]
+    while stack:
+        key, value = stack.pop()
+        if isinstance(value, (DictConfig, ListConfig)):
+            value = OmegaConf.to_container(value, resolve=resolve)
+        if isinstance(value, dict):
+            yield key, value
+            stack.extend((f"{key}.{k}", v) for k, v in value.items() if k != "_target_")
+        elif isinstance(value, list):
+            stack.extend((f"{key}[{i}]", v) for i, v in enumerate(value))
+
+
 def check_targets(node: Any, where: str, source: str | None = None) -> None:
     """Refuse, in one line, a ``_target_`` anywhere in ``node`` that is not a registered option's
     (:func:`registered_targets`): a config read from a checkpoint, run dir or bank is data, and
     may only select what the project's and the user's own options build. ``where``: the node's
     key (``traj``); ``source``: the file it was read from, named in the error."""
-    allowed = None
-    stack: list[tuple[str, Any]] = [(where, node)]
-    while stack:
-        key, value = stack.pop()
-        if isinstance(value, DictConfig):
-            value = OmegaConf.to_container(value, resolve=False)
-        if isinstance(value, dict):
-            for k, v in value.items():
-                if k == "_target_":
-                    allowed = allowed if allowed is not None else registered_targets()
-                    if not isinstance(v, str) or v not in allowed:
-                        origin = f" (read from {source})" if source else ""
-                        raise ConfigError(
-                            f"{key}._target_: {v!r} is not the target of any config option{origin}; "
-                            "a config may only build what an option of the config tree or your --config-dir names"
-                        )
-                else:
-                    stack.append((f"{key}.{k}", v))
-        elif isinstance(value, list):
-            stack.extend((f"{key}[{i}]", v) for i, v in enumerate(value))
+    for key, value in _dict_nodes(node, where, resolve=False):
+        if "_target_" not in value:
+            continue
+        target = value["_target_"]
+        if not isinstance(target, str) or target not in registered_targets():
+            origin = f" (read from {source})" if source else ""
+            raise ConfigError(
+                f"{key}._target_: {target!r} is not the target of any config option{origin}; "
+                "a config may only build what an option of the config tree or your --config-dir names"
+            )
 
 
 def check_target_args(node: Any, where: str) -> None:
@@ -380,26 +384,20 @@ def check_target_args(node: Any, where: str) -> None:
     from hydra.utils import get_object
 
     check_targets(node, where)
-    stack: list[tuple[str, Any]] = [(where, node)]
-    while stack:
-        key, value = stack.pop()
-        if isinstance(value, DictConfig):
-            value = OmegaConf.to_container(value, resolve=True)
-        if isinstance(value, dict):
-            target = value.get("_target_")
-            if isinstance(target, str):
-                try:
-                    built = get_object(target)
-                except Exception as exc:  # Hydra reports a missing module as a bare Exception
-                    raise ConfigError(f"{key}._target_: {target!r} cannot be imported ({one_line(exc)})") from None
-                if isinstance(built, type):
-                    literal = {
-                        k: v
-                        for k, v in value.items()
-                        if not k.startswith("_") and not (isinstance(v, dict) and "_target_" in v)
-                    }
-                    check_arg_ranges(built, literal, key)
-            stack.extend((f"{key}.{k}", v) for k, v in value.items() if isinstance(v, dict) and "_target_" in v)
+    for key, value in _dict_nodes(node, where, resolve=True):
+        target = value.get("_target_")
+        if isinstance(target, str):
+            try:
+                built = get_object(target)
+            except Exception as exc:  # Hydra reports a missing module as a bare Exception
+                raise ConfigError(f"{key}._target_: {target!r} cannot be imported ({one_line(exc)})") from None
+            if isinstance(built, type):
+                literal = {
+                    k: v
+                    for k, v in value.items()
+                    if not k.startswith("_") and not (isinstance(v, dict) and "_target_" in v)
+                }
+                check_arg_ranges(built, literal, key)
 
 
 def instantiate_option(cfg: DictConfig, group: str) -> Any:
