@@ -208,8 +208,9 @@ TABLES: dict[str, TableSpec] = {
 # -- collecting runs -----------------------------------------------------------------------
 def find_jobs(roots: list[Path]) -> list[Job]:
     """Every Hydra job dir (one with ``.hydra/``) under ``roots``, plus the jobs a sweep dir's
-    ``multirun.yaml`` defines that have no directory (missing)."""
-    jobs = []
+    ``multirun.yaml`` defines that have no directory under any of the roots (missing: a job
+    run again in another sweep of the same table counts as found)."""
+    jobs, sweep_dirs = [], []
     for root in roots:
         if not root.exists():
             continue
@@ -218,16 +219,17 @@ def find_jobs(roots: list[Path]) -> list[Job]:
             if (root / ".hydra").is_dir()
             else sorted({p.parent.parent for p in root.glob("**/.hydra/config.yaml")})
         )
-        for d in dirs:
-            jobs.append(read_job(d))
-        found = [j.overrides for j in jobs]
-        for sweep_dir in [root, *sorted(p.parent for p in root.glob("**/multirun.yaml") if p.parent != root)]:
-            for num, overrides in enumerate(sweep_jobs(sweep_dir)):
-                expected = _override_dict(overrides)
-                if expected in found:
-                    found.remove(expected)
-                else:  # matched by overrides: sweeps name job dirs by number or by controller
-                    jobs.append(Job(sweep_dir / str(num), expected, None, "missing", f"job {num} never started"))
+        jobs.extend(read_job(d) for d in dirs)
+        sweep_dirs += [root, *sorted(p.parent for p in root.glob("**/multirun.yaml") if p.parent != root)]
+    anywhere = [j.overrides for j in jobs]
+    for sweep_dir in sweep_dirs:
+        own = [j.overrides for j in jobs if j.path.parent == sweep_dir]
+        for num, overrides in enumerate(sweep_jobs(sweep_dir)):
+            expected = _override_dict(overrides)
+            if expected in own:
+                own.remove(expected)
+            elif expected not in anywhere:  # matched by overrides: job dirs are named by number or controller
+                jobs.append(Job(sweep_dir / str(num), expected, None, "missing", f"job {num} never started"))
     return jobs
 
 
@@ -252,12 +254,16 @@ def sweep_jobs(sweep_dir: Path) -> list[list[str]]:
     return [job for batch in batches for job in batch]
 
 
+# overrides that change how a run is carried out, not what it trains or measures: never a row
+BOOKKEEPING_KEYS = ("sweep", "budget", "train.progress", "train.threads", "train.checkpoint_every")
+
+
 def _override_dict(items) -> dict[str, str]:
     overrides = {}
     for item in items:
         key, _, value = str(item).partition("=")
         key = key.lstrip("+~")
-        if key not in ("sweep", "budget") and not key.startswith("hydra"):
+        if key not in BOOKKEEPING_KEYS and not key.startswith(("hydra", "logger")):
             overrides[key] = value
     return overrides
 
