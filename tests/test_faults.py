@@ -559,6 +559,7 @@ def test_10_corrupt_job_files_are_listed_and_the_table_goes_on(tmp_path, monkeyp
     assert code == 0 and (tmp_path / "p" / "ablation_curves.png").is_file()  # plots skip what they cannot read
 
 
+@pytest.mark.slow  # a real process tree and its signals: ~30-60 s
 def test_10_tables_run_stops_its_sweep_on_sigterm_and_keeps_what_finished(tmp_path):
     """``tables.py ... run=true`` runs the sweep as a child in its own process group; SIGTERM is
     passed to the whole group (no orphan keeps training), and the command exits 130 naming the
@@ -588,6 +589,7 @@ def test_10_tables_run_stops_its_sweep_on_sigterm_and_keeps_what_finished(tmp_pa
     assert str(sweep) not in ps  # no process of the sweep outlived the command
 
 
+@pytest.mark.slow  # a real process tree and its signals: ~30-60 s
 def test_10_sigterm_ends_an_evaluation_in_one_line(tmp_path):
     """A command without its own stop point (eval) ends on SIGTERM as on Ctrl-C: one line, 130
     (it used to die by the signal with no message)."""
