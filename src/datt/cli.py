@@ -14,16 +14,15 @@ import re
 import signal
 import sys
 import tempfile
-import threading
 import traceback
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from pathlib import Path
 
 from omegaconf import DictConfig
 
 from datt.configuration import CONF_PACKAGE, available_options, conf_dir, config_groups, root_from_uri
 from datt.errors import ConfigError, FlightAborted, FlightStopped, TrainingDiverged, TrainingInterrupted, one_line
-from datt.runs import ignore_stop_signals, read_failure, record_failure
+from datt.runs import ignore_stop_signals, read_failure, record_failure, stop_signals
 
 
 def _split_argv(argv: list[str]) -> tuple[list[str], list[str], bool]:
@@ -245,25 +244,17 @@ class SweepReport(_HydraCallback):
         print(f"sweep {sweep_dir}: {sum(counts.values())} jobs: {states or 'none'}", file=sys.stderr)
 
 
-@contextlib.contextmanager
-def sigterm_as_interrupt() -> Iterator[None]:
+def _interrupt(signum: int, frame: object) -> None:
+    raise KeyboardInterrupt(signal.Signals(signum).name)
+
+
+def sigterm_as_interrupt() -> contextlib.AbstractContextManager:
     """SIGTERM ends a command like Ctrl-C (one line, exit 130; what was written stays), where the
-    task installs no handler of its own (training and flights stop at a safe point themselves)."""
-    if threading.current_thread() is not threading.main_thread() or signal.getsignal(signal.SIGTERM) not in (
-        signal.SIG_DFL,
-        None,
-    ):
-        yield
-        return
-
-    def interrupt(signum: int, frame: object) -> None:
-        raise KeyboardInterrupt("SIGTERM")
-
-    previous = signal.signal(signal.SIGTERM, interrupt)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, previous)
+    task installs no handler of its own (training and flights stop at a safe point themselves).
+    A SIGTERM handler set before (an embedding program's) is left alone."""
+    if signal.getsignal(signal.SIGTERM) not in (signal.SIG_DFL, None):
+        return contextlib.nullcontext()
+    return stop_signals(_interrupt, (signal.SIGTERM,))
 
 
 def hydra_main(config_name: str, task: Callable[[DictConfig], object]) -> Callable[[], None]:

@@ -164,14 +164,14 @@ STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
 
 @contextlib.contextmanager
-def stop_signals(handler) -> Iterator[None]:
-    """SIGINT and SIGTERM go to ``handler`` (a function or ``signal.SIG_IGN``) inside the block;
-    the previous handlers come back after it. Signals can only be set from the main thread:
-    elsewhere this does nothing."""
+def stop_signals(handler, signals: tuple[signal.Signals, ...] = STOP_SIGNALS) -> Iterator[None]:
+    """``signals`` (SIGINT and SIGTERM) go to ``handler`` (a function or ``signal.SIG_IGN``)
+    inside the block; the previous handlers come back after it. Signals can only be set from the
+    main thread: elsewhere this does nothing."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    previous = {sig: signal.signal(sig, handler) for sig in STOP_SIGNALS}
+    previous = {sig: signal.signal(sig, handler) for sig in signals}
     try:
         yield
     finally:

@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from omegaconf import MISSING, DictConfig
+from omegaconf import MISSING, DictConfig, ListConfig
 from rich.table import Table
 
 from datt.configuration import Range, ranged, structured
@@ -45,6 +45,19 @@ class TablesParams:
         self.side_by_side.validate()
 
 
+def run_roots(runs: Any) -> list[Path]:
+    """``runs``: a sweep or job dir, or a list of them; each must exist."""
+    items = list(runs) if isinstance(runs, (list, tuple, ListConfig)) else [runs]
+    roots = []
+    for item in items:
+        if not isinstance(item, str) or not item:
+            raise ConfigError(f"runs: must be a sweep or job dir (or a list of them), got {runs!r}")
+        roots.append(resolve_path(item))
+        if not roots[-1].exists():
+            raise ConfigError(f"runs: {str(roots[-1])!r} does not exist")
+    return roots
+
+
 def run_tables(cfg: DictConfig, run_dir: Path | None = None) -> dict:
     """Build one table; returns the files written, its rows and the number of jobs read."""
     params = structured(TablesParams, cfg, "")
@@ -68,11 +81,7 @@ def run_tables(cfg: DictConfig, run_dir: Path | None = None) -> dict:
             console.print(f"{code} job(s) of the sweep did not finish; the table lists each one's state")
         roots = [sweep_dir]
     elif params.runs:
-        runs = params.runs if isinstance(params.runs, (list, tuple)) else [params.runs]
-        roots = [resolve_path(r) for r in runs]
-        for r in roots:
-            if not r.exists():
-                raise ConfigError(f"runs: {str(r)!r} does not exist")
+        roots = run_roots(params.runs)
     else:
         roots = tables.default_roots(spec, outputs)
     jobs = tables.find_jobs(roots)
