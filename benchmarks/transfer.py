@@ -5,7 +5,7 @@ the controller assumes, and compare with ``eval.py`` on the same reference.
 
 Per checkpoint: ``eval.py``'s star error (DATT + L1, nominal simulator), then ``--flights``
 flights of ``deploy.py`` (takeoff, the star, land; DATT + L1 as deployed) under the transfer
-conditions (issue 18): 40 ms radio round trip, motors 10 % weaker than the firmware's fit, the
+conditions: 40 ms radio round trip, motors 10 % weaker than the firmware's fit, the
 vehicle 10 % heavier than ``deploy.thrust.mass_kg``, 2 % of setpoint, mocap and log packets
 lost; in each mode of ``datt.tasks.transfer.MODES`` (off-board / onboard on the nominal map /
 onboard after a calibration flight under the same conditions). Reports per flight the outcome,

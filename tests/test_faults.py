@@ -1,4 +1,4 @@
-"""Fault catalogue (issue 16): every bad-input and fault case found by trying the entry points as a
+"""Fault catalogue: every bad-input and fault case found by trying the entry points as a
 new user would, one test each, the reproduction as its body. Each must end in one line naming the
 key (exit 2), a clear non-zero exit, or work that is kept; never a traceback or lost files.
 
@@ -26,7 +26,7 @@ from datt.refs.csv import load_csv_reference
 from datt.runs import RunLock, write_json
 from datt.tasks.resume import resume_dir
 
-from .deploy import SHORT_FLIGHT
+from .deploy import SHORT_FLIGHT, ports
 from .train.test_training import TINY as TRAIN_TINY
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -34,7 +34,6 @@ ROOT = Path(__file__).resolve().parents[1]
 TINY = [*TRAIN_TINY, "curriculum.fixed_ref_steps=0", "train.eval_at_end=false", "eval.plots=false"]
 RESUME = ["logger=csv", "train.progress=false"]  # a resume repeats nothing of the run's own settings
 FLIGHT = SHORT_FLIGHT
-_port = iter(range(19960, 19999))
 
 
 def run_cli(entry, args, cwd, monkeypatch, capsys):
@@ -264,7 +263,7 @@ def test_04_interrupted_flight_keeps_its_log(tmp_path, signals, second_after, re
     once the log is written (it used to land after the cleanup's ignore block: exit by SIGINT
     with a traceback instead of 4), or a SIGTERM."""
     pytest.importorskip("cflib")
-    port = next(_port)
+    port = next(ports)
     cmd = [sys.executable, str(ROOT / "deploy.py"), *FLIGHT, f"deploy.uri=udp://127.0.0.1:{port}", "hydra.run.dir=."]
     proc = _popen(cmd, tmp_path)
     _read_until(proc, "phase: TRACK", 120)
@@ -332,7 +331,7 @@ def test_06_reference_outside_the_geofence_is_refused_before_arming(tmp_path, mo
     pytest.importorskip("cflib")
     args = [
         *FLIGHT,
-        f"deploy.uri=udp://127.0.0.1:{next(_port)}",
+        f"deploy.uri=udp://127.0.0.1:{next(ports)}",
         "deploy.safety.geofence_max_m=[0.3,0.3,2.5]",
         "hydra.run.dir=f",
     ]
@@ -436,7 +435,7 @@ def test_08_busy_udp_port_and_a_second_simulated_server(tmp_path, monkeypatch, c
     pytest.importorskip("cflib")
     from datt.deploy.sim import SimCrazyflie, SimCrazyflieParams
 
-    port = next(_port)
+    port = next(ports)
     first = SimCrazyflie(SimCrazyflieParams(host="127.0.0.1", port=port)).start()
     try:
         with pytest.raises(ConfigError, match=f"deploy.uri: udp://127.0.0.1:{port} cannot be bound"):
@@ -465,7 +464,7 @@ def test_08_killed_flight_exits_non_zero(tmp_path, monkeypatch, capsys):
     """A 2° tilt limit KILLs the flight as soon as it banks (on a loaded machine another KILL
     reason may come first: any KILL must exit 4 with one line)."""
     pytest.importorskip("cflib")
-    args = [*FLIGHT, f"deploy.uri=udp://127.0.0.1:{next(_port)}", "deploy.safety.max_tilt_deg=2", "hydra.run.dir=f"]
+    args = [*FLIGHT, f"deploy.uri=udp://127.0.0.1:{next(ports)}", "deploy.safety.max_tilt_deg=2", "hydra.run.dir=f"]
     code, lines, _ = run_cli("deploy", args, tmp_path, monkeypatch, capsys)
     one_line((code, lines), "error: flight killed: ", 4)
     assert (tmp_path / "f" / "flight.csv").is_file()

@@ -1,4 +1,14 @@
-"""Deploy tests. ``SHORT_FLIGHT``: the shortened flight every flying test uses."""
+"""Deploy tests. ``SHORT_FLIGHT``: the shortened flight every flying test uses; ``ports``: the
+UDP ports of this test process's simulated Crazyflies."""
+
+import itertools
+import os
+
+# One counter per test process, in a block of its own per pytest-xdist worker (gw0, gw1, ...), so
+# that parallel workers never bind each other's simulated Crazyflie; below the kernel's ephemeral
+# range (32768 on), where the radio library's own sockets are bound.
+_WORKER = int(os.environ.get("PYTEST_XDIST_WORKER", "gw0").removeprefix("gw") or 0)
+ports = itertools.count(19900 + 500 * _WORKER)
 
 SHORT_FLIGHT = [
     "deploy.flight.takeoff_s=1.5",

@@ -1,8 +1,7 @@
-"""The onboard estimator as the firmware runs it, and the runner that feeds it (issue 18): the
+"""The onboard estimator as the firmware runs it, and the runner that feeds it: the
 complementary filter drops external positions, the Kalman filter is selected and read back at
 connect, mocap samples are sent once and never stale, and the mocap attitude aligns onboard yaw."""
 
-import itertools
 import math
 import struct
 
@@ -16,10 +15,9 @@ from datt.deploy.sim import SimCrazyflie, SimCrazyflieParams  # noqa: E402
 from datt.errors import ConfigError  # noqa: E402
 from datt.tasks.deploy import run_deploy  # noqa: E402
 
-from . import SHORT_FLIGHT  # noqa: E402
+from . import SHORT_FLIGHT, ports  # noqa: E402
 
 pytestmark = pytest.mark.flight
-_ports = itertools.count(19930)
 
 
 def estimate(server):
@@ -33,7 +31,7 @@ def yaw_deg(q):
 
 
 def hovering_server(**params):
-    server = SimCrazyflie(SimCrazyflieParams(port=next(_ports), start_pos_m=(0.4, -0.3, 0.0), **params))
+    server = SimCrazyflie(SimCrazyflieParams(port=next(ports), start_pos_m=(0.4, -0.3, 0.0), **params))
     return server
 
 
@@ -102,7 +100,7 @@ def test_extpose_golden_bytes_reach_the_simulated_filter():
 
 
 def _fly(tmp_path, *overrides):
-    cfg = compose("deploy", [f"deploy.uri=udp://127.0.0.1:{next(_ports)}", *SHORT_FLIGHT, *overrides])
+    cfg = compose("deploy", [f"deploy.uri=udp://127.0.0.1:{next(ports)}", *SHORT_FLIGHT, *overrides])
     seen = {}
     summary = run_deploy(cfg, run_dir=tmp_path, server_hook=lambda s, r: seen.update(server=s, runner=r))
     return summary, seen["server"], seen["runner"]

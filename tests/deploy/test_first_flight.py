@@ -3,7 +3,6 @@ the firmware would (controller ids, flight-mode holds, write echoes, arming, the
 queue), and the host's settings refuse what would disable a check. One test (or more) per way a
 first flight went wrong when read against crazyflie-firmware 2026.08 (docs/deploy.md)."""
 
-import itertools
 import math
 import os
 import shutil
@@ -22,14 +21,13 @@ from datt.deploy.safety import tilt_deg  # noqa: E402
 from datt.deploy.sim import SimCrazyflie, SimCrazyflieParams  # noqa: E402
 from datt.errors import ConfigError  # noqa: E402
 
-from . import SHORT_FLIGHT, fly_sim  # noqa: E402
+from . import SHORT_FLIGHT, fly_sim, ports  # noqa: E402
 
-_ports = itertools.count(20100)
 needs_gcc = pytest.mark.skipif(shutil.which("gcc") is None, reason="no gcc: the onboard app cannot be built here")
 
 
 def fly(tmp_path, overrides=(), hook=None):
-    summary, server, _ = fly_sim(tmp_path, next(_ports), overrides, hook)
+    summary, server, _ = fly_sim(tmp_path, next(ports), overrides, hook)
     return summary, server
 
 
@@ -52,7 +50,7 @@ def tilt_after(server, link, seconds, roll_degps):
 def test_only_rate_controllers_fly_rate_setpoints(controller, rates_flown):
     """Lee, Mellinger (and Brescianini) hold the setpoint's attitude: a roll-rate setpoint leaves
     the vehicle level; the PID and INDI roll it."""
-    port = next(_ports)
+    port = next(ports)
     ident = firmware.fact(f"controller_{controller.lower()}")
     server = SimCrazyflie(SimCrazyflieParams(port=port, boot_params={"stabilizer.controller": ident})).start()
     try:
@@ -169,7 +167,7 @@ def test_an_app_that_stops_stepping_is_taken_over_by_the_host(tmp_path):
 def test_a_setting_the_vehicle_does_not_keep_is_refused():
     """Without the app the firmware has no out-of-tree controller: writing its id is echoed as
     written, but the stabilizer loop keeps the PID, and the fresh read says so."""
-    port = next(_ports)
+    port = next(ports)
     server = SimCrazyflie(SimCrazyflieParams(port=port)).start()
     try:
         link = CrazyflieLink(f"udp://127.0.0.1:{port}").connect()
@@ -183,7 +181,7 @@ def test_a_setting_the_vehicle_does_not_keep_is_refused():
 def test_the_simulated_firmware_echoes_a_write_as_sent_and_ignores_read_only_writes():
     from datt.deploy import crtp
 
-    server = SimCrazyflie(SimCrazyflieParams(port=next(_ports)))
+    server = SimCrazyflie(SimCrazyflieParams(port=next(ports)))
     sent = []
     server._send = sent.append
     ident = next(i for i, p in enumerate(server.param_toc) if p[:2] == ("stabilizer", "controller"))
@@ -208,7 +206,7 @@ def test_a_vehicle_that_does_not_arm_does_not_take_off(tmp_path):
 
 
 def test_arming_takes_effect_at_the_supervisors_update():
-    server = SimCrazyflie(SimCrazyflieParams(port=next(_ports)))
+    server = SimCrazyflie(SimCrazyflieParams(port=next(ports)))
     server._send = lambda data: None
     server.sim_time_s = 0.02  # between two 25 Hz supervisor updates
     server._on_supervisor(1, bytes([1, 1]))
@@ -221,7 +219,7 @@ def test_arming_takes_effect_at_the_supervisors_update():
 
 # -- 5: the app channel's queue ----------------------------------------------------------------
 def test_the_app_channel_queues_ten_packets_and_drops_the_rest():
-    server = SimCrazyflie(SimCrazyflieParams(port=next(_ports)))
+    server = SimCrazyflie(SimCrazyflieParams(port=next(ports)))
     server.app = object()  # any app: packets are queued for its task
     for k in range(16):
         server._on_platform(2, onboard.points_packet(2 * k, [(0.0, 0.0, 0.0)] * 2))
@@ -272,7 +270,7 @@ def test_a_stop_signal_before_arming_arms_nothing(tmp_path):
     from datt.errors import FlightStopped
     from datt.tasks.deploy import run_deploy_command
 
-    cfg = compose("deploy", [f"deploy.uri=udp://127.0.0.1:{next(_ports)}", *SHORT_FLIGHT])
+    cfg = compose("deploy", [f"deploy.uri=udp://127.0.0.1:{next(ports)}", *SHORT_FLIGHT])
     seen = {}
 
     def interrupt(server, runner):
@@ -319,7 +317,7 @@ def test_each_outcome_kind_has_its_text_and_exit_status():
 
 # -- the simulated vehicle's estimate, supervisor and radio ---------------------------------------
 def test_losses_come_in_runs_of_the_set_mean_length_at_the_set_rate():
-    server = SimCrazyflie(SimCrazyflieParams(port=next(_ports), radio_loss=0.1, radio_burst_len=4.0, radio_seed=3))
+    server = SimCrazyflie(SimCrazyflieParams(port=next(ports), radio_loss=0.1, radio_burst_len=4.0, radio_seed=3))
     lost = [server._lost() for _ in range(200_000)]
     runs, length = [], 0
     for x in lost:
@@ -330,14 +328,14 @@ def test_losses_come_in_runs_of_the_set_mean_length_at_the_set_rate():
             length = 0
     assert sum(lost) / len(lost) == pytest.approx(0.1, abs=0.005)
     assert sum(runs) / len(runs) == pytest.approx(4.0, rel=0.05)
-    independent = SimCrazyflie(SimCrazyflieParams(port=next(_ports), radio_loss=0.1, radio_seed=3))
+    independent = SimCrazyflie(SimCrazyflieParams(port=next(ports), radio_loss=0.1, radio_seed=3))
     lost = [independent._lost() for _ in range(200_000)]
     pairs = sum(a and b for a, b in zip(lost, lost[1:])) / (len(lost) - 1)
     assert pairs == pytest.approx(0.01, abs=0.002)  # P(lost, lost) = 0.1² when independent
 
 
 def test_the_estimate_errors_have_the_set_spread_and_correlation():
-    server = SimCrazyflie(SimCrazyflieParams(port=next(_ports), vel_noise_std_mps=0.05, att_noise_std_rad=0.01))
+    server = SimCrazyflie(SimCrazyflieParams(port=next(ports), vel_noise_std_mps=0.05, att_noise_std_rad=0.01))
     vel, att = [], []
     for _ in range(20_000):
         server._estimate_noise_step()
@@ -358,7 +356,7 @@ def test_the_estimate_errors_have_the_set_spread_and_correlation():
 def test_a_vehicle_tilted_past_the_limit_for_a_second_is_stopped_by_the_supervisor():
     import torch
 
-    server = SimCrazyflie(SimCrazyflieParams(port=next(_ports)))
+    server = SimCrazyflie(SimCrazyflieParams(port=next(ports)))
     server.armed, server.thrust_locked = True, False
     server.quad.state.pos_m[0, 2] = 5.0
     half = math.radians(70) / 2  # body z 70 deg from vertical: specific force along it ~ thrust only

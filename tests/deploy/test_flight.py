@@ -5,7 +5,6 @@ Every fault must end with the motors stopped (or a controlled landing where safe
 the reason in the log and the flight log written.
 """
 
-import itertools
 import json
 import math
 import re
@@ -19,16 +18,15 @@ pytest.importorskip("cflib")
 from datt.configuration import compose  # noqa: E402
 from datt.tasks.deploy import run_deploy  # noqa: E402
 
-from . import SHORT_FLIGHT, fly_sim  # noqa: E402
+from . import SHORT_FLIGHT, fly_sim, ports  # noqa: E402
 
 pytestmark = pytest.mark.flight  # real flights (seconds each): not in the mutation-testing selection
 
-_ports = itertools.count(19900)
 SHORT = SHORT_FLIGHT
 
 
 def fly(tmp_path, overrides=(), hook=None, estop=None):
-    summary, server, _ = fly_sim(tmp_path, next(_ports), overrides, hook, estop)
+    summary, server, _ = fly_sim(tmp_path, next(ports), overrides, hook, estop)
     assert (tmp_path / "flight.csv").stat().st_size > 100 and (tmp_path / "events.json").is_file()
     logged = json.loads((tmp_path / "events.json").read_text())
     assert logged["outcome"] == summary["outcome"]
@@ -232,7 +230,7 @@ def test_hover_calibration_finds_the_true_hover_command_and_slope(tmp_path):
     cfg = compose(
         "deploy",
         [
-            f"deploy.uri=udp://127.0.0.1:{next(_ports)}",
+            f"deploy.uri=udp://127.0.0.1:{next(ports)}",
             *SHORT,
             "deploy.mode=calibrate",
             "deploy.server.mass_kg=0.036",
@@ -262,7 +260,7 @@ def test_calibration_measures_the_radio_latency(tmp_path):
         cfg = compose(
             "deploy",
             [
-                f"deploy.uri=udp://127.0.0.1:{next(_ports)}",
+                f"deploy.uri=udp://127.0.0.1:{next(ports)}",
                 *SHORT,
                 "deploy.mode=calibrate",
                 "deploy.calibrate_hover_s=3.0",

@@ -1,7 +1,6 @@
 """The onboard DATT app (datt_onboard.c, built for this machine and called as the simulated
 Crazyflie calls it) and flights with the policy onboard (deploy.onboard=true)."""
 
-import itertools
 import math
 import re
 import shutil
@@ -18,6 +17,8 @@ from datt.deploy.sim.onboard_app import OnboardApp
 from datt.deploy.thrust import ThrustMap
 from datt.export import export_spec
 from datt.export.app import build_sil_library, write_app
+
+from . import ports
 
 pytestmark = pytest.mark.skipif(shutil.which("gcc") is None, reason="no gcc: the onboard app cannot be built here")
 LEVEL = [1.0, 0.0, 0.0, 0.0]
@@ -266,8 +267,6 @@ def test_a_74_degree_tilt_flies_on(built):
 
 # -- flights with the policy onboard -----------------------------------------------------------
 
-_ports = itertools.count(19960)
-
 
 def fly(tmp_path, overrides=()):
     pytest.importorskip("cflib")
@@ -275,7 +274,7 @@ def fly(tmp_path, overrides=()):
 
     from . import SHORT_FLIGHT
 
-    cfg = compose("deploy", [f"deploy.uri=udp://127.0.0.1:{next(_ports)}", *SHORT_FLIGHT, *overrides])
+    cfg = compose("deploy", [f"deploy.uri=udp://127.0.0.1:{next(ports)}", *SHORT_FLIGHT, *overrides])
     seen = {}
     summary = run_deploy(cfg, run_dir=tmp_path, server_hook=lambda server, runner: seen.setdefault("server", server))
     return summary, seen["server"]
@@ -328,7 +327,7 @@ def test_a_vehicle_without_the_app_is_refused_before_arming(tmp_path):
     def stock_firmware(server, runner):
         server.app, server.param_toc = None, PARAMS  # as flashed without the app
 
-    cfg = compose("deploy", [f"deploy.uri=udp://127.0.0.1:{next(_ports)}", "deploy.onboard=true"])
+    cfg = compose("deploy", [f"deploy.uri=udp://127.0.0.1:{next(ports)}", "deploy.onboard=true"])
     summary = run_deploy(cfg, run_dir=tmp_path, server_hook=stock_firmware)
     assert summary["outcome"].startswith("preflight failed: deploy.onboard: the vehicle's firmware has no DATT app")
     assert "ARM" not in [e["text"] for e in summary["events"] if e["kind"] == "phase"]
@@ -361,7 +360,7 @@ def test_an_app_with_another_policy_is_refused_before_arming(tmp_path):
     def other_checkpoint(server, runner):
         runner.onboard_policy_id ^= 1  # the host's checkpoint is not the one the app was built from
 
-    cfg = compose("deploy", [f"deploy.uri=udp://127.0.0.1:{next(_ports)}", "deploy.onboard=true"])
+    cfg = compose("deploy", [f"deploy.uri=udp://127.0.0.1:{next(ports)}", "deploy.onboard=true"])
     summary = run_deploy(cfg, run_dir=tmp_path, server_hook=other_checkpoint)
     assert re.match(
         r"preflight failed: deploy.onboard: the vehicle's app carries policy 0x[0-9a-f]{8}, the checkpoint",
@@ -376,7 +375,7 @@ def test_a_track_longer_than_the_app_holds_is_refused_before_arming(tmp_path):
     from datt.tasks.deploy import run_deploy
 
     cfg = compose(
-        "deploy", [f"deploy.uri=udp://127.0.0.1:{next(_ports)}", "deploy.onboard=true", "deploy.flight.track_s=30"]
+        "deploy", [f"deploy.uri=udp://127.0.0.1:{next(ports)}", "deploy.onboard=true", "deploy.flight.track_s=30"]
     )
     summary = run_deploy(cfg, run_dir=tmp_path)
     assert summary["outcome"] == (

@@ -1,7 +1,6 @@
 """Firmware behaviour of the simulated Crazyflie, driven through real cflib: thrust lock, setpoint
 watchdog (level after 0.5 s, motors off after 2 s), emergency stop, log block size limit."""
 
-import itertools
 import time
 
 import pytest
@@ -12,12 +11,12 @@ from datt.deploy.link import CrazyflieLink, LinkError  # noqa: E402
 from datt.deploy.sim import SimCrazyflie, SimCrazyflieParams  # noqa: E402
 from datt.deploy.thrust import ThrustMap  # noqa: E402
 
-_ports = itertools.count(19950)
+from . import ports  # noqa: E402
 
 
 @pytest.fixture
 def vehicle():
-    port = next(_ports)
+    port = next(ports)
     server = SimCrazyflie(SimCrazyflieParams(port=port)).start()
     link = CrazyflieLink(f"udp://127.0.0.1:{port}").connect()
     yield server, link
@@ -104,7 +103,7 @@ def test_log_block_over_26_bytes_is_refused():
 
     from datt.deploy import crtp
 
-    port = next(_ports)
+    port = next(ports)
     with SimCrazyflie(SimCrazyflieParams(port=port)):
         sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         sock.settimeout(1.0)
@@ -117,7 +116,7 @@ def test_log_block_over_26_bytes_is_refused():
 
 
 def test_connect_to_nothing_fails_with_one_line():
-    link = CrazyflieLink(f"udp://127.0.0.1:{next(_ports)}", connect_timeout_s=1.0)
+    link = CrazyflieLink(f"udp://127.0.0.1:{next(ports)}", connect_timeout_s=1.0)
     with pytest.raises(LinkError, match=r"^connect: udp://127.0.0.1:\d+: ") as info:
         link.connect()
     assert "\n" not in str(info.value)

@@ -202,3 +202,51 @@ def test_bad_export_settings_are_one_line(overrides, message, tmp_path):
     with pytest.raises(ConfigError, match=message.replace("(", r"\(")) as info:
         run_export(compose("export", [*overrides, f"out_dir={tmp_path}"]))
     assert "\n" not in str(info.value)
+
+
+def test_every_layout_branch_of_the_fixed_c_matches_torch(tmp_path_factory):
+    """The other side of every layout switch of the fixed C (``c/datt_policy.c``): world frame,
+    no feedback, no command history, no d-hat input, H = 5 with a kernel of 5, the authors' L1 (raw
+    command: no latency queue, raw predictor feedback) and another prefix; actions against torch on
+    random states, the L1 against the project's over a flight, and the embedded self-test."""
+    from tests.conftest import train_tiny_policy
+
+    run = tmp_path_factory.mktemp("variant")
+    overrides = ["horizon=5", "policy.kernel_size=5", "env.obs.body_frame=false", "env.obs.feedback=false"]
+    checkpoint = train_tiny_policy(run, *overrides, "env.obs.action_history=0", "policy.use_d_hat=false")
+    cfg = compose("export", [f"checkpoint={checkpoint}", "controller=datt_l1_paper"])
+    spec, controller, merged = export_spec(cfg)
+    assert (spec.body_frame, spec.feedback, spec.action_history, spec.use_d_hat) == (False, False, 0, False)
+    assert (spec.horizon, spec.convs[0][0].shape[2], spec.l1.latency_steps) == (5, 5, 0)
+    out = run / "c"
+    write_c(spec, out, prefix="cf")
+    assert "datt_" not in (out / "cf_policy.c").read_text().replace("datt.", "")
+    subprocess.run([GCC, *FLAGS, "-shared", "-fPIC", "-o", str(out / "libcf.so"), str(out / "cf_policy.c")], check=True)
+    lib = ctypes.CDLL(str(out / "libcf.so"))
+    err = ctypes.c_float()
+    assert lib.cf_self_test(ctypes.byref(err)) == 0
+    obs = random_observations(2000, spec.horizon, 0, seed=3)
+    got = np.zeros((2000, 4), np.float32)
+    arrays = {k: np.ascontiguousarray(v.numpy(), dtype=np.float32) for k, v in obs.items()}
+    for i in range(2000):
+        lib.cf_act(
+            *(arrays[k][i].ctypes.data_as(F) for k in ("pos_m", "vel_mps", "quat", "ref_m", "d_hat")),
+            None,
+            got[i].ctypes.data_as(F),
+        )
+    expect = reference_action(controller, merged.env.obs, obs).numpy()
+    assert np.abs(got - expect).max() <= 8 * np.spacing(np.abs(expect).max())
+    # the L1 without the actuator model: d-hat after a flight as the project computes it
+    rec = record_rollout(merged, DattController(controller.actor, frozen=False), num_envs=1, steps=200)
+    cmd, vel, quat = rec.action[:, 0], rec.vel_after[:, 0], rec.quat_after[:, 0]
+    expect_d = replay_l1(instantiate_option(merged, "adaptation"), spec.l1.dt_s, spec.l1.gravity_mps2, cmd, vel, quat)
+    c = [np.ascontiguousarray(x.numpy(), dtype=np.float32) for x in (cmd, vel, quat)]
+
+    class State(ctypes.Structure):
+        _fields_ = [*L1State._fields_[:-1], ("thrust_queue", ctypes.c_float * 1)]  # latency 0 + 1
+
+    state = State()
+    lib.cf_l1_reset(ctypes.byref(state), c[1][0].ctypes.data_as(F), c[2][0].ctypes.data_as(F))
+    for k in range(1, 200):
+        lib.cf_l1_step(ctypes.byref(state), *(x[k].ctypes.data_as(F) for x in c))
+    assert np.abs(np.array(state.d_hat) - expect_d[-1].numpy()).max() <= 1e-4

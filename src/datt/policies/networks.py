@@ -62,10 +62,9 @@ class PolicyParams:
     # A single number applies to all four.
     init_std: Any = field(default_factory=lambda: [0.15, 0.15, 0.15, 0.15])
     # Floor of the pre-tanh std, every action: scale = softplus(head + b) + min_std (tensordict's
-    # biased softplus, b = inv_softplus(1 − min_std)). 0.01 is the floor every earlier policy was
-    # trained with (tensordict's default), so checkpoints without this key keep their function.
-    # Without entropy bonus PPO shrinks the std as far as it helps the return: the former shipped
-    # policy (datt_h10_iid.pt) sits at the floor on every action (docs/training.md).
+    # biased softplus, b = inv_softplus(1 − min_std)). 0.01 is tensordict's default, so checkpoints
+    # without this key keep their function. Without an entropy bonus PPO shrinks the std as far as
+    # it helps the return, down to this floor (docs/training.md).
     min_std: float = ranged(0.01, POSITIVE)  # and below every init_std
     # Ceiling of the pre-tanh std, every action; null = none (the mapping above). With a ceiling
     # the std is min_std + (max_std − min_std) · sigmoid(head), bounded on both sides. Without
@@ -201,7 +200,7 @@ def make_actor(
         net.head.bias[:4] = torch.atanh(((hover - center) / half).clamp(-0.99, 0.99))
         if p.max_std is None:
             # scale = softplus(x + b) + min_std with softplus(b) = 1 − min_std; this bias (b's
-            # shift left out) starts the std at init_std + ~min_std, as every earlier policy started
+            # shift left out) starts the std at init_std + ~min_std (tensordict's mapping)
             net.head.bias[4:] = torch.tensor([_inv_softplus(s) - _inv_softplus(1.0) for s in p.init_std])
         else:  # the std starts at init_std exactly
             share = torch.tensor([(s - p.min_std) / (p.max_std - p.min_std) for s in p.init_std])
