@@ -9,7 +9,7 @@ as in the paper. Every job of a sweep is listed, never silently dropped: *errore
 value or a crash, with the reason from ``failed.json``), *incomplete* ones (with how far they got)
 and *missing* ones (jobs the sweep's ``multirun.yaml`` defines that never started).
 
-Kinds of table (the registry ``TABLES``):
+Kinds of table (``datt/eval/paper_tables/<name>.yaml``, loaded into ``TABLES``):
 
 * ``train`` (ablation, horizon): one number per run, the end-of-training error on the zigzag bank
   without disturbance; rows = swept keys.
@@ -74,10 +74,15 @@ class Job:
 
 @dataclass
 class TableSpec:
+    """A paper table, declared as data in ``datt/eval/paper_tables/<name>.yaml``: ``kind`` (train | rma |
+    eval), ``entry`` (the script that runs its sweep, ``conf/sweep/<name>.yaml``), ``columns``,
+    and per row key (``ablation=h5``, a controller name, ...) in print order its label and the
+    paper's figures per column."""
+
     name: str
-    kind: str  # train | rma | eval
+    kind: str
     title: str
-    entry: str  # script that runs the sweep: train.py or eval.py
+    entry: str
     columns: list[str]
     row_order: list[str]
     row_labels: dict[str, str]
@@ -85,123 +90,40 @@ class TableSpec:
     paper_note: str
 
 
-_ABLATION_LABELS = {
-    "ablation=no_body_frame": "No body frame",
-    "ablation=no_fixed_ref": "No fixed initial reference",
-    "ablation=no_feedback": "No feedback term",
-    "ablation=h1": "Feedforward horizon 1 (H = 0.02 s)",
-    "ablation=h5": "Feedforward horizon 5 (H = 0.3 s)",
-    "ablation=none": "Feedforward horizon 10 (base, used in main experiments)",
-    "ablation=h15": "Feedforward horizon 15 (H = 0.9 s)",
-    "ablation=h20": "Feedforward horizon 20 (H = 1.2 s)",
-}
-_ABLATION_PAPER = {
-    "ablation=no_body_frame": ["failed"],
-    "ablation=no_fixed_ref": ["0.437 ± 0.08"],
-    "ablation=no_feedback": ["0.077 ± 0.011"],
-    "ablation=h1": ["failed"],
-    "ablation=h5": ["0.240 ± 0.008"],
-    "ablation=none": ["0.055 ± 0.007"],
-    "ablation=h15": ["0.073 ± 0.010"],
-    "ablation=h20": ["0.101 ± 0.018"],
-}
-_CONTROLLERS = {
-    "pid": "Nonlinear tracking control (PID)",
-    "l1_pid": "L1 adaptive control (L1-PID)",
-    "mppi": "MPC (MPPI)",
-    "l1_mppi": "L1-MPC (L1-MPPI)",
-    "datt": "DATT (d̂ = 0)",
-    "datt_rma": "DATT-RMA",
-    "datt_l1": "DATT (L1)",
-}
+def _package(*parts: str):
+    from importlib import resources
 
+    return resources.files("datt").joinpath(*parts)
+
+
+def load_spec(name: str) -> TableSpec:
+    """``paper_tables/<name>.yaml`` as a :class:`TableSpec`. A label may name ``{span_s}``: the
+    time the row's feedforward window spans (its ``horizon`` × ``env.ref_spacing_s``)."""
+    data = yaml.safe_load(_package("eval", "paper_tables", f"{name}.yaml").read_text())
+    spacing_s = float(yaml.safe_load(_package("conf", "env", "default.yaml").read_text())["ref_spacing_s"])
+    rows = data["rows"]
+    labels = {}
+    for key, row in rows.items():
+        horizon = key.partition("=")[2] if key.startswith("horizon=") else "0"
+        labels[key] = str(row["label"]).format(span_s=int(horizon) * spacing_s)
+    return TableSpec(
+        name=name,
+        kind=data["kind"],
+        title=data["title"],
+        entry=data["entry"],
+        columns=list(data["columns"]),
+        row_order=list(rows),
+        row_labels=labels,
+        paper={key: [str(v) for v in row["paper"]] for key, row in rows.items() if "paper" in row},
+        paper_note=data["paper_note"],
+    )
+
+
+# every table of the package, by name (paper_tables/*.yaml)
 TABLES: dict[str, TableSpec] = {
-    "ablation": TableSpec(
-        "ablation",
-        "train",
-        "Ablations: zigzag tracking error (m), no disturbance, no adaptation",
-        "train.py",
-        ["zigzag error (m)"],
-        list(_ABLATION_LABELS),
-        _ABLATION_LABELS,
-        _ABLATION_PAPER,
-        "paper Table 3 (15M steps, SB3, 5 runs each)",
-    ),
-    "ablation_authors": TableSpec(
-        "ablation_authors",
-        "train",
-        "Ablations in the paper's setting (the authors' observation timing, encoder, whole-run fixed "
-        "reference and zero-thrust starts): zigzag tracking error (m), no disturbance, no adaptation",
-        "train.py",
-        ["zigzag error (m)"],
-        list(_ABLATION_LABELS),
-        _ABLATION_LABELS,
-        _ABLATION_PAPER,
-        "paper Table 3 (15M steps, SB3, 5 runs each)",
-    ),
-    "horizon": TableSpec(
-        "horizon",
-        "train",
-        "Feedforward horizon: zigzag tracking error (m)",
-        "train.py",
-        ["zigzag error (m)"],
-        [f"horizon={h}" for h in (1, 5, 10, 15, 20)],
-        {f"horizon={h}": f"H = {h} ({h * 0.06:.2f} s)" for h in (1, 5, 10, 15, 20)},
-        {
-            "horizon=1": ["failed"],
-            "horizon=5": ["0.240 ± 0.008"],
-            "horizon=10": ["0.055 ± 0.007"],
-            "horizon=15": ["0.073 ± 0.010"],
-            "horizon=20": ["0.101 ± 0.018"],
-        },
-        "paper Table 3",
-    ),
-    "rma": TableSpec(
-        "rma",
-        "rma",
-        "Adaptation under the Brownian disturbance: zigzag tracking error (m)",
-        "train.py",
-        ["zigzag error (m)"],
-        ["d_hat=0", "l1", "rma", "privileged"],
-        {"d_hat=0": "DATT (d̂ = 0)", "l1": "DATT (L1)", "rma": "DATT-RMA", "privileged": "DATT (privileged d)"},
-        {"l1": ["0.062 ± 0.011"], "rma": ["0.055 ± 0.009"]},
-        "paper Table 4",
-    ),
-    "main": TableSpec(
-        "main",
-        "eval",
-        "Tracking without disturbance (simulation): error (m) and inference time",
-        "eval.py",
-        ["smooth", "infeasible (zigzag)", "inference ms (batch 1)"],
-        ["pid", "l1_pid", "mppi", "l1_mppi", "datt", "datt_l1"],
-        _CONTROLLERS,
-        {
-            "pid": ["0.098 ± 0.012", "crash", "0.21"],
-            "l1_pid": ["0.091 ± 0.009", "crash", "0.93"],
-            "mppi": ["0.104 ± 0.009", "0.183 ± 0.027", "12.62"],
-            "l1_mppi": ["0.088 ± 0.010", "0.181 ± 0.031", "13.10"],
-            "datt": ["0.054 ± 0.013", "0.089 ± 0.026", "2.41"],
-            "datt_l1": ["0.049 ± 0.017", "0.083 ± 0.023", "3.17"],
-        },
-        "paper Table 1 (real Crazyflie)",
-    ),
-    "wind": TableSpec(
-        "wind",
-        "eval",
-        "Zero-shot disturbances (simulation): tracking error (m)",
-        "eval.py",
-        ["smooth, plate", "smooth, plate + wind", "infeasible, plate", "infeasible, plate + wind"],
-        ["l1_pid", "l1_mppi", "datt", "datt_rma", "datt_l1"],
-        _CONTROLLERS,
-        {
-            "l1_pid": ["0.163 ± 0.013", "0.184 ± 0.020", "crash", "crash"],
-            "l1_mppi": ["0.121 ± 0.010", "0.181 ± 0.04", "0.216 ± 0.028", "0.243 ± 0.026"],
-            "datt": ["0.091 ± 0.040", "0.118 ± 0.054", "0.143 ± 0.031", "crash"],
-            "datt_rma": ["0.091 ± 0.049", "0.115 ± 0.071", "0.164 ± 0.051", "0.193 ± 0.075"],
-            "datt_l1": ["0.063 ± 0.052", "0.095 ± 0.053", "0.122 ± 0.041", "0.161 ± 0.056"],
-        },
-        "paper Table 2 (real Crazyflie, fans and cardboard plate)",
-    ),
+    path.name.removesuffix(".yaml"): load_spec(path.name.removesuffix(".yaml"))
+    for path in sorted(_package("eval", "paper_tables").iterdir(), key=lambda p: p.name)
+    if path.name.endswith(".yaml")
 }
 
 
