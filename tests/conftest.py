@@ -6,7 +6,6 @@ import torch
 from datt.configuration import compose
 from datt.envs.factory import make_env
 
-
 # Under pytest-xdist (the default: 4 workers on the machine's cores) each worker computes on one
 # thread: more would oversubscribe the cores and slow the real-time flight tests' servers.
 THREADS = 1 if os.environ.get("PYTEST_XDIST_WORKER") else max(1, min(2, torch.get_num_threads()))
