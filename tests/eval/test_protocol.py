@@ -47,8 +47,11 @@ def test_the_authors_protocol_starts_uniformly_within_half_a_metre_per_axis_from
     assert abs(u.mean().item()) < 0.08 and 0.23 < u.std().item() < 0.35
 
 
-def test_the_project_protocol_starts_on_the_reference_at_hover_thrust():
-    trace = evaluate(cfg_with("project"), lambda env: HoverController(), "none", "none", seed=3)["trace"]
+@pytest.mark.parametrize("trained_from", [[], ["env.quad.initial_thrust_mps2=0.0"]])
+def test_the_project_protocol_starts_on_the_reference_at_hover_thrust(trained_from):
+    """Also for a policy trained from zero-thrust starts: the start belongs to the protocol."""
+    cfg = cfg_with("project", *trained_from)
+    trace = evaluate(cfg, lambda env: HoverController(), "none", "none", seed=3)["trace"]
     assert torch.equal(trace.pos_m[:, 0], trace.ref_m[:, 0])
     assert trace.pos_m[:, 1, 2].abs().max() < 1e-6  # hover thrust from the start: no drop
 

@@ -2,8 +2,8 @@
 
 ``eval.protocol`` names one of :data:`PROTOCOLS`:
 
-* ``project``: every drone starts at rest *on* the reference (its start, the origin) with the
-  configured actuator state (hover thrust by default); the mean error of an episode runs over the
+* ``project``: every drone starts at rest *on* the reference (its start, the origin) at hover
+  thrust, whatever start the policy was trained from; the mean error of an episode runs over the
   steps flown before it crashed, and crashed episodes are left out of the group's mean (shown as a
   count). This measures tracking once the drone is on the track.
 * ``authors``: the protocol that produced the paper's numbers, read from KevinHuang8/DATT
@@ -38,21 +38,20 @@ from datt.errors import ConfigError
 @dataclass(frozen=True)
 class Protocol:
     """``init_pos_range_m``: start uniformly within ± this per axis of the reference start;
-    ``initial_thrust_mps2``: actuator thrust at the start (``"configured"`` keeps
-    ``env.quad.initial_thrust_mps2``); ``episode_steps``: steps per episode (``None`` keeps
+    ``initial_thrust_mps2``: actuator thrust at the start (``None``: hover); ``episode_steps``: steps per episode (``None`` keeps
     ``env.episode_steps``); ``count_every_step``: the episode mean runs over every step and no
     episode is left out of a group's mean (crashes are still counted); ``terminate_on_error``:
     honour ``env.max_tracking_error_m`` as a crash."""
 
     init_pos_range_m: float
-    initial_thrust_mps2: float | None | str
+    initial_thrust_mps2: float | None
     episode_steps: int | None
     count_every_step: bool
     terminate_on_error: bool
 
 
 PROTOCOLS: dict[str, Protocol] = {
-    "project": Protocol(0.0, "configured", None, count_every_step=False, terminate_on_error=True),
+    "project": Protocol(0.0, None, None, count_every_step=False, terminate_on_error=True),
     "authors": Protocol(0.5, 0.0, 500, count_every_step=True, terminate_on_error=False),
 }
 
@@ -66,8 +65,7 @@ def get_protocol(name: str) -> Protocol:
 def apply_protocol(env_cfg: DictConfig, protocol: Protocol) -> None:
     """Set the ``env`` node of a (copied) run config to the protocol's episode."""
     env_cfg.env.init_pos_range_m = protocol.init_pos_range_m
-    if protocol.initial_thrust_mps2 != "configured":
-        env_cfg.env.quad.initial_thrust_mps2 = protocol.initial_thrust_mps2
+    env_cfg.env.quad.initial_thrust_mps2 = protocol.initial_thrust_mps2
     if protocol.episode_steps is not None:
         env_cfg.env.episode_steps = protocol.episode_steps
     if not protocol.terminate_on_error:
