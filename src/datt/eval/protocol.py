@@ -38,10 +38,10 @@ from datt.errors import ConfigError
 @dataclass(frozen=True)
 class Protocol:
     """``init_pos_range_m``: start uniformly within ± this per axis of the reference start;
-    ``initial_thrust_mps2``: actuator thrust at the start (``None``: hover); ``episode_steps``: steps per episode (``None`` keeps
-    ``env.episode_steps``); ``count_every_step``: the episode mean runs over every step and no
-    episode is left out of a group's mean (crashes are still counted); ``terminate_on_error``:
-    honour ``env.max_tracking_error_m`` as a crash."""
+    ``initial_thrust_mps2``: actuator thrust at the start (``None``: hover); ``episode_steps``:
+    steps per episode (``None`` keeps ``env.episode_steps``); ``count_every_step``: the episode
+    mean runs over every step and no episode is left out of a group's mean (crashes are still
+    counted); ``terminate_on_error``: honour ``env.max_tracking_error_m`` as a crash."""
 
     init_pos_range_m: float
     initial_thrust_mps2: float | None

@@ -471,35 +471,46 @@ def plot_train_sweep(spec: TableSpec, rows: dict[str, list[Cell]], jobs: list[Jo
     import matplotlib
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     paths = []
     points = sorted((h, c) for k, cs in rows.items() if (h := _horizon_of(k)) is not None for c in cs[:1])
     if points:
-        fig, ax = plt.subplots(figsize=(5, 3.6))
-        ok = [(h, c) for h, c in points if c.values]
-        if ok:
-            ax.errorbar(
-                [h for h, _ in ok],
-                [np.mean(c.values) for _, c in ok],
-                yerr=[np.std(c.values) for _, c in ok],
-                marker="o",
-                capsize=3,
-                label="ours (sim)",
-            )
-        for h, c in points:
-            if not c.values:
-                ax.annotate("failed", (h, 0), textcoords="offset points", xytext=(0, 8), ha="center", color="C3")
-        ax.set_xlabel("feedforward points H")
-        ax.set_ylabel("zigzag tracking error (m)")
-        ax.set_xticks([h for h, _ in points])
-        ax.grid(alpha=0.3)
-        if ok:
-            ax.legend()
-        fig.tight_layout()
-        paths.append(out_dir / f"{spec.name}_horizon.png")
-        fig.savefig(paths[-1], dpi=90)
-        plt.close(fig)
+        paths.append(_plot_horizon(points, out_dir / f"{spec.name}_horizon.png"))
+    curves = _learning_curves(spec, jobs)
+    if curves:
+        paths.append(_plot_curves(spec, curves, out_dir / f"{spec.name}_curves.png"))
+    return paths
+
+
+def _plot_horizon(points: list[tuple[int, Cell]], path: Path) -> Path:
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(5, 3.6))
+    ok = [(h, c) for h, c in points if c.values]
+    if ok:
+        ax.errorbar(
+            [h for h, _ in ok],
+            [np.mean(c.values) for _, c in ok],
+            yerr=[np.std(c.values) for _, c in ok],
+            marker="o",
+            capsize=3,
+            label="ours (sim)",
+        )
+        ax.legend()
+    for h, c in points:
+        if not c.values:
+            ax.annotate("failed", (h, 0), textcoords="offset points", xytext=(0, 8), ha="center", color="C3")
+    ax.set_xlabel("feedforward points H")
+    ax.set_ylabel("zigzag tracking error (m)")
+    ax.set_xticks([h for h, _ in points])
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return path
+
+
+def _learning_curves(spec: TableSpec, jobs: list[Job]) -> dict[str, list[tuple[np.ndarray, np.ndarray]]]:
+    """Per row, each job's (frames, training tracking error) from its ``metrics.csv``."""
     curves: dict[str, list[tuple[np.ndarray, np.ndarray]]] = {}
     varying = varying_keys(jobs)
     for job in jobs:
@@ -515,23 +526,27 @@ def plot_train_sweep(spec: TableSpec, rows: dict[str, list[Cell]], jobs: list[Jo
                 curves.setdefault(_row_key(job, spec, varying), []).append((x, y))
         except (OSError, ValueError, TypeError, KeyError):  # a truncated or hand-edited log: no curve
             continue
-    if curves:
-        fig, ax = plt.subplots(figsize=(7, 4))
-        for key in [k for k in spec.row_order if k in curves] + sorted(k for k in curves if k not in spec.row_order):
-            n = min(len(x) for x, _ in curves[key])
-            x = curves[key][0][0][:n]
-            y = np.mean([c[1][:n] for c in curves[key]], axis=0)
-            ax.plot(x, y, label=f"{spec.row_labels.get(key, key)} ({len(curves[key])})", lw=1.2)
-        ax.set_yscale("log")
-        ax.set_xlabel("env steps")
-        ax.set_ylabel("training tracking error (m)")
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=7)
-        fig.tight_layout()
-        paths.append(out_dir / f"{spec.name}_curves.png")
-        fig.savefig(paths[-1], dpi=90)
-        plt.close(fig)
-    return paths
+    return curves
+
+
+def _plot_curves(spec: TableSpec, curves: dict[str, list[tuple[np.ndarray, np.ndarray]]], path: Path) -> Path:
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 4))
+    for key in [k for k in spec.row_order if k in curves] + sorted(k for k in curves if k not in spec.row_order):
+        n = min(len(x) for x, _ in curves[key])
+        x = curves[key][0][0][:n]
+        y = np.mean([c[1][:n] for c in curves[key]], axis=0)
+        ax.plot(x, y, label=f"{spec.row_labels.get(key, key)} ({len(curves[key])})", lw=1.2)
+    ax.set_yscale("log")
+    ax.set_xlabel("env steps")
+    ax.set_ylabel("training tracking error (m)")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return path
 
 
 def plot_side_by_side_from_jobs(jobs: list[Job], group: str, index: int, path: Path) -> Path | None:
