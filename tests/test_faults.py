@@ -138,7 +138,7 @@ def test_01_resume_refuses_an_override_that_changes_the_run(tmp_path, monkeypatc
     result = run_cli("train", [*RESUME, f"resume={run}", "algo.num_envs=128"], tmp_path, monkeypatch, capsys)
     one_line(result, "error: resume: algo.num_envs=128 changes what the run trains (it used 64)")
     result = run_cli("train", [*RESUME, f"resume={run}", "traj=star"], tmp_path, monkeypatch, capsys)
-    one_line(result, "error: resume: traj=star changes what the run trains (it used traj=train_mix)")
+    one_line(result, "error: resume: traj=star changes what the run trains (it used traj=train_mix_fast)")
     assert snapshot(run) == before
 
 
