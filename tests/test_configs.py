@@ -4,6 +4,7 @@ library's dataclass defaults agree with the YAML (the only place a default lives
 
 from __future__ import annotations
 
+import re
 from dataclasses import asdict
 
 import pytest
@@ -190,3 +191,34 @@ def test_python_defaults_are_the_config_defaults(group):
     assert by_target
     for target, options in by_target.items():
         assert any(not differ for differ in options.values()), (target, options)
+
+
+@pytest.mark.parametrize(
+    "override, replacement",
+    [("env.num_envs=512", "use algo.num_envs (training) or rma.num_envs"), ("train.threads=1", "use threads")],
+    ids=["env.num_envs", "train.threads"],
+)
+def test_a_retired_key_on_the_command_line_is_one_line_naming_its_replacement(override, replacement):
+    from datt.cli import preflight
+    from datt.errors import ConfigError
+
+    key = override.partition("=")[0]
+    with pytest.raises(ConfigError, match="^" + re.escape(f"{key}: no longer a setting; {replacement}")):
+        preflight([override])
+    with pytest.raises(ConfigError, match=rf"^{key}: "):
+        preflight([f"+{override}"])
+
+
+def test_a_saved_config_with_retired_keys_is_read_in_todays_keys():
+    from datt.configuration import upgrade_saved_config
+
+    old = OmegaConf.create({"env": {"num_envs": 1024, "dt_s": 0.02}, "train": {"threads": 2, "progress": True}})
+    OmegaConf.set_struct(old, True)
+    new = upgrade_saved_config(old)
+    assert OmegaConf.to_container(new) == {"env": {"dt_s": 0.02}, "train": {"progress": True}, "threads": 2}
+    assert OmegaConf.is_struct(new)
+    # today's value wins over a moved one; a config without retired keys is unchanged
+    both = upgrade_saved_config(OmegaConf.create({"train": {"threads": 2}, "threads": 4}))
+    assert OmegaConf.to_container(both) == {"train": {}, "threads": 4}
+    today = {"env": {"dt_s": 0.02}, "threads": None}
+    assert OmegaConf.to_container(upgrade_saved_config(OmegaConf.create(today))) == today

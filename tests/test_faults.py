@@ -18,6 +18,7 @@ from pathlib import Path
 
 import pytest
 import torch
+from omegaconf import OmegaConf
 
 from datt import cli
 from datt.checkpoint import load_checkpoint, save_checkpoint
@@ -116,12 +117,14 @@ def test_01_resume_trains_on_with_the_runs_own_config(tmp_path, monkeypatch, cap
 def test_01_resume_of_a_run_written_before_a_config_key_existed(tmp_path, monkeypatch, capsys):
     """A run's config.yaml from before ``eval.protocol``, ``curriculum.fixed_ref`` and
     ``env.obs.timing`` existed resumes with today's values for them (the values that keep what
-    the code did then), and its config.yaml then records them."""
+    the code did then), and its config.yaml then records them; one written with retired keys
+    (``train.threads``, ``env.num_envs``) resumes in today's keys (the threads moved)."""
     run = train_run(tmp_path / "R", monkeypatch, capsys, "train.total_steps=2048", "algo.num_envs=32")
     text = (run / "config.yaml").read_text()
-    for line in ("  protocol: project\n", "  fixed_ref: steps\n", "    timing: project\n"):
+    for line in ("  protocol: project\n", "  fixed_ref: steps\n", "    timing: project\n", "\nthreads: null\n"):
         assert line in text
-        text = text.replace(line, "", 1)
+        text = text.replace(line, "\n" if line.startswith("\n") else "", 1)
+    text = text.replace("env:\n", "env:\n  num_envs: 1024\n", 1).replace("train:\n", "train:\n  threads: 1\n", 1)
     (run / "config.yaml").write_text(text)
     code, lines, out = run_cli(
         "train", [*RESUME, f"resume={run}", "train.total_steps=4096"], tmp_path, monkeypatch, capsys
@@ -130,6 +133,8 @@ def test_01_resume_of_a_run_written_before_a_config_key_existed(tmp_path, monkey
     assert load_checkpoint(run / "last.pt")["frames"] == 4096
     saved = (run / "config.yaml").read_text()
     assert "  protocol: project\n" in saved and "  fixed_ref: steps\n" in saved and "    timing: project\n" in saved
+    saved_cfg = OmegaConf.load(run / "config.yaml")
+    assert saved_cfg.threads == 1 and "threads" not in saved_cfg.train and "num_envs" not in saved_cfg.env
 
 
 def test_01_resume_refuses_an_override_that_changes_the_run(tmp_path, monkeypatch, capsys):

@@ -26,7 +26,8 @@ IGNORED = (
     "train.phases",
     "train.progress",
     "train.checkpoint_every",
-    "train.threads",
+    "train.threads",  # its spelling before it moved to the top level
+    "threads",
     "logger.",
     "eval.",
 )

@@ -20,7 +20,14 @@ from pathlib import Path
 
 from omegaconf import DictConfig
 
-from datt.configuration import CONF_PACKAGE, available_options, conf_dir, config_groups, root_from_uri
+from datt.configuration import (
+    CONF_PACKAGE,
+    available_options,
+    conf_dir,
+    config_groups,
+    refuse_retired_keys,
+    root_from_uri,
+)
 from datt.errors import ConfigError, FlightAborted, FlightStopped, TrainingDiverged, TrainingInterrupted, one_line
 from datt.runs import ignore_stop_signals, read_failure, record_failure, stop_signals
 
@@ -64,6 +71,7 @@ def _argv_search_roots(argv: list[str]) -> list[Path]:
 def preflight(argv: list[str]) -> None:
     """Reject unknown config-group options (over the whole search path) in one line, before
     Hydra prints a multi-line error."""
+    refuse_retired_keys([arg for arg in argv if "=" in arg and not arg.startswith("-")])
     roots = _argv_search_roots(argv)
     groups = config_groups(roots)
     for arg in argv:
@@ -257,6 +265,50 @@ def sigterm_as_interrupt() -> contextlib.AbstractContextManager:
     return stop_signals(_interrupt, (signal.SIGTERM,))
 
 
+def _run_job(task: Callable[[DictConfig], object], cfg: DictConfig) -> None:
+    """Run ``task`` as one Hydra job, mapping each error to its exit line and status (see
+    :func:`hydra_main`); a job of a multirun records ``failed.json`` instead of exiting."""
+    multirun = _in_multirun()
+    try:
+        with sigterm_as_interrupt():
+            task(cfg)
+    except ConfigError as exc:
+        if not multirun:
+            _fail(str(exc), 2)
+        _job_failed("errored", str(exc))
+    except FlightAborted as exc:
+        if not multirun:
+            ignore_stop_signals()  # the flight is over and logged; only the exit is left
+            _fail(f"flight {exc}", 4)
+        _job_failed("errored", f"flight {exc}")
+    except TrainingInterrupted as exc:
+        ignore_stop_signals()
+        _fail(f"interrupted by {exc}", 130)  # the user stops the whole sweep too
+    except FlightStopped as exc:
+        ignore_stop_signals()
+        _fail(f"flight {exc}", 130)
+    except KeyboardInterrupt as exc:
+        ignore_stop_signals()
+        _fail(f"interrupted by {exc.args[0] if exc.args else 'SIGINT'}", 130)
+    except TrainingDiverged as exc:
+        if not multirun:
+            _fail(f"training diverged: {exc}", 3)
+        _job_failed("diverged", f"training diverged: {exc}")
+    except OSError as exc:
+        if exc.errno not in FILE_FAULTS:
+            if not multirun:
+                raise
+            _job_failed("errored", f"{type(exc).__name__}: {one_line(exc)}", traceback.format_exc())
+            return
+        if not multirun:
+            _fail(file_fault_line(exc), 2)
+        _job_failed("errored", file_fault_line(exc))
+    except Exception as exc:  # a crash in one job must not take the sweep's other jobs with it
+        if not multirun:
+            raise
+        _job_failed("errored", f"{type(exc).__name__}: {one_line(exc)}", traceback.format_exc())
+
+
 def hydra_main(config_name: str, task: Callable[[DictConfig], object]) -> Callable[[], None]:
     """``task`` wrapped in ``@hydra.main`` (config tree from the package) with one-line errors.
 
@@ -268,45 +320,7 @@ def hydra_main(config_name: str, task: Callable[[DictConfig], object]) -> Callab
 
     @hydra.main(config_path=f"pkg://{CONF_PACKAGE}", config_name=config_name, version_base="1.3")
     def _main(cfg: DictConfig) -> None:
-        multirun = _in_multirun()
-        try:
-            with sigterm_as_interrupt():
-                task(cfg)
-        except ConfigError as exc:
-            if not multirun:
-                _fail(str(exc), 2)
-            _job_failed("errored", str(exc))
-        except FlightAborted as exc:
-            if not multirun:
-                ignore_stop_signals()  # the flight is over and logged; only the exit is left
-                _fail(f"flight {exc}", 4)
-            _job_failed("errored", f"flight {exc}")
-        except TrainingInterrupted as exc:
-            ignore_stop_signals()
-            _fail(f"interrupted by {exc}", 130)  # the user stops the whole sweep too
-        except FlightStopped as exc:
-            ignore_stop_signals()
-            _fail(f"flight {exc}", 130)
-        except KeyboardInterrupt as exc:
-            ignore_stop_signals()
-            _fail(f"interrupted by {exc.args[0] if exc.args else 'SIGINT'}", 130)
-        except TrainingDiverged as exc:
-            if not multirun:
-                _fail(f"training diverged: {exc}", 3)
-            _job_failed("diverged", f"training diverged: {exc}")
-        except OSError as exc:
-            if exc.errno not in FILE_FAULTS:
-                if not multirun:
-                    raise
-                _job_failed("errored", f"{type(exc).__name__}: {one_line(exc)}", traceback.format_exc())
-                return
-            if not multirun:
-                _fail(file_fault_line(exc), 2)
-            _job_failed("errored", file_fault_line(exc))
-        except Exception as exc:  # a crash in one job must not take the sweep's other jobs with it
-            if not multirun:
-                raise
-            _job_failed("errored", f"{type(exc).__name__}: {one_line(exc)}", traceback.format_exc())
+        _run_job(task, cfg)
 
     def entry() -> None:
         global _failed_jobs

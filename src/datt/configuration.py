@@ -308,6 +308,54 @@ def structured(cls, node, key: str):
     return obj
 
 
+# Keys that no longer exist: the old spelling -> what to use instead. A command line that names
+# one is refused in one line (:func:`refuse_retired_keys`); a config read from a checkpoint or a run
+# dir is carried over (:func:`upgrade_saved_config`: a renamed key's value moves, a dead key goes).
+RETIRED_KEYS: dict[str, str] = {
+    "env.num_envs": "algo.num_envs (training) or rma.num_envs (RMA fitting); evaluation, export and "
+    "deployment size their own batches",
+    "train.threads": "threads",
+}
+RENAMED_KEYS: dict[str, str] = {"train.threads": "threads"}  # the retired keys whose value moves
+
+
+def refuse_retired_keys(overrides: list[str]) -> None:
+    """A command-line override of a retired key is one line naming what replaced it."""
+    for text in overrides:
+        key = text.lstrip("+~").partition("=")[0]
+        if key in RETIRED_KEYS:
+            raise ConfigError(f"{key}: no longer a setting; use {RETIRED_KEYS[key]}")
+
+
+def upgrade_saved_config(cfg: DictConfig) -> DictConfig:
+    """A config saved by an older run (checkpoint ``config_yaml`` or a run's ``config.yaml``),
+    in place, in today's keys: renamed keys moved (today's value kept if both are there), dead
+    keys dropped. Returns ``cfg``."""
+    with contextlib.ExitStack() as stack:
+        if OmegaConf.is_struct(cfg):
+            stack.enter_context(_unstructed(cfg))
+        for key in RETIRED_KEYS:
+            parent_key, _, leaf = key.rpartition(".")
+            parent = OmegaConf.select(cfg, parent_key, default=None) if parent_key else cfg
+            if not isinstance(parent, DictConfig) or leaf not in parent:
+                continue
+            value = parent[leaf]
+            del parent[leaf]
+            new = RENAMED_KEYS.get(key)
+            if new is not None and OmegaConf.select(cfg, new, default="absent") == "absent":
+                OmegaConf.update(cfg, new, value, force_add=True)
+    return cfg
+
+
+@contextlib.contextmanager
+def _unstructed(cfg: DictConfig) -> Iterator[None]:
+    OmegaConf.set_struct(cfg, False)
+    try:
+        yield
+    finally:
+        OmegaConf.set_struct(cfg, True)
+
+
 def flat_leaves(tree: Any, prefix: str = "") -> dict[str, object]:
     """A nested config container (dicts of dicts) as ``{"dotted.key": leaf value}``."""
     if isinstance(tree, dict):

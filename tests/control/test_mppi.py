@@ -85,3 +85,25 @@ def test_bad_parameters_fail_clearly():
     with pytest.raises(ValueError, match="controller.noise_std"):
         MppiController(noise_std=[1.0, 2.0])
     assert Point  # the shared helper stays importable
+
+
+def test_the_rollout_cost_pairs_step_j_with_the_reference_at_t_plus_j_plus_one():
+    """On a moving reference (p_d = ½ a t²) and from a later step of the episode, the cost of one
+    noiseless sample is dt Σ_j w_p ‖p_j − p_d(t + (j + 1) dt)‖ over the simulator's own rollout."""
+    from tests.control.test_pid import quadratic_env
+
+    env = quadratic_env([0.2, 0.0, 0.0], [1.0, 0.0, -0.5], n=2)
+    td = env.reset()
+    for _ in range(7):
+        td = env.step(td.set("action", env.hover_action.expand(2, 4).clone()))["next"]
+    ctrl = MppiController(num_samples=1, horizon_steps=5, noise_std=[0, 0, 0, 0], att_weight=0.0, compile=False)
+    ctrl.reset(env)
+    seq = torch.tensor([[10.5, 0.3, -0.2, 0.0], [9.0, 0.0, 0.4, 0.1], [11.0, -0.5, 0.0, 0.0]] + [[9.81, 0, 0, 0]] * 2)
+    u = seq.to(env.dtype).expand(2, 1, 5, 4).clone()
+    cost = ctrl.rollout_cost(env, u, torch.zeros(2, 3, dtype=env.dtype))[:, 0]
+    k = int(env.step_idx[0])
+    errs = []
+    for j in range(5):
+        env.sim.step(u[:, 0, j])
+        errs.append(torch.linalg.vector_norm(env.sim.state.pos_m - env.ref_table[:, k + j + 1], dim=-1))
+    torch.testing.assert_close(cost, env.dt_s * 5.0 * torch.stack(errs, 1).sum(1))

@@ -11,7 +11,7 @@ from datt.sim import QuadrotorParams
 
 
 def _env(obs: ObsParams, seed=0) -> TrackingEnv:
-    return TrackingEnv(2000, Zigzag(), params=EnvParams(num_envs=2000, obs=obs), seed=seed)
+    return TrackingEnv(2000, Zigzag(), params=EnvParams(obs=obs), seed=seed)
 
 
 @pytest.mark.parametrize(
@@ -44,7 +44,7 @@ def test_negative_observation_noise_names_the_key(key):
 
 def test_env_redraws_the_vehicle_of_each_drone_it_resets():
     quad = QuadrotorParams(mass_spread=0.1, latency_steps_max=3, rate_model="mixed")
-    env = TrackingEnv(64, Zigzag(), params=EnvParams(num_envs=64, quad=quad), seed=0)
+    env = TrackingEnv(64, Zigzag(), params=EnvParams(quad=quad), seed=0)
     first = env.sim.thrust_scale.clone()
     td = env.reset()  # every drone
     scale, delay = env.sim.thrust_scale.clone(), env.sim.latency.delay.clone()
@@ -63,7 +63,7 @@ def test_measurement_adds_its_own_draws_in_order_and_draws_nothing_when_off(dtyp
     and leaves the generator alone (the nominal random stream and the seeded banks stay as they are)."""
     from datt.sim.frames import quat_exp_rotvec, quat_mul, quat_normalize
 
-    noisy = TrackingEnv(8, Zigzag(), params=EnvParams(num_envs=8, dtype=dtype, obs=ObsParams(
+    noisy = TrackingEnv(8, Zigzag(), params=EnvParams(dtype=dtype, obs=ObsParams(
         pos_noise_std_m=0.02, vel_noise_std_mps=0.05, att_noise_std_rad=0.01)), seed=3)  # fmt: skip
     s = noisy.sim.state
     pos, vel, quat = s.pos_m + 0.3, s.vel_mps - 0.2, s.quat
@@ -76,7 +76,7 @@ def test_measurement_adds_its_own_draws_in_order_and_draws_nothing_when_off(dtyp
     torch.testing.assert_close(mq, quat_normalize(quat_mul(quat, turn)))
     assert mp.dtype == mv.dtype == mq.dtype == noisy.dtype
 
-    clean = TrackingEnv(8, Zigzag(), params=EnvParams(num_envs=8, dtype=dtype), seed=3)
+    clean = TrackingEnv(8, Zigzag(), params=EnvParams(dtype=dtype), seed=3)
     before = clean.generator.get_state()
     out = clean._measure(pos, vel, quat)
     assert all(a is b for a, b in zip(out, (pos, vel, quat)))

@@ -338,7 +338,7 @@ def test_tracking_env_arguments_reach_the_simulator_and_are_checked():
     assert env.dt_s == env.sim.dt_s == 0.01
     with pytest.raises(ConfigError) as info:
         TrackingEnv(0, Zigzag())
-    assert str(info.value) == "env.num_envs: must be >= 1, got 0"
+    assert str(info.value) == "num_envs: must be >= 1, got 0"
 
 
 def test_the_reference_table_is_the_family_at_exact_multiples_of_dt(make_tracking_env):

@@ -5,7 +5,7 @@ import json
 
 import pytest
 
-from datt.configuration import compose
+from datt.configuration import compose, upgrade_saved_config
 from datt.control.factory import build_controller
 from datt.eval.rollout import evaluate
 from datt.paths import PACKAGE_DIR, resolve_path
@@ -52,18 +52,18 @@ def drop_added_keys(trained: dict, expected: dict) -> None:
 def test_deploy_grade_checkpoint_is_the_output_of_experiment_deploy():
     """``checkpoints/datt_h10_deploy.pt`` came from ``python train.py experiment=deploy`` as it is
     configured now: its last phase's whole config (env, policy, algo, references, disturbance,
-    adaptation) is the one the experiment composes, and it starts from ``datt_h10_train_mix.pt``."""
+    adaptation) is the one the experiment composes, and it starts from ``datt_h10.pt``."""
     from omegaconf import OmegaConf
 
     from datt.checkpoint import load_checkpoint
     from datt.tasks.phases import phase_config, phase_plan
 
     cfg = compose("train", ["experiment=deploy"])
-    assert cfg.train.init_from == "checkpoints/datt_h10_train_mix.pt"
+    assert cfg.train.init_from == "checkpoints/datt_h10.pt"
     plan = phase_plan(cfg)
     expected = OmegaConf.to_container(phase_config(cfg, len(plan) - 1, plan, "previous/last.pt"), resolve=True)
     data = load_checkpoint(resolve_path("checkpoints/datt_h10_deploy.pt"))
-    trained = OmegaConf.to_container(OmegaConf.create(data["config_yaml"]), resolve=True)
+    trained = OmegaConf.to_container(upgrade_saved_config(OmegaConf.create(data["config_yaml"])), resolve=True)
     drop_added_keys(trained, expected)  # keys added after the checkpoint was trained
     for key in ("env", "policy", "algo", "traj", "disturbance", "adaptation", "horizon", "seed"):
         assert trained[key] == expected[key], key
@@ -75,7 +75,7 @@ def test_deploy_grade_checkpoint_is_the_output_of_experiment_deploy():
     "checkpoint, overrides",
     [
         ("checkpoints/datt_h10.pt", []),
-        # the deploy-grade policy's parent: the authors' zigzags only, hover-thrust starts
+        # the policy the defaults trained before: the authors' zigzags only, hover-thrust starts
         ("checkpoints/datt_h10_train_mix.pt", ["traj=train_mix", "env.quad.initial_thrust_mps2=null"]),
     ],
 )
@@ -90,13 +90,13 @@ def test_shipped_checkpoint_is_the_output_of_python_train_py(checkpoint, overrid
 
     cfg = OmegaConf.to_container(compose("train", overrides), resolve=True)
     data = load_checkpoint(resolve_path(checkpoint))
-    trained = OmegaConf.to_container(OmegaConf.create(data["config_yaml"]), resolve=True)
+    trained = OmegaConf.to_container(upgrade_saved_config(OmegaConf.create(data["config_yaml"])), resolve=True)
     drop_added_keys(trained, cfg)  # keys added after the checkpoint was trained
     keys = ("env", "policy", "algo", "traj", "curriculum", "disturbance", "adaptation", "horizon", "seed", "budget")
     for key in keys:
         assert trained[key] == cfg[key], key
     # the train node but the keys that change how a run is carried out, not what it trains
-    bookkeeping = ("progress", "threads", "checkpoint_every")
+    bookkeeping = ("progress", "checkpoint_every")
     assert {k: v for k, v in trained["train"].items() if k not in bookkeeping} == {
         k: v for k, v in cfg["train"].items() if k not in bookkeeping
     }

@@ -84,7 +84,7 @@ def test_a_complete_run_trains_nothing_and_writes_nothing(tmp_path):
 
 def test_each_row_describes_its_batch(tmp_path):
     """Tracking error, reward and crash rate of the batch as collected; the return estimate is
-    the mean reward per step × the episode's steps; the phase is the one the batch was trained in."""
+    the mean reward per step × the episode's steps; the curriculum stage is the one the batch was trained in."""
     trainer = _trainer(
         tmp_path,
         f"train.total_steps={3 * BATCH}",
@@ -95,7 +95,7 @@ def test_each_row_describes_its_batch(tmp_path):
         cls=SpyTrainer,
     )
     history = trainer.train()
-    assert [row["phase"] for row in history] == ["fixed", "main", "main"]
+    assert [row["curriculum_stage"] for row in history] == ["fixed", "main", "main"]
     for row, batch in zip(history, trainer.batches, strict=True):
         reward = batch["next", "reward"].mean().item()  # unscaled: before update() scaled it
         done = batch["next", "done"].sum().item()
@@ -113,9 +113,9 @@ def test_each_row_describes_its_batch(tmp_path):
     assert all(0.0 < rate < 1.0 for rate in crash_rates), crash_rates  # both kinds of episode end
 
 
-def test_checkpoints_every_n_iterations_and_the_best_of_the_main_phase(tmp_path):
+def test_checkpoints_every_n_iterations_and_the_best_of_the_main_stage(tmp_path):
     """``last.pt`` every ``checkpoint_every`` iterations and at the end; ``best.pt`` whenever the
-    training error of a main-phase batch beats the best so far (never in the fixed phase)."""
+    training error of a main-stage batch beats the best so far (never in the fixed stage)."""
     logger = CheckpointSpy(tmp_path)
     trainer = _trainer(
         tmp_path,
@@ -128,14 +128,14 @@ def test_checkpoints_every_n_iterations_and_the_best_of_the_main_phase(tmp_path)
     # the row of iteration k is logged before k's checkpoints are written
     assert [last for _, last, _ in logger.seen] == [None, None, 2, 2, 4]
     assert load_checkpoint(tmp_path / "last.pt")["iteration"] == 5
-    main = [row for row in history if row["phase"] == "main"]
+    main = [row for row in history if row["curriculum_stage"] == "main"]
     best_row = min(main, key=lambda row: row["tracking_error_m"])
     best = load_checkpoint(tmp_path / "best.pt")
     assert best["iteration"] == best_row["iteration"] and best["frames"] == best_row["frames"]
     assert best["best_error_m"] == pytest.approx(best_row["tracking_error_m"])
     improved, best_so_far, expect = [], float("inf"), []
     for row in history:
-        if row["phase"] == "main" and row["tracking_error_m"] < best_so_far:
+        if row["curriculum_stage"] == "main" and row["tracking_error_m"] < best_so_far:
             best_so_far = row["tracking_error_m"]
             improved.append(row["iteration"])
         expect.append(improved[-1] if improved else None)
@@ -143,17 +143,17 @@ def test_checkpoints_every_n_iterations_and_the_best_of_the_main_phase(tmp_path)
     assert [best_it for _, _, best_it in logger.seen[1:]] == expect[:-1]
 
 
-def test_a_run_that_never_leaves_the_fixed_phase_still_has_a_best(tmp_path):
+def test_a_run_that_never_leaves_the_fixed_stage_still_has_a_best(tmp_path):
     trainer = _trainer(tmp_path, f"train.total_steps={2 * BATCH}", f"curriculum.fixed_ref_steps={10 * BATCH}")
     history = trainer.train()
-    assert [row["phase"] for row in history] == ["fixed", "fixed"]
+    assert [row["curriculum_stage"] for row in history] == ["fixed", "fixed"]
     best = load_checkpoint(tmp_path / "best.pt")
-    assert best["iteration"] == 2 and best["phase"] == "fixed"
+    assert best["iteration"] == 2 and best["curriculum_stage"] == "fixed"
 
 
-@pytest.mark.parametrize("fixed_ref_steps, phases", [(BATCH, ["fixed"] * 3), (0, ["main"] * 3)])
+@pytest.mark.parametrize("fixed_ref_steps, stages", [(BATCH, ["fixed"] * 3), (0, ["main"] * 3)])
 def test_the_whole_run_curriculum_flies_the_fixed_reference_to_the_end_unless_skipped(
-    tmp_path, fixed_ref_steps, phases
+    tmp_path, fixed_ref_steps, stages
 ):
     trainer = _trainer(
         tmp_path,
@@ -161,7 +161,7 @@ def test_the_whole_run_curriculum_flies_the_fixed_reference_to_the_end_unless_sk
         f"curriculum.fixed_ref_steps={fixed_ref_steps}",
         "curriculum.fixed_ref=whole_run",
     )
-    assert [row["phase"] for row in trainer.train()] == phases
+    assert [row["curriculum_stage"] for row in trainer.train()] == stages
 
 
 def test_progress_bar_shows_steps_rate_error_and_return(tmp_path):
@@ -216,7 +216,7 @@ def test_a_stop_signal_saves_and_stops_after_the_batch(tmp_path):
     assert signal.getsignal(signal.SIGTERM) is handler
 
 
-def test_budget_scales_the_total_and_the_fixed_phase(tmp_path):
+def test_budget_scales_the_total_and_the_fixed_stage(tmp_path):
     trainer = _trainer(tmp_path, "budget=0.5", "train.total_steps=4096", "curriculum.fixed_ref_steps=2048")
     assert (trainer.total_frames, trainer.fixed_ref_steps) == (2048, 1024)
     from datt.errors import ConfigError
@@ -225,16 +225,16 @@ def test_budget_scales_the_total_and_the_fixed_phase(tmp_path):
         _trainer(tmp_path, "budget=0.0001", "train.total_steps=4096")
 
 
-def test_the_env_flies_the_main_family_once_the_fixed_phase_is_over(tmp_path):
+def test_the_env_flies_the_main_family_once_the_fixed_stage_is_over(tmp_path):
     trainer = _trainer(tmp_path, f"train.total_steps={2 * BATCH}", f"curriculum.fixed_ref_steps={BATCH}")
-    assert trainer.phase == "fixed" and trainer.env.traj is trainer.fixed_traj
+    assert trainer.curriculum_stage == "fixed" and trainer.env.traj is trainer.fixed_traj
     trainer.train()
-    assert trainer.phase == "main" and trainer.env.traj is trainer.main_traj
+    assert trainer.curriculum_stage == "main" and trainer.env.traj is trainer.main_traj
     trainer.frames = 0  # e.g. a checkpoint from before the switch: back to the fixed reference
-    trainer._update_phase()
-    assert trainer.phase == "fixed" and trainer.env.traj is trainer.fixed_traj
+    trainer._update_curriculum_stage()
+    assert trainer.curriculum_stage == "fixed" and trainer.env.traj is trainer.fixed_traj
     no_curriculum = _trainer(tmp_path, "curriculum.fixed_ref_steps=0")
-    assert no_curriculum.phase == "main" and no_curriculum.fixed_traj is None
+    assert no_curriculum.curriculum_stage == "main" and no_curriculum.fixed_traj is None
 
 
 @pytest.mark.parametrize("stagger", [True, False])
@@ -329,18 +329,18 @@ def test_divergence_names_what_went_non_finite(tmp_path, what):
     assert str(info.value).startswith(f"non-finite {what} at iteration 1 (frame {BATCH}); last good checkpoint: ")
 
 
-def test_a_resumed_main_phase_at_the_fixed_phase_end_stays_main(tmp_path):
+def test_a_resumed_main_stage_at_the_fixed_stage_end_stays_main(tmp_path):
     trainer = _trainer(tmp_path, f"train.total_steps={4 * BATCH}", f"curriculum.fixed_ref_steps={BATCH}")
-    trainer.phase, trainer.frames = "main", BATCH
-    trainer._update_phase()
-    assert trainer.phase == "main"
+    trainer.curriculum_stage, trainer.frames = "main", BATCH
+    trainer._update_curriculum_stage()
+    assert trainer.curriculum_stage == "main"
     trainer.frames = BATCH - 1  # below it: back to the fixed reference
-    trainer._update_phase()
-    assert trainer.phase == "fixed"
+    trainer._update_curriculum_stage()
+    assert trainer.curriculum_stage == "fixed"
 
 
-def test_a_main_phase_that_never_beat_its_best_still_writes_one(tmp_path):
-    """A resumed main phase whose batches never beat the best error it carried (best.pt lost):
+def test_a_main_stage_that_never_beat_its_best_still_writes_one(tmp_path):
+    """A resumed main stage whose batches never beat the best error it carried (best.pt lost):
     the end of the run writes best.pt from the last state."""
     trainer = _trainer(tmp_path, f"train.total_steps={BATCH}", "curriculum.fixed_ref_steps=0")
     trainer.best_error = -1.0
@@ -356,7 +356,7 @@ def test_checkpoints_hold_the_resolved_config(tmp_path):
 
 
 def test_the_logger_gets_numbers_only(tmp_path):
-    """Each row's phase (a word) stays in the history; the logger (CSV, wandb) gets the numbers."""
+    """Each row's curriculum stage (a word) stays in the history; the logger (CSV, wandb) gets the numbers."""
 
     class KeySpy(CsvLogger):
         def __init__(self, run_dir):
@@ -369,6 +369,6 @@ def test_the_logger_gets_numbers_only(tmp_path):
 
     logger = KeySpy(tmp_path)
     history = _trainer(tmp_path, f"train.total_steps={2 * BATCH}", logger=logger).train()
-    assert logger.keys and all("phase" not in keys for keys in logger.keys)
+    assert logger.keys and all("curriculum_stage" not in keys for keys in logger.keys)
     assert all("tracking_error_m" in keys for keys in logger.keys)
-    assert all(row["phase"] in ("fixed", "main") for row in history)
+    assert all(row["curriculum_stage"] in ("fixed", "main") for row in history)

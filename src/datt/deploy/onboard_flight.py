@@ -89,12 +89,26 @@ class OnboardFlight(FlightRunner):
                 f"({(onboard.TABLE_MAX - env.window) / self.p.rate_hz:.1f} s of track at {self.p.rate_hz:g} Hz); "
                 f"this track needs {len(table)}"
             )
-        origin = self._origin()
-        values = {
+        values = self._app_settings(self._origin(), len(table), steps)
+        controller = self._app_controller_id()
+        try:  # every setting the onboard flight depends on, read back fresh
+            self.link.set_params_checked({"datt.run": 0, **{f"datt.{name}": value for name, value in values.items()}})
+            self.link.set_param_checked(str(firmware.fact("param_controller")), controller)
+        except LinkError as exc:
+            self._refuse(f"deploy.onboard: {str(exc).removeprefix('connect: ')}")
+        self._event("onboard", f"stabilizer.controller = {controller} (the app's out-of-tree controller), read back")
+        self._upload(table)
+        self._onboard_steps = steps
+        self.link.log_block("datt", onboard.LOG_BLOCK, self.link.log_period_ms, self._on_app_log)
+
+    def _app_settings(self, origin: np.ndarray, n_points: int, steps: int) -> dict:
+        """The app's parameters (``datt.<name>``) for this flight: origin (world frame, m), table
+        length, track steps, landing, thrust map, rate limits and safety limits."""
+        return {
             "originX": origin[0],
             "originY": origin[1],
             "originZ": origin[2],
-            "nPoints": len(table),
+            "nPoints": n_points,
             "trackSteps": steps,
             "landZ": -origin[2] + 0.05,
             "landS": self.p.land_s,
@@ -108,13 +122,9 @@ class OnboardFlight(FlightRunner):
             "maxTiltDeg": self.safety.max_tilt_deg,
             "maxPosStdM": self.p.onboard_max_pos_std_m,
         }
-        controller = self._app_controller_id()
-        try:  # every setting the onboard flight depends on, read back fresh
-            self.link.set_params_checked({"datt.run": 0, **{f"datt.{name}": value for name, value in values.items()}})
-            self.link.set_param_checked(str(firmware.fact("param_controller")), controller)
-        except LinkError as exc:
-            self._refuse(f"deploy.onboard: {str(exc).removeprefix('connect: ')}")
-        self._event("onboard", f"stabilizer.controller = {controller} (the app's out-of-tree controller), read back")
+
+    def _upload(self, table) -> None:
+        """Send the reference table to the app over the app channel, refusing the flight if it fails."""
         upload = onboard.Upload(self.link.send_app_packet, table)
         self.link.on_app_packet(upload.on_packet)
         started = time.monotonic()
@@ -125,8 +135,6 @@ class OnboardFlight(FlightRunner):
         upload_s = time.monotonic() - started
         self.summary_extra["upload_s"] = upload_s
         self._event("onboard", f"reference uploaded: {len(table)} points in {upload_s:.2f} s")
-        self._onboard_steps = steps
-        self.link.log_block("datt", onboard.LOG_BLOCK, self.link.log_period_ms, self._on_app_log)
 
     def _app_controller_id(self) -> int:
         """The controller id the app's hook runs under, as the app publishes it
@@ -166,33 +174,9 @@ class OnboardFlight(FlightRunner):
         while time.monotonic() < deadline:
             now = time.monotonic()
             state = self.link.state()
-            mocap_age = self._mocap_age()
-            last = self._app["last"]
-            phase = last[0] if last is not None else onboard.IDLE
-            if phase == onboard.REFUSED:
-                self._event("LAND", "the app refused to start (table incomplete or a parameter invalid)")
-                self.link.set_param("datt.run", 0)
-                return LAND
-            if phase == onboard.ABORTED:  # the app holds the motors off (stop setpoints) until datt.run = 0
-                self.outcome = Outcome(
-                    Kind.KILLED, "the onboard app aborted (tilt or a non-finite state/action), motors stopped"
-                )
-                self._event("KILL", self.outcome.text)
-                return KILL
-            if phase == onboard.DONE:
-                self.link.set_param("datt.run", 0)
-                self._event("onboard", "the app has landed")
-                return OK
-            if last is not None and phase in (onboard.TRACK, onboard.LAND):
-                hearing = now - last[3] < APP_STALL_S / 2  # the app's log arrives: the link is up
-                if last[1] != stepping[0]:
-                    stepping[:] = [last[1], now]
-                elif now - stepping[1] > APP_STALL_S and hearing:
-                    self._event("LAND", f"the app stopped stepping at step {last[1]} (its state is stale: no hook)")
-                    self.link.set_param("datt.run", 0)  # the commander back to the radio's setpoints,
-                    # flown by a controller that honours rates (the app's hook ran under another)
-                    self.link.set_param(str(firmware.fact("param_controller")), firmware.CONTROLLER_PID)
-                    return LAND
+            verdict = self._app_verdict(now, stepping)
+            if verdict is not None:
+                return verdict
             fresh = state is not None and now - state.t_s < self.safety.max_state_age_s
             if self.link.link_lost.is_set() or not fresh:
                 if not quiet:  # nothing the host can do: the app flies on by itself
@@ -200,41 +184,9 @@ class OnboardFlight(FlightRunner):
                     quiet = True
             else:
                 quiet = False
-                state_for_check = dataclasses.replace(state, vbat_v=self.battery.update(state.vbat_v, dt))
-                decision = check(
-                    self.safety,
-                    now_s=now,
-                    state=state_for_check,
-                    command=None,
-                    estop=self.estop.is_set(),
-                    link_lost=False,
-                    mocap_age_s=mocap_age,
-                )
-                if decision.action == KILL:
-                    self._kill(decision.reason)
-                    return KILL
-                if decision.action == LAND:
-                    self._event("LAND", decision.reason)
-                    self.link.set_param("datt.run", 0)  # the app hands the commander back
-                    return LAND
-                ref = np.array(last[2]) + origin if last is not None else np.full(3, np.nan)
-                self.rows.append(
-                    {
-                        "t_s": now - self.log.t0,
-                        "phase": "TRACK" if phase != onboard.LAND else "LAND",
-                        "pos": list(state.pos_m),
-                        "vel": list(state.vel_mps),
-                        "quat": list(state.quat),
-                        "ref": list(ref),
-                        "action": [math.nan] * 4,  # computed onboard
-                        "thrust_cmd": 0,
-                        "d_hat": [math.nan] * 3,
-                        "vbat": state.vbat_v,
-                        "decision": decision.action,
-                        "jitter_ms": (now - next_t) * 1e3,
-                        "compute_ms": 0.0,
-                    }
-                )
+                verdict = self._watch_step(state, now, (now - next_t) * 1e3, origin)
+                if verdict is not None:
+                    return verdict
             next_t += dt
             time.sleep(max(0.0, next_t - time.monotonic()))
         state = self.link.state()
@@ -248,6 +200,81 @@ class OnboardFlight(FlightRunner):
         self._event("LAND", f"the app did not report landing within {budget_s:.1f} s")
         self.link.set_param("datt.run", 0)
         return LAND
+
+    def _app_verdict(self, now: float, stepping: list) -> str | None:
+        """What the app's own log says about the flight: OK (landed), LAND (refused to start or
+        stopped stepping), KILL (aborted), or None (flying on). ``stepping`` is the app's last step
+        seen and when it changed, updated in place."""
+        last = self._app["last"]
+        phase = last[0] if last is not None else onboard.IDLE
+        if phase == onboard.REFUSED:
+            self._event("LAND", "the app refused to start (table incomplete or a parameter invalid)")
+            self.link.set_param("datt.run", 0)
+            return LAND
+        if phase == onboard.ABORTED:  # the app holds the motors off (stop setpoints) until datt.run = 0
+            self.outcome = Outcome(
+                Kind.KILLED, "the onboard app aborted (tilt or a non-finite state/action), motors stopped"
+            )
+            self._event("KILL", self.outcome.text)
+            return KILL
+        if phase == onboard.DONE:
+            self.link.set_param("datt.run", 0)
+            self._event("onboard", "the app has landed")
+            return OK
+        if last is not None and phase in (onboard.TRACK, onboard.LAND):
+            hearing = now - last[3] < APP_STALL_S / 2  # the app's log arrives: the link is up
+            if last[1] != stepping[0]:
+                stepping[:] = [last[1], now]
+            elif now - stepping[1] > APP_STALL_S and hearing:
+                self._event("LAND", f"the app stopped stepping at step {last[1]} (its state is stale: no hook)")
+                self.link.set_param("datt.run", 0)  # the commander back to the radio's setpoints,
+                # flown by a controller that honours rates (the app's hook ran under another)
+                self.link.set_param(str(firmware.fact("param_controller")), firmware.CONTROLLER_PID)
+                return LAND
+        return None
+
+    def _watch_step(self, state, now: float, jitter_ms: float, origin: np.ndarray) -> str | None:
+        """The host's safety check on a fresh state while the app flies, and the log row:
+        KILL or LAND when the check says so (the app hands the commander back), else None."""
+        dt = 1.0 / self.p.rate_hz
+        state_for_check = dataclasses.replace(state, vbat_v=self.battery.update(state.vbat_v, dt))
+        decision = check(
+            self.safety,
+            now_s=now,
+            state=state_for_check,
+            command=None,
+            estop=self.estop.is_set(),
+            link_lost=False,
+            mocap_age_s=self._mocap_age(),
+        )
+        if decision.action == KILL:
+            self._kill(decision.reason)
+            return KILL
+        if decision.action == LAND:
+            self._event("LAND", decision.reason)
+            self.link.set_param("datt.run", 0)  # the app hands the commander back
+            return LAND
+        last = self._app["last"]
+        phase = last[0] if last is not None else onboard.IDLE
+        ref = np.array(last[2]) + origin if last is not None else np.full(3, np.nan)
+        self.rows.append(
+            {
+                "t_s": now - self.log.t0,
+                "phase": "TRACK" if phase != onboard.LAND else "LAND",
+                "pos": list(state.pos_m),
+                "vel": list(state.vel_mps),
+                "quat": list(state.quat),
+                "ref": list(ref),
+                "action": [math.nan] * 4,  # computed onboard
+                "thrust_cmd": 0,
+                "d_hat": [math.nan] * 3,
+                "vbat": state.vbat_v,
+                "decision": decision.action,
+                "jitter_ms": jitter_ms,
+                "compute_ms": 0.0,
+            }
+        )
+        return None
 
     def _track_errors(self) -> list[float]:
         """The app's own per-step error (the estimate it flew on vs p_d at that step)."""

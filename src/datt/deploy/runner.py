@@ -263,17 +263,7 @@ class FlightRunner:
         try:
             with stop_signals(_raise_interrupt):
                 self._stop_if_requested()
-                self._set_phase("CONNECT")
-                self.link.connect(external_position=self._has_mocap())
-                if self.predictor is not None:  # the radio round trip, measured by connect's param reads
-                    self.predictor.round_trip_s = self.link.round_trip_s
-                    self._event("predictor", f"latency {self.predictor.latency_s * 1000:.0f} ms compensated")
-                if self._has_mocap():
-                    self.mocap.subscribe(self._forward_frame)
-                    self._forwarding = True
-                    threading.Thread(target=self._forward_frames, name="mocap-forward", daemon=True).start()
-                if self.mocap is not None:
-                    self.mocap.start()
+                self._connect()
                 self._set_phase("PREFLIGHT")
                 start = self._preflight()
                 origin = self._origin()
@@ -298,24 +288,45 @@ class FlightRunner:
             else:
                 self._kill(str(exc))
         finally:
-            with stop_signals(signal.SIG_IGN):  # a second Ctrl-C must not cut the disarm or the log short
-                self._set_phase("DISARM")
-                try:
-                    self.link.send_rates(0.0, 0.0, 0.0, 0)
-                    self.link.arm(False)
-                except Exception as exc:  # a dead link cannot disarm; the vehicle's watchdog does
-                    self._event("disarm failed", str(exc))
-                if self.link.link_lost.is_set():  # the sends above were skipped; say why
-                    self._event("link lost", self.link.lost_reason)
-                summary = self._write()  # before closing anything: a hanging close keeps the log
-                self._forwarding = False
-                try:
-                    if self.mocap is not None:
-                        self.mocap.stop()
-                    self.link.close()
-                except Exception as exc:
-                    self._event("close failed", str(exc))
-                    summary = self._write()
+            summary = self._disarm_and_write()
+        return summary
+
+    def _connect(self) -> None:
+        """CONNECT: open the link (the vehicle's settings read back), hand the predictor the
+        measured round trip, and start forwarding motion capture."""
+        self._set_phase("CONNECT")
+        self.link.connect(external_position=self._has_mocap())
+        if self.predictor is not None:  # the radio round trip, measured by connect's param reads
+            self.predictor.round_trip_s = self.link.round_trip_s
+            self._event("predictor", f"latency {self.predictor.latency_s * 1000:.0f} ms compensated")
+        if self._has_mocap():
+            self.mocap.subscribe(self._forward_frame)
+            self._forwarding = True
+            threading.Thread(target=self._forward_frames, name="mocap-forward", daemon=True).start()
+        if self.mocap is not None:
+            self.mocap.start()
+
+    def _disarm_and_write(self) -> dict:
+        """DISARM whatever happened, write the flight log, then close mocap and the link;
+        returns the summary."""
+        with stop_signals(signal.SIG_IGN):  # a second Ctrl-C must not cut the disarm or the log short
+            self._set_phase("DISARM")
+            try:
+                self.link.send_rates(0.0, 0.0, 0.0, 0)
+                self.link.arm(False)
+            except Exception as exc:  # a dead link cannot disarm; the vehicle's watchdog does
+                self._event("disarm failed", str(exc))
+            if self.link.link_lost.is_set():  # the sends above were skipped; say why
+                self._event("link lost", self.link.lost_reason)
+            summary = self._write()  # before closing anything: a hanging close keeps the log
+            self._forwarding = False
+            try:
+                if self.mocap is not None:
+                    self.mocap.stop()
+                self.link.close()
+            except Exception as exc:
+                self._event("close failed", str(exc))
+                summary = self._write()
         return summary
 
     def _stop_if_requested(self) -> None:
@@ -455,6 +466,29 @@ class FlightRunner:
                 f"fence {lo[axis]:.2f}..{hi[axis]:.2f} m)"
             )
 
+    def _act(self, model: FlightModel, state, now: float, origin: np.ndarray, k: int, predict: bool) -> np.ndarray:
+        """The controller's command for a finite measured ``state`` (world frame; the model flies
+        relative to ``origin``), seen through the latency predictor when ``predict``, plus the
+        calibration's thrust excitation at tick ``k``."""
+        predicted = None
+        if predict:
+            p, v, q = self.predictor.predict(now, state.t_s, state.pos_m, state.vel_mps, state.quat, model.d_hat)
+            predicted = (np.array(p) - origin, v, q)
+        action = model.act(np.array(state.pos_m) - origin, state.vel_mps, state.quat, predicted)
+        if self._excitation is not None:
+            action[0] += self._excitation(k)
+        return action
+
+    def _send_tick(self, model: FlightModel, action) -> int:
+        """Send the tick's command (and the e-stop watchdog); the predictor records the thrust sent.
+        Returns the thrust command sent."""
+        command = self._send(action)
+        if self.predictor is not None:
+            self.predictor.record(time.monotonic(), model.last_cmd[0].detach())
+        if self.p.estop_watchdog and self.sends_estop_watchdog:
+            self.link.send_estop_watchdog()
+        return command
+
     def _tick_loop(self, model: FlightModel, steps: int, origin: np.ndarray, allow_land: bool = True) -> str:
         dt = 1.0 / self.p.rate_hz
         next_t = time.monotonic()
@@ -472,19 +506,10 @@ class FlightRunner:
             else:
                 state_for_check = None
             mocap_age = self._mocap_age()
-            action, command = None, 0
+            action = None
             if state is not None and all(math.isfinite(v) for v in (*state.pos_m, *state.vel_mps, *state.quat)):
                 used_t = state.t_s
-                predicted = None
-                if predict:
-                    p, v, q = self.predictor.predict(
-                        now, state.t_s, state.pos_m, state.vel_mps, state.quat, model.d_hat
-                    )
-                    predicted = (np.array(p) - origin, v, q)
-                pos = np.array(state.pos_m) - origin
-                action = model.act(pos, state.vel_mps, state.quat, predicted)
-                if self._excitation is not None:
-                    action[0] += self._excitation(k)
+                action = self._act(model, state, now, origin, k, predict)
             decision = check(
                 self.safety,
                 now_s=time.monotonic(),
@@ -502,12 +527,7 @@ class FlightRunner:
                 return LAND
             if decision.action == LAND:  # already landing: keep landing, note why
                 self._event("warning", decision.reason)
-            command = self._send(action)
-            if self.predictor is not None:
-                self.predictor.record(time.monotonic(), model.last_cmd[0].detach())
-            if self.p.estop_watchdog and self.sends_estop_watchdog:
-                self.link.send_estop_watchdog()
-            compute_ms = (time.monotonic() - now) * 1e3
+            command = self._send_tick(model, action)
             self.rows.append(
                 {
                     "t_s": now - self.log.t0,
@@ -522,7 +542,7 @@ class FlightRunner:
                     "vbat": state.vbat_v,
                     "decision": decision.action,
                     "jitter_ms": jitter_ms,
-                    "compute_ms": compute_ms,
+                    "compute_ms": (time.monotonic() - now) * 1e3,
                 }
             )
             model.advance()

@@ -14,11 +14,9 @@ def env_params_from_cfg(env_cfg: DictConfig | dict | None) -> EnvParams:
     return structured(EnvParams, env_cfg, "env")
 
 
-def make_env(
-    cfg: DictConfig, num_envs: int | None = None, seed: int | None = None, traj=None, **overrides
-) -> TrackingEnv:
-    """The env of a composed config (``env``, ``traj``, ``disturbance``, ``adaptation``,
-    ``horizon``, ``seed``). ``traj`` replaces ``cfg.traj`` with a ready family (evaluation banks);
+def make_env(cfg: DictConfig, num_envs: int, seed: int | None = None, traj=None, **overrides) -> TrackingEnv:
+    """The env of ``num_envs`` drones of a composed config (``env``, ``traj``, ``disturbance``,
+    ``adaptation``, ``horizon``, ``seed``). ``traj`` replaces ``cfg.traj`` with a ready family (evaluation banks);
     ``disturbance: null`` / ``adaptation: null`` mean none / privileged."""
     params = env_params_from_cfg(cfg.env)
     horizon = check_horizon(cfg.horizon)
@@ -26,7 +24,7 @@ def make_env(
     disturbance = instantiate_option(cfg, "disturbance") if cfg.get("disturbance") is not None else None
     adaptation = instantiate_option(cfg, "adaptation") if cfg.get("adaptation") is not None else None
     env = TrackingEnv(
-        num_envs=num_envs or params.num_envs,
+        num_envs=num_envs,
         traj=traj,
         disturbance=disturbance,
         adaptation=adaptation,

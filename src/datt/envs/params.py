@@ -9,7 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
-from datt.configuration import BATCH, NON_NEGATIVE, POSITIVE, POSITIVE_OR_NONE, Range, check_ranges, ranged
+from datt.configuration import NON_NEGATIVE, POSITIVE, POSITIVE_OR_NONE, Range, check_ranges, ranged
 from datt.errors import ConfigError
 from datt.sim.quadrotor import QuadrotorParams
 
@@ -98,7 +98,6 @@ class EnvParams:
     """Tracking env settings (``conf/env/default.yaml``). Units in the names; see
     :class:`datt.envs.TrackingEnv` for their meaning."""
 
-    num_envs: int = ranged(1024, BATCH)
     dt_s: float = ranged(0.02, Range(0.0, 1.0, low_open=True))
     episode_steps: int = ranged(500, Range(1, 10**7, integer=True))
     ref_spacing_s: float = ranged(0.06, POSITIVE)  # and a whole multiple of dt_s

@@ -82,7 +82,7 @@ class TrackingEnv(EnvBase):
         params.validate()
         check_horizon(horizon)
         if num_envs < 1:
-            raise ConfigError(f"env.num_envs: must be >= 1, got {num_envs}")
+            raise ConfigError(f"num_envs: must be >= 1, got {num_envs}")
         device = torch.device(device or params.device)
         super().__init__(device=device, batch_size=torch.Size([num_envs]))
         self.params = params
@@ -103,25 +103,7 @@ class TrackingEnv(EnvBase):
         self.disturbance.bind(num_envs, params.dt_s, self.generator, device, self.dtype)
         self.adaptation.bind(num_envs, params.dt_s, g, device, self.dtype)
 
-        spacing = round(params.ref_spacing_s / params.dt_s)
-        self.ref_offsets = torch.arange(horizon, device=device) * spacing  # [H] steps ahead
-        self.window = int(self.ref_offsets[-1]) + 1
-        # the critic's points (obs.critic_ref_points = K): t + k Δc, k = 1..K, read from the table
-        obs = params.obs
-        critic_spacing = round(obs.critic_ref_spacing_s / params.dt_s)
-        self.critic_offsets = torch.arange(1, obs.critic_ref_points + 1, device=device) * critic_spacing
-        reach = int(self.critic_offsets[-1]) + 1 if obs.critic_ref_points else 0
-        self.table_len = params.episode_steps + max(self.window, reach)
-        # float64 grid: float32 times drift by ~1e-6 s at 10 s; the table is cast to `dtype`.
-        self.t_grid_s = torch.arange(self.table_len, device=device, dtype=torch.float64) * params.dt_s
-        self.ref_table = torch.zeros(num_envs, self.table_len, 3, **kw)
-        # Ring buffer of the next `window` reference points, slot-major [W, N, 3] so that
-        # reading the H points is a contiguous copy. Invariant, for every drone n:
-        #   ref_window[(head + k) % W, n] == ref_table[n, step_idx[n] + k],  k = 0..W-1.
-        self.ref_window = torch.zeros(self.window, num_envs, 3, **kw)
-        self._head = 0
-        self._row_base = torch.arange(num_envs, device=device) * self.table_len
-        self.step_idx = torch.zeros(num_envs, dtype=torch.long, device=device)
+        self._init_reference_buffers(params, horizon, num_envs, device)
         # Per-drone truncation step: episode_steps, except after stagger_episodes().
         self.episode_len = torch.full((num_envs,), params.episode_steps, dtype=torch.long, device=device)
         self._stagger_pending = False
@@ -139,6 +121,29 @@ class TrackingEnv(EnvBase):
         self._make_specs()
         self._all_idx = torch.arange(num_envs, device=device)
         self._reset_drones(self._all_idx)
+
+    def _init_reference_buffers(self, params: EnvParams, horizon: int, num_envs: int, device) -> None:
+        """The reference table (episode + the furthest point read ahead, float64 time grid), the
+        ring buffer of the policy's window and the critic's offsets, all in env steps."""
+        spacing = round(params.ref_spacing_s / params.dt_s)
+        self.ref_offsets = torch.arange(horizon, device=device) * spacing  # [H] steps ahead
+        self.window = int(self.ref_offsets[-1]) + 1
+        # the critic's points (obs.critic_ref_points = K): t + k Δc, k = 1..K, read from the table
+        obs = params.obs
+        critic_spacing = round(obs.critic_ref_spacing_s / params.dt_s)
+        self.critic_offsets = torch.arange(1, obs.critic_ref_points + 1, device=device) * critic_spacing
+        reach = int(self.critic_offsets[-1]) + 1 if obs.critic_ref_points else 0
+        self.table_len = params.episode_steps + max(self.window, reach)
+        # float64 grid: float32 times drift by ~1e-6 s at 10 s; the table is cast to `dtype`.
+        self.t_grid_s = torch.arange(self.table_len, device=device, dtype=torch.float64) * params.dt_s
+        self.ref_table = torch.zeros(num_envs, self.table_len, 3, device=device, dtype=self.dtype)
+        # Ring buffer of the next `window` reference points, slot-major [W, N, 3] so that
+        # reading the H points is a contiguous copy. Invariant, for every drone n:
+        #   ref_window[(head + k) % W, n] == ref_table[n, step_idx[n] + k],  k = 0..W-1.
+        self.ref_window = torch.zeros(self.window, num_envs, 3, device=device, dtype=self.dtype)
+        self._head = 0
+        self._row_base = torch.arange(num_envs, device=device) * self.table_len
+        self.step_idx = torch.zeros(num_envs, dtype=torch.long, device=device)
 
     # -- specs -----------------------------------------------------------------------------
     def _make_specs(self) -> None:

@@ -7,7 +7,7 @@ from pathlib import Path
 from omegaconf import OmegaConf
 
 from datt.checkpoint import load_checkpoint
-from datt.configuration import check_targets, structured
+from datt.configuration import check_targets, structured, upgrade_saved_config
 from datt.envs.factory import env_params_from_cfg
 from datt.envs.observations import state_width
 from datt.envs.tracking import action_bounds
@@ -23,7 +23,7 @@ def load_actor(path: str | Path, key: str = "checkpoint"):
     if "actor" not in data:
         what = "an RMA adapter, not a policy" if "rma" in data else "not a policy"
         raise ConfigError(f"{key}: {str(path)!r} is {what} checkpoint; pass a policy checkpoint (.pt or run dir)")
-    train_cfg = OmegaConf.create(data["config_yaml"])
+    train_cfg = upgrade_saved_config(OmegaConf.create(data["config_yaml"]))
     check_targets(train_cfg, key, source=str(path))  # the file's config is data, not code to build
     params = structured(PolicyParams, train_cfg.policy, "policy")
     env_params = env_params_from_cfg(train_cfg.env)

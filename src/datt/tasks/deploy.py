@@ -78,6 +78,49 @@ def _mocap_source(params: DeployParams, server):
     return mocap.MotionCaptureMocap(str(m.system), str(m.host), str(m.body))
 
 
+def _flight_kind(params: DeployParams, policy_id: int | None) -> tuple[type, dict]:
+    """The flight class of ``deploy.mode`` / ``deploy.onboard`` and its extra arguments."""
+    if params.mode == "calibrate":
+        return CalibrationFlight, {"hover_s": params.calibrate_hover_s}
+    if params.onboard:
+        return OnboardFlight, {"policy_id": policy_id}
+    return FlightRunner, {}
+
+
+def _predictor(params: DeployParams, model_cfg: DictConfig) -> StatePredictor | None:
+    """The latency predictor of ``deploy.predictor``, on the flight model's own constants."""
+    if not params.predictor.enabled:
+        return None
+    quad = model_cfg.env.quad
+    return StatePredictor(
+        params.predictor,
+        gravity_mps2=float(quad.gravity_mps2),
+        k_rate=float(quad.k_rate),
+        dt_s=float(model_cfg.env.dt_s),
+        k_thrust=float(quad.k_thrust),
+    )
+
+
+def _print_summary(params: DeployParams, summary: dict, run_dir: Path) -> None:
+    """The flight's outcome in one line (and, for a calibration, the fitted thrust map)."""
+    if params.mode == "calibrate":
+        fit = summary.get("calibration") or {}
+        console.print(
+            f"calibration: {summary['outcome']}; hover command {fit.get('hover_command')}, slope "
+            f"{fit.get('slope_mps2_per_command')} m/s² per unit (set deploy.thrust.hover_command and "
+            f"deploy.thrust.slope_mps2_per_command); command-to-response latency "
+            f"{fit.get('response_latency_ms')} ms"
+        )
+    err = summary["track_error_m"]
+    jitter = summary["jitter_ms"]
+    console.print(
+        f"flight: {summary['outcome']}; tracking error {err if err is None else f'{err:.3f} m'} over "
+        f"{summary['track_steps']} steps; tick jitter median {jitter['median']:.2f} ms, "
+        f"p99 {jitter['p99']:.2f} ms; "
+        f"{summary['late_ticks']} late ticks; log in {run_dir}"
+    )
+
+
 def run_deploy(cfg: DictConfig, run_dir: Path | None = None, estop=None, server_hook=None) -> dict:
     """Fly (or calibrate) once; returns the flight summary written to ``events.json``.
     ``server_hook(server, runner)`` lets tests inject faults once the flight objects exist."""
@@ -107,21 +150,7 @@ def run_deploy(cfg: DictConfig, run_dir: Path | None = None, estop=None, server_
             source = _mocap_source(params, server)
             link = CrazyflieLink(params.uri, params.log_period_ms, params.connect_timeout_s, params.io_timeout_s)
             track_family = instantiate_option(cfg, "traj")
-            kind, extra = FlightRunner, {}
-            if params.mode == "calibrate":
-                kind, extra = CalibrationFlight, {"hover_s": params.calibrate_hover_s}
-            elif params.onboard:
-                kind, extra = OnboardFlight, {"policy_id": policy_id}
-            predictor = None
-            if params.predictor.enabled:
-                quad = model_cfg.env.quad
-                predictor = StatePredictor(
-                    params.predictor,
-                    gravity_mps2=float(quad.gravity_mps2),
-                    k_rate=float(quad.k_rate),
-                    dt_s=float(model_cfg.env.dt_s),
-                    k_thrust=float(quad.k_thrust),
-                )
+            kind, extra = _flight_kind(params, policy_id)
             runner = kind(
                 link,
                 source,
@@ -137,7 +166,7 @@ def run_deploy(cfg: DictConfig, run_dir: Path | None = None, estop=None, server_
                 console=console,
                 stop_request=stop,
                 summary_extra={"controller": labels},
-                predictor=predictor,
+                predictor=_predictor(params, model_cfg),
                 **extra,
             )
             if server_hook is not None:
@@ -150,22 +179,7 @@ def run_deploy(cfg: DictConfig, run_dir: Path | None = None, estop=None, server_
             if server is not None:
                 server.stop()
     with stop_signals(signal.SIG_IGN):  # the flight is over: a late signal must not cut the log short
-        if params.mode == "calibrate":
-            fit = summary.get("calibration") or {}
-            console.print(
-                f"calibration: {summary['outcome']}; hover command {fit.get('hover_command')}, slope "
-                f"{fit.get('slope_mps2_per_command')} m/s² per unit (set deploy.thrust.hover_command and "
-                f"deploy.thrust.slope_mps2_per_command); command-to-response latency "
-                f"{fit.get('response_latency_ms')} ms"
-            )
-        err = summary["track_error_m"]
-        jitter = summary["jitter_ms"]
-        console.print(
-            f"flight: {summary['outcome']}; tracking error {err if err is None else f'{err:.3f} m'} over "
-            f"{summary['track_steps']} steps; tick jitter median {jitter['median']:.2f} ms, "
-            f"p99 {jitter['p99']:.2f} ms; "
-            f"{summary['late_ticks']} late ticks; log in {run_dir}"
-        )
+        _print_summary(params, summary, run_dir)
     return summary
 
 

@@ -14,7 +14,7 @@ import yaml
 from omegaconf import DictConfig, OmegaConf
 
 from datt.checkpoint import load_checkpoint
-from datt.configuration import check_targets, command_overrides, flat_leaves
+from datt.configuration import check_targets, command_overrides, flat_leaves, upgrade_saved_config
 from datt.errors import ConfigError
 from datt.paths import original_cwd, resolve_path
 from datt.runs import is_locked
@@ -26,7 +26,7 @@ RESUMABLE = (
     "train.total_steps",
     "train.checkpoint_every",
     "train.progress",
-    "train.threads",
+    "threads",
     "train.eval_at_end",
     "logger.",
     "eval.",
@@ -90,6 +90,7 @@ def resume_config(cfg: DictConfig, run_dir: Path, groups: set[str]) -> DictConfi
     else:  # a run trained through the library API: the checkpoint holds the config it trained with
         path = run_dir / "last.pt"
         saved = OmegaConf.create(load_checkpoint(path, key="resume")["config_yaml"])
+    upgrade_saved_config(saved)
     check_targets(saved, "resume", source=str(path))  # a file's config only selects registered options
     for key, value in KEYS_ADDED_SINCE.items():
         if OmegaConf.select(saved, key, default="absent") == "absent":

@@ -48,11 +48,11 @@ def run_train(cfg: DictConfig, run_dir: Path | None = None) -> dict:
     the run dir is locked while this process writes it."""
     validate_config("train", cfg)
     run = run_params(cfg)
-    train = structured(TrainParams, cfg.train, "train")
+    structured(TrainParams, cfg.train, "train")  # checked before anything is written
     check_ablation(cfg)
     if is_phased(cfg):
         phase_plan(cfg)  # a bad schedule is refused before anything is written
-    set_threads(train.threads)
+    set_threads(run.threads)
     if run.stage == "rma":
         from datt.tasks.rma import run_rma
 

@@ -26,6 +26,7 @@ import torch
 from omegaconf import DictConfig, OmegaConf
 from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+from tensordict import TensorDict
 from torchrl.collectors import Collector
 from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
@@ -44,6 +45,7 @@ from datt.configuration import (
     instantiate_option,
     ranged,
     structured,
+    upgrade_saved_config,
 )
 from datt.envs.factory import env_params_from_cfg, make_env
 from datt.errors import ConfigError, TrainingDiverged, TrainingInterrupted
@@ -170,7 +172,7 @@ class Trainer:
         seed = int(cfg.seed)
         torch.manual_seed(seed)
         self.env = make_env(cfg, num_envs=self.algo.num_envs, seed=seed, traj=self.fixed_traj or self.main_traj)
-        self.phase = "fixed" if self.fixed_traj is not None else "main"
+        self.curriculum_stage = "fixed" if self.fixed_traj is not None else "main"
         if train_params.stagger_episodes:
             self.env.stagger_episodes()
         self.actor = make_actor(
@@ -219,7 +221,7 @@ class Trainer:
             "frames": self.frames,
             "iteration": self.iteration,
             "best_error_m": self.best_error,
-            "phase": self.phase,
+            "curriculum_stage": self.curriculum_stage,
             "horizon": self.env.horizon,
             "config_yaml": OmegaConf.to_yaml(self.cfg, resolve=True),
             "rng_torch": torch.get_rng_state(),
@@ -245,7 +247,7 @@ class Trainer:
             )
         actor, critic = data["actor"], data["critic"]
         # the checkpoint's layout as load_actor reads it (no key: ObsParams' default, no commands)
-        parent_cfg = OmegaConf.create(data["config_yaml"])
+        parent_cfg = upgrade_saved_config(OmegaConf.create(data["config_yaml"]))
         check_targets(parent_cfg, "train.init_from", source=str(path))  # carried on in the lineage: data only
         old = env_params_from_cfg(parent_cfg.env).obs.action_history
         new = self.env.params.obs.action_history
@@ -283,16 +285,16 @@ class Trainer:
         self.lineage = [dict(entry) for entry in data.get("lineage", [])]
         self.train_wall_s = float(data.get("train_wall_s", 0.0))
         self.adaptive_lr = float(data.get("adaptive_lr", self.algo.lr))
-        self._update_phase()
+        self._update_curriculum_stage()
 
     # -- loop -------------------------------------------------------------------------------
-    def _update_phase(self) -> None:
+    def _update_curriculum_stage(self) -> None:
         # Drones pick up the new family as their episodes end (within one episode).
-        if self.phase == "fixed" and self.frames >= self.fixed_ref_steps:
-            self.phase = "main"
+        if self.curriculum_stage == "fixed" and self.frames >= self.fixed_ref_steps:
+            self.curriculum_stage = "main"
             self.env.traj = self.main_traj
-        elif self.phase == "main" and self.fixed_traj is not None and self.frames < self.fixed_ref_steps:
-            self.phase = "fixed"
+        elif self.curriculum_stage == "main" and self.fixed_traj is not None and self.frames < self.fixed_ref_steps:
+            self.curriculum_stage = "fixed"
             self.env.traj = self.fixed_traj
 
     def _lr(self) -> float:
@@ -361,6 +363,37 @@ class Trainer:
         out["lr"] = lr  # adaptive_kl: the lr after the iteration's last step
         return out
 
+    def _progress(self) -> Progress:
+        """The console's progress bar (steps, rate, the batch's error and return estimate)."""
+        return Progress(
+            TextColumn("[bold]{task.description}"),
+            BarColumn(),
+            TextColumn("{task.completed:,.0f}/{task.total:,.0f} steps"),
+            TextColumn("{task.fields[rate]:,.0f} steps/s"),
+            TextColumn("err {task.fields[err]:.3f} m"),
+            TextColumn("ret {task.fields[ret]:.2f}"),
+            TimeElapsedColumn(),
+            TimeRemainingColumn(),
+            console=self.console,
+            disable=not self.train_params.progress,
+        )
+
+    def _row(self, batch: TensorDict, ret_per_step: float, stats: dict, iter_s: float) -> dict:
+        """One iteration's history row (and logged metrics): the batch's mean tracking error,
+        reward and crash rate, throughput over ``iter_s`` seconds, policy std and update stats."""
+        return {
+            "frames": self.frames,
+            "iteration": self.iteration,
+            "tracking_error_m": batch["next", "tracking_error_m"].mean().item(),
+            "reward_per_step": ret_per_step,
+            "episode_return_est": ret_per_step * self.env.params.episode_steps,
+            "crash_rate": crash_rate(batch["next", "terminated"], batch["next", "done"]),
+            "steps_per_s": batch.numel() / iter_s,
+            "curriculum_stage": self.curriculum_stage,
+            **policy_std(batch["scale"]),
+            **stats,
+        }
+
     def train(self) -> list[dict]:
         remaining = self.total_frames - self.frames
         if remaining <= 0:
@@ -374,18 +407,7 @@ class Trainer:
             auto_register_policy_transforms=False,  # the policy is stateless: no InitTracker needed
         )
         every = max(1, self.train_params.checkpoint_every)
-        progress = Progress(
-            TextColumn("[bold]{task.description}"),
-            BarColumn(),
-            TextColumn("{task.completed:,.0f}/{task.total:,.0f} steps"),
-            TextColumn("{task.fields[rate]:,.0f} steps/s"),
-            TextColumn("err {task.fields[err]:.3f} m"),
-            TextColumn("ret {task.fields[ret]:.2f}"),
-            TimeElapsedColumn(),
-            TimeRemainingColumn(),
-            console=self.console,
-            disable=not self.train_params.progress,
-        )
+        progress = self._progress()
         start = time.perf_counter()
         frames_at_start = self.frames
         stop = StopRequest()
@@ -401,22 +423,11 @@ class Trainer:
                 self.frames += batch.numel()
                 self.iteration += 1
                 now = time.perf_counter()
-                err = batch["next", "tracking_error_m"].mean().item()
-                row = {
-                    "frames": self.frames,
-                    "iteration": self.iteration,
-                    "tracking_error_m": err,
-                    "reward_per_step": ret_per_step,
-                    "episode_return_est": ret_per_step * self.env.params.episode_steps,
-                    "crash_rate": crash_rate(batch["next", "terminated"], batch["next", "done"]),
-                    "steps_per_s": batch.numel() / (now - t_iter),
-                    "phase": self.phase,
-                    **policy_std(batch["scale"]),
-                    **stats,
-                }
+                row = self._row(batch, ret_per_step, stats, now - t_iter)
+                err = row["tracking_error_m"]
                 t_iter = now
                 self.history.append(row)
-                self.logger.log({k: v for k, v in row.items() if k != "phase"}, step=self.frames)
+                self.logger.log({k: v for k, v in row.items() if k != "curriculum_stage"}, step=self.frames)
                 progress.update(
                     task,
                     completed=self.frames,
@@ -424,10 +435,10 @@ class Trainer:
                     err=err,
                     ret=row["episode_return_est"],
                 )
-                if self.phase == "main" and err < self.best_error:
+                if self.curriculum_stage == "main" and err < self.best_error:
                     self.best_error = err
                     self.save("best.pt")
-                self._update_phase()
+                self._update_curriculum_stage()
                 self.train_wall_s += now - t_last
                 t_last = now
                 if self.iteration % every == 0 or stop.signal:
@@ -440,6 +451,6 @@ class Trainer:
                     )
         collector.shutdown()
         self.save("last.pt")
-        if self.phase != "main" or not (self.run_dir / "best.pt").exists():
+        if self.curriculum_stage != "main" or not (self.run_dir / "best.pt").exists():
             self.save("best.pt")
         return self.history

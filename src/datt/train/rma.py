@@ -26,9 +26,10 @@ from datt.train.loggers import CsvLogger
 from datt.train.schema import RmaParams, budget_factor
 
 
-def train_rma(cfg: DictConfig, run_dir: Path, console=None) -> dict:
-    """``train.py stage=rma base_checkpoint=<policy>``: fit an adapter for a frozen policy."""
-    rma = structured(RmaParams, cfg.rma, "rma")
+def _setup(cfg: DictConfig, rma: RmaParams) -> tuple:
+    """The frozen base policy (``base_checkpoint``) flying ``rma.num_envs`` drones under the
+    run's disturbance and references, an untrained adapter as their adaptation, episodes
+    staggered. Returns (env, adapter, controller, the base checkpoint's payload)."""
     if cfg.base_checkpoint in (None, ""):
         raise ConfigError("base_checkpoint: stage=rma needs the policy checkpoint to adapt (base_checkpoint=...)")
     actor, train_cfg, base = load_actor(cfg.base_checkpoint, key="base_checkpoint")
@@ -43,7 +44,14 @@ def train_rma(cfg: DictConfig, run_dir: Path, console=None) -> dict:
     env.adaptation = adapter
     adapter.bind(env.n, env.dt_s, env.params.quad.gravity_mps2, env.device, env.dtype)
     env.stagger_episodes()  # spread resets: otherwise every 500th step is all fresh histories
-    controller = DattController(actor)
+    return env, adapter, DattController(actor), base
+
+
+def train_rma(cfg: DictConfig, run_dir: Path, console=None) -> dict:
+    """``train.py stage=rma base_checkpoint=<policy>``: fit an adapter for a frozen policy."""
+    rma = structured(RmaParams, cfg.rma, "rma")
+    env, adapter, controller, base = _setup(cfg, rma)
+    net = adapter.net
     optim = torch.optim.Adam(net.parameters(), lr=float(rma.lr))
     logger = CsvLogger(run_dir, "rma_metrics.csv")
     td = env.reset()

@@ -45,6 +45,7 @@ class RunParams:
     sweep_name: str | None = MISSING
     base_checkpoint: str | None = MISSING
     resume: Any = MISSING  # false | true | <run dir>
+    threads: int | None = ranged(MISSING, Range(1, 1024, integer=True, optional=True))  # null = torch default
 
     def validate(self) -> None:
         check_budget(self.budget)
@@ -60,7 +61,6 @@ class TrainParams:
     eval_at_end: bool = MISSING
     stagger_episodes: bool = MISSING
     progress: bool = MISSING
-    threads: int | None = ranged(MISSING, Range(1, 1024, integer=True, optional=True))  # null = torch default
     phases: Any = MISSING  # null | [{name, steps, set: {dotted key: value}}] (datt.tasks.phases)
 
     def validate(self) -> None:

@@ -243,33 +243,8 @@ class SimCrazyflie:
         self.app_priority = False  # the app's setpoints hold the commander (radio setpoints are dropped)
         self.app_started_t: float | None = None  # sim time the app first started tracking
         self.radio_down = False  # radio_cut_after_start_s passed: nothing gets through either way
-        for deck in self.p.decks:
-            if f"deck.{deck}" not in self.params:
-                raise ConfigError(
-                    f"deploy.server.decks: unknown deck {deck!r}; allowed: {', '.join(POSITIONING_DECKS)}"
-                )
-            self.params[f"deck.{deck}"] = 1
-        self.read_only = {f"{g}.{n}" for g, n, _, _ in PARAMS if g == "deck"} | {f"datt.{n}" for n in APP_READ_ONLY}
-        for key, value in self.p.boot_params.items():
-            if key not in self.params:
-                raise ConfigError(
-                    f"deploy.server.boot_params: unknown parameter {key!r}; allowed: {', '.join(self.params)}"
-                )
-            self.params[key] = value
-        self._settle_params()
-        self.pos_error_m = [0.0, 0.0, 0.0]  # Kalman: estimate - true position (held between measurements)
-        self.kalman_var_m2 = list(KALMAN_RESET_VAR_M2)  # position variance: grows, shrinks with each measurement
-        self.vel_error_mps = [0.0, 0.0, 0.0]  # the estimate's velocity error
-        self.att_error_rad = [0.0, 0.0, 0.0]  # the estimate's attitude error (small rotation, world frame)
-        self._noise_rng = random.Random(self.p.radio_seed + 1)
-        self.crashed = False  # the supervisor found the vehicle tumbled: motors off until a restart
-        self._tilted_s = 0.0  # how long the body-z specific force has been under the tumble limits
-        self._upside_down_s = 0.0
-        self._last_vel = None
-        self._burst_lost = False  # the radio's loss state (a run of losses continues with 1 - 1 / burst_len)
-        self._radio_last_due = 0.0  # packets stay in order: none is delivered before an earlier one
-        self.yaw_aligned = False  # an extpose has told the Kalman filter the mocap yaw
-        self.extpos_rx: list[tuple[float, tuple]] = []  # (monotonic time, position) of every ext position/pose
+        self._boot_params()
+        self._init_estimator_and_supervisor()
         self.log_blocks: dict[int, dict] = {}
         self.armed = False
         self.thrust_locked = True
@@ -290,6 +265,41 @@ class SimCrazyflie:
         self._lock = threading.Lock()
         self._running = threading.Event()
         self._threads: list[threading.Thread] = []
+
+    def _boot_params(self) -> None:
+        """The vehicle's parameters at boot: the configured decks attached, the boot overrides
+        applied (unknown names refused), and what the firmware derives from them settled."""
+        for deck in self.p.decks:
+            if f"deck.{deck}" not in self.params:
+                raise ConfigError(
+                    f"deploy.server.decks: unknown deck {deck!r}; allowed: {', '.join(POSITIONING_DECKS)}"
+                )
+            self.params[f"deck.{deck}"] = 1
+        self.read_only = {f"{g}.{n}" for g, n, _, _ in PARAMS if g == "deck"} | {f"datt.{n}" for n in APP_READ_ONLY}
+        for key, value in self.p.boot_params.items():
+            if key not in self.params:
+                raise ConfigError(
+                    f"deploy.server.boot_params: unknown parameter {key!r}; allowed: {', '.join(self.params)}"
+                )
+            self.params[key] = value
+        self._settle_params()
+
+    def _init_estimator_and_supervisor(self) -> None:
+        """The Kalman estimate's errors and variance, the supervisor's tumble timers and the
+        radio's loss state, as at power-on."""
+        self.pos_error_m = [0.0, 0.0, 0.0]  # Kalman: estimate - true position (held between measurements)
+        self.kalman_var_m2 = list(KALMAN_RESET_VAR_M2)  # position variance: grows, shrinks with each measurement
+        self.vel_error_mps = [0.0, 0.0, 0.0]  # the estimate's velocity error
+        self.att_error_rad = [0.0, 0.0, 0.0]  # the estimate's attitude error (small rotation, world frame)
+        self._noise_rng = random.Random(self.p.radio_seed + 1)
+        self.crashed = False  # the supervisor found the vehicle tumbled: motors off until a restart
+        self._tilted_s = 0.0  # how long the body-z specific force has been under the tumble limits
+        self._upside_down_s = 0.0
+        self._last_vel = None
+        self._burst_lost = False  # the radio's loss state (a run of losses continues with 1 - 1 / burst_len)
+        self._radio_last_due = 0.0  # packets stay in order: none is delivered before an earlier one
+        self.yaw_aligned = False  # an extpose has told the Kalman filter the mocap yaw
+        self.extpos_rx: list[tuple[float, tuple]] = []  # (monotonic time, position) of every ext position/pose
 
     # -- lifecycle -------------------------------------------------------------------------
     def start(self) -> SimCrazyflie:
