@@ -78,6 +78,48 @@ def test_the_policy_id_names_the_weights_and_constants(built):
     assert policy_id(other) != policy_id(spec)
 
 
+IDENTIFYING = [  # (what, how to change it): every value the generated step computes with
+    ("horizon", lambda s: setattr(s, "horizon", s.horizon + 1)),
+    ("body_frame", lambda s: setattr(s, "body_frame", not s.body_frame)),
+    ("feedback", lambda s: setattr(s, "feedback", not s.feedback)),
+    ("action_history", lambda s: setattr(s, "action_history", s.action_history + 1)),
+    ("use_d_hat", lambda s: setattr(s, "use_d_hat", not s.use_d_hat)),
+    ("ref_stride", lambda s: setattr(s, "ref_stride", s.ref_stride + 1)),
+    ("dt_s", lambda s: setattr(s, "dt_s", s.dt_s * 1.5)),
+    ("action_low", lambda s: s.action_low.__setitem__(3, s.action_low[3] - 0.5)),
+    ("action_high", lambda s: s.action_high.__setitem__(0, s.action_high[0] + 0.5)),
+    ("conv weight", lambda s: s.convs[-1][0].__setitem__((0, 0, 0), s.convs[-1][0][0, 0, 0] + 1e-3)),
+    ("conv bias", lambda s: s.convs[0][1].__setitem__(0, s.convs[0][1][0] + 1e-3)),
+    ("proj", lambda s: s.proj[0].__setitem__((0, 0), s.proj[0][0, 0] + 1e-3)),
+    ("mlp", lambda s: s.mlp[-1][1].__setitem__(-1, s.mlp[-1][1][-1] + 1e-3)),
+    ("head", lambda s: s.head[0].__setitem__((3, 0), s.head[0][3, 0] + 1e-3)),
+    ("l1.dt_s", lambda s: setattr(s.l1, "dt_s", s.l1.dt_s * 2)),
+    ("l1.gravity_mps2", lambda s: setattr(s.l1, "gravity_mps2", 9.8)),
+    ("l1.a_s", lambda s: setattr(s.l1, "a_s", s.l1.a_s * 2)),
+    ("l1.law_gain", lambda s: setattr(s.l1, "law_gain", s.l1.law_gain * 2)),
+    ("l1.alpha", lambda s: setattr(s.l1, "alpha", s.l1.alpha * 0.5)),
+    ("l1.k_thrust", lambda s: setattr(s.l1, "k_thrust", s.l1.k_thrust * 0.5)),
+    ("l1.latency_steps", lambda s: setattr(s.l1, "latency_steps", s.l1.latency_steps + 1)),
+    (
+        "l1.predictor_uses_filtered",
+        lambda s: setattr(s.l1, "predictor_uses_filtered", not s.l1.predictor_uses_filtered),
+    ),
+]
+
+
+@pytest.mark.parametrize("change", [c for _, c in IDENTIFYING], ids=[name for name, _ in IDENTIFYING])
+def test_every_value_the_build_computes_with_changes_its_policy_id(built, change):
+    import copy
+
+    from datt.export.c_code import policy_id
+
+    spec = built[0]
+    other = copy.deepcopy(spec)
+    change(other)
+    assert policy_id(other) != policy_id(spec)
+    assert policy_id(copy.deepcopy(spec)) == policy_id(spec)  # and nothing else does: a copy is the same build
+
+
 def test_host_constants_are_the_headers():
     text = (resources.files("datt.export") / "app" / "datt_onboard.h").read_text()
     defines = {m[0]: int(m[1], 0) for m in re.findall(r"#define (DATT_\w+) (0x[0-9a-f]+|\d+)", text)}

@@ -51,6 +51,16 @@ def test_calibrated_map_runs_through_the_measured_hover_point_with_the_measured_
     assert ThrustMap(ThrustParams(hover_command=42000.0)).slope == pytest.approx(K)
 
 
+def test_a_calibrated_slope_alone_keeps_the_firmware_hover_point():
+    """Each calibrated value falls back to the firmware map's own on its own: a measured slope
+    with no measured hover command runs through the firmware's hover point g / k (not g / slope)."""
+    tm = ThrustMap(ThrustParams(slope_mps2_per_command=3.0e-4))
+    assert tm.hover_command == pytest.approx(9.81 / K, rel=1e-12) and tm.slope == 3.0e-4
+    assert tm.firmware_slope == pytest.approx(K, rel=1e-12)
+    assert tm.command(9.81 + 3.0) == round(9.81 / K + 10000)
+    assert tm.thrust_mps2(round(9.81 / K) - 10000) == pytest.approx(9.81 - 3.0, abs=3e-4)
+
+
 def test_commands_out_of_range():
     tm = ThrustMap()
     assert tm.command(0.0) == 0 and tm.command(-3.0) == 0

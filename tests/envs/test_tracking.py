@@ -1,5 +1,7 @@
 """TrackingEnv: specs, observations, reward, resets, reproducibility, config errors."""
 
+import math
+
 import pytest
 import torch
 from torchrl.envs.utils import check_env_specs
@@ -67,6 +69,23 @@ def test_drones_start_at_rest_at_independent_points_of_the_start_cube(make_track
         env.sim.state.vel_mps, torch.zeros(64, 3, dtype=torch.float64)
     )
     assert not torch.equal(pos, pos.float().double())
+
+
+@pytest.mark.parametrize("r", [0.5, 0.2])
+def test_the_start_offsets_are_uniform_on_the_whole_cube(make_tracking_env, r):
+    """U(−r, r) per axis, independently: both tails reached, mean 0 and variance r² / 3 (within
+    ~6 standard errors over 4096 drones), half of the drones on each side of every axis."""
+    env = make_tracking_env(["env.dtype=float64", f"env.init_pos_range_m={r}"], n=4096)
+    start = env.sim.state.pos_m  # around the origin, where every reference starts
+    n = start.shape[0]
+    assert start.abs().max() <= r
+    assert (start.min(0).values < -0.98 * r).all() and (start.max(0).values > 0.98 * r).all()
+    assert start.mean(0).abs().max() < 6 * r / math.sqrt(3 * n)
+    var = r * r / 3
+    assert (start.var(0) - var).abs().max() < 6 * var * math.sqrt(0.8 / n)  # Var of s² for a uniform: 0.8 σ⁴ / n
+    assert ((start > 0).double().mean(0) - 0.5).abs().max() < 6 * 0.5 / math.sqrt(n)
+    corr = torch.corrcoef(start.T)
+    assert (corr - torch.eye(3, dtype=corr.dtype)).abs().max() < 6 / math.sqrt(n)
 
 
 def test_the_done_entries_are_binary_specs_of_one_flag_per_drone(make_tracking_env):

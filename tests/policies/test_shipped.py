@@ -52,14 +52,14 @@ def drop_added_keys(trained: dict, expected: dict) -> None:
 def test_deploy_grade_checkpoint_is_the_output_of_experiment_deploy():
     """``checkpoints/datt_h10_deploy.pt`` came from ``python train.py experiment=deploy`` as it is
     configured now: its last phase's whole config (env, policy, algo, references, disturbance,
-    adaptation) is the one the experiment composes, and it starts from ``datt_h10.pt``."""
+    adaptation) is the one the experiment composes, and it starts from ``datt_h10_train_mix.pt``."""
     from omegaconf import OmegaConf
 
     from datt.checkpoint import load_checkpoint
     from datt.tasks.phases import phase_config, phase_plan
 
     cfg = compose("train", ["experiment=deploy"])
-    assert cfg.train.init_from == "checkpoints/datt_h10.pt"
+    assert cfg.train.init_from == "checkpoints/datt_h10_train_mix.pt"
     plan = phase_plan(cfg)
     expected = OmegaConf.to_container(phase_config(cfg, len(plan) - 1, plan, "previous/last.pt"), resolve=True)
     data = load_checkpoint(resolve_path("checkpoints/datt_h10_deploy.pt"))
@@ -75,7 +75,7 @@ def test_deploy_grade_checkpoint_is_the_output_of_experiment_deploy():
     "checkpoint, overrides",
     [
         ("checkpoints/datt_h10.pt", []),
-        # the policy the defaults trained before: the authors' zigzags only, hover-thrust starts
+        # the deploy-grade policy's parent: the authors' zigzags only, hover-thrust starts
         ("checkpoints/datt_h10_train_mix.pt", ["traj=train_mix", "env.quad.initial_thrust_mps2=null"]),
     ],
 )

@@ -169,7 +169,7 @@ def policy_id(spec: PolicySpec) -> int:
     numbers = [*spec.action_low, *spec.action_high, spec.dt_s]
     if spec.l1 is not None:
         l1 = spec.l1
-        numbers += [l1.dt_s, l1.gravity_mps2, l1.a_s, l1.alpha, l1.k_thrust, l1.latency_steps]
+        numbers += [l1.dt_s, l1.gravity_mps2, l1.a_s, l1.law_gain, l1.alpha, l1.k_thrust, l1.latency_steps]
         layout += (l1.predictor_uses_filtered,)
     crc = zlib.crc32(np.array(numbers, dtype=np.float32).tobytes(), crc)
     return zlib.crc32(repr(layout).encode(), crc)
