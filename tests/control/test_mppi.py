@@ -1,5 +1,6 @@
 """MPPI: the update lowers the sampled cost against its initial mean; rollout model = simulator."""
 
+import pytest
 import torch
 
 from datt.control.mppi import MppiController
@@ -78,7 +79,6 @@ def test_l1_mppi_uses_the_estimate_in_its_model():
 
 
 def test_bad_parameters_fail_clearly():
-    import pytest
 
     with pytest.raises(ValueError, match="controller.num_samples"):
         MppiController(num_samples=0)
@@ -107,3 +107,74 @@ def test_the_rollout_cost_pairs_step_j_with_the_reference_at_t_plus_j_plus_one()
         env.sim.step(u[:, 0, j])
         errs.append(torch.linalg.vector_norm(env.sim.state.pos_m - env.ref_table[:, k + j + 1], dim=-1))
     torch.testing.assert_close(cost, env.dt_s * 5.0 * torch.stack(errs, 1).sum(1))
+
+
+def test_the_python_defaults_are_the_options_and_the_names_say_which_controller():
+    from omegaconf import OmegaConf
+
+    from datt.configuration import conf_dir
+
+    node = OmegaConf.to_container(OmegaConf.load(conf_dir() / "controller" / "mppi.yaml"))
+    ctrl = MppiController()
+    assert (ctrl.num_samples, ctrl.horizon, ctrl.temperature) == (
+        node["num_samples"],
+        node["horizon_steps"],
+        node["temperature"],
+    )
+    assert ctrl.noise_std.tolist() == pytest.approx(node["noise_std"]) and ctrl.seed == node["seed"]
+    assert (ctrl.pos_weight, ctrl.att_weight, ctrl.use_d_hat) == (node["pos_weight"], node["att_weight"], False)
+    assert ctrl.name == node["name"] == "mppi" and MppiController(use_d_hat=True).name == "l1_mppi"
+
+
+def _windy_env(n=2):
+    from datt.configuration import compose
+    from datt.envs.factory import make_env
+
+    cfg = compose("sim", ["env.init_pos_range_m=0", "disturbance=constant", "adaptation=privileged"])
+    return make_env(cfg, num_envs=n, traj=Point([0.0, 0.0, 0.0]))
+
+
+def _first_action(env, **kwargs):
+    td = env.reset()
+    ctrl = MppiController(num_samples=256, horizon_steps=15, compile=False, **kwargs)
+    ctrl.reset(env)
+    return ctrl.act(env, td)
+
+
+def test_act_samples_from_its_own_seeded_generator_and_leaves_the_global_rng_alone():
+    env = _windy_env()
+    torch.manual_seed(123)
+    first = _first_action(env, seed=4)
+    after = torch.rand(3)
+    torch.manual_seed(123)
+    assert torch.equal(after, torch.rand(3))  # act drew nothing from the global generator
+    assert torch.equal(_first_action(env, seed=4), first)
+    assert not torch.equal(_first_action(env, seed=5), first)
+
+
+def test_l1_mppi_acts_on_the_envs_estimate_and_plain_mppi_ignores_it():
+    """Same seed, same samples: with d̂ ≠ 0 (privileged, a constant wind) the rollouts of L1-MPPI
+    differ from MPPI's, so the chosen command differs; plain MPPI equals MPPI on a calm env."""
+    windy = _windy_env()
+    assert windy.adaptation.d_hat.abs().max() > 0.1
+    plain, l1 = _first_action(windy, use_d_hat=False), _first_action(windy, use_d_hat=True)
+    assert not torch.allclose(plain, l1)
+    calm = env_at([0.0, 0.0, 0.0], n=2)
+    assert torch.equal(_first_action(calm, use_d_hat=False), plain)
+
+
+def test_the_rollout_model_clips_commands_at_the_vehicles_ceiling_as_the_simulator_does():
+    """Commands beyond the actuator limits (thrust above max_thrust_mps2, rates above the cap)
+    roll out as the simulator flies them: clipped, not as asked."""
+    env = env_at([0.0, 0.0, 0.0], n=1, overrides=["env.quad.latency_steps=0"])
+    env.reset()
+    ctrl = MppiController(num_samples=1, horizon_steps=8, noise_std=[0, 0, 0, 0], att_weight=0.0, compile=False)
+    ctrl.reset(env)
+    seq = torch.tensor([[60.0, 0.0, 0.0, 0.0]] * 4 + [[30.0, 40.0, -40.0, 5.0]] * 4)
+    assert seq[0, 0] > env.sim.params.max_thrust_mps2
+    cost = ctrl.rollout_cost(env, seq.expand(1, 1, 8, 4).clone(), torch.zeros(1, 3))
+    errs = []
+    for j in range(8):
+        env.sim.step(seq[j].expand(1, 4))
+        errs.append(torch.linalg.vector_norm(env.sim.state.pos_m - env.ref_table[:, 1 + j], dim=-1))
+    torch.testing.assert_close(cost[:, 0], env.dt_s * 5.0 * torch.stack(errs, 1).sum(1))

@@ -424,3 +424,26 @@ def test_a_track_longer_than_the_app_holds_is_refused_before_arming(tmp_path):
         "preflight failed: deploy.flight.track_s: the app holds 1024 reference points (19.9 s of track at 50 Hz); "
         "this track needs 1501"
     )
+
+
+def test_only_an_acknowledgement_is_read_as_one():
+    """parse_ack: type byte PKT_ACK and at least index (2 bytes) and status; an upload packet,
+    another type or a short ACK is not an acknowledgement (the host must not drop a pending point)."""
+    assert onboard.parse_ack(bytes([onboard.PKT_ACK, 0x34, 0x12, onboard.ACK_BUSY])) == (0x1234, onboard.ACK_BUSY)
+    assert onboard.parse_ack(bytes([onboard.PKT_ACK, 5, 0, 0, 99])) == (5, onboard.ACK_OK)  # trailing bytes ignored
+    assert onboard.parse_ack(onboard.points_packet(0, [(0.0, 0.0, 0.0)])) is None
+    assert onboard.parse_ack(bytes([0x82, 5, 0, 0])) is None
+    assert onboard.parse_ack(bytes([onboard.PKT_ACK, 5, 0])) is None
+    assert onboard.parse_ack(b"") is None
+
+
+def test_an_unanswered_upload_sends_each_packet_ten_times_then_fails():
+    """Upload's defaults: a packet is sent at most 10 times (waiting 0.1 s for its answer), then
+    the upload fails naming the point; a window of packets goes out together."""
+    sent = []
+    upload = onboard.Upload(lambda data: sent.append((0.0, data)), [(0.0, 0.0, 0.0)] * 4)
+    with pytest.raises(RuntimeError, match=r"^point 0: no acknowledgement after 10 sends$"):
+        upload.run()
+    assert upload.timeout_s == 0.1 and upload.attempts == 10
+    indices = [struct.unpack("<BHB", data[:4])[1] for _, data in sent]
+    assert indices == [0, 2] * 10  # both packets of the table in every window
