@@ -447,3 +447,33 @@ def test_an_unanswered_upload_sends_each_packet_ten_times_then_fails():
     assert upload.timeout_s == 0.1 and upload.attempts == 10
     indices = [struct.unpack("<BHB", data[:4])[1] for _, data in sent]
     assert indices == [0, 2] * 10  # both packets of the table in every window
+
+
+def test_the_upload_takes_up_to_table_max_points_and_windows_within_the_app_channels_queue():
+    acked = []
+
+    def answer(data):  # the app acknowledges every packet at once
+        index = struct.unpack("<BHB", data[:4])[1]
+        acked.append(index)
+        upload.on_packet(bytes([onboard.PKT_ACK, index & 0xFF, index >> 8, onboard.ACK_OK]))
+
+    upload = onboard.Upload(answer, [(0.0, 0.0, 0.0)] * onboard.TABLE_MAX)
+    upload.run(window=1)  # one packet at a time is a window too
+    assert acked == list(range(0, onboard.TABLE_MAX, onboard.POINTS_PER_PACKET))
+    with pytest.raises(ValueError, match=rf"^the reference has {onboard.TABLE_MAX + 1} points; the app holds at most"):
+        onboard.Upload(answer, [(0.0, 0.0, 0.0)] * (onboard.TABLE_MAX + 1))
+    for window in (0, onboard.APP_CHANNEL_RX_QUEUE + 1):
+        with pytest.raises(ValueError, match=rf"^upload window {window}: the app channel queues 1\.\."):
+            onboard.Upload(answer, [(0.0, 0.0, 0.0)] * 2).run(window=window)
+
+
+def test_refused_points_fail_the_upload_naming_each_status():
+    def refuse(data):
+        index = struct.unpack("<BHB", data[:4])[1]
+        upload.on_packet(bytes([onboard.PKT_ACK, index, 0, onboard.ACK_BUSY if index else onboard.ACK_RANGE]))
+
+    upload = onboard.Upload(refuse, [(0.0, 0.0, 0.0)] * 4, timeout_s=0.01)
+    busy, out_of_range = onboard.ACK_BUSY, onboard.ACK_RANGE
+    message = f"point 0: the app answered status {out_of_range}; point 2: the app answered status {busy}"
+    with pytest.raises(RuntimeError, match=f"^{re.escape(message)}$"):
+        upload.run()
