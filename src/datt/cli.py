@@ -29,7 +29,14 @@ from datt.configuration import (
     root_from_uri,
 )
 from datt.errors import ConfigError, FlightAborted, FlightStopped, TrainingDiverged, TrainingInterrupted, one_line
-from datt.runs import ignore_stop_signals, read_failure, record_failure, stop_signals
+from datt.runs import (
+    ignore_stop_signals,
+    read_failure,
+    record_failure,
+    requeue_with_scheduler,
+    scheduler_signal,
+    stop_signals,
+)
 
 
 def _split_argv(argv: list[str]) -> tuple[list[str], list[str], bool]:
@@ -282,6 +289,9 @@ def _run_job(task: Callable[[DictConfig], object], cfg: DictConfig) -> None:
             _fail(f"flight {exc}", 4)
         _job_failed("errored", f"flight {exc}")
     except TrainingInterrupted as exc:
+        if scheduler_signal() is not None and exc.signal == scheduler_signal().name:
+            print(f"preempted ({exc}); the scheduler requeues this job", file=sys.stderr)
+            requeue_with_scheduler(exc.signal)  # the requeued job resumes from last.pt in its own run dir
         ignore_stop_signals()
         _fail(f"interrupted by {exc}", 130)  # the user stops the whole sweep too
     except FlightStopped as exc:

@@ -17,8 +17,13 @@ class TrainingDiverged(RuntimeError):
 
 
 class TrainingInterrupted(RuntimeError):
-    """SIGINT/SIGTERM during training: the checkpoint is saved; the message says where and how to
-    resume (the entry points exit with 130)."""
+    """SIGINT/SIGTERM (or a scheduler's preemption signal) during training: the checkpoint is saved;
+    the message says where and how to resume (the entry points exit with 130, or hand a preemption
+    signal back to the scheduler, which requeues the job). ``signal``: the signal's name."""
+
+    def __init__(self, message: str, signal: str | None = None) -> None:
+        super().__init__(message)
+        self.signal = signal
 
 
 class FlightAborted(RuntimeError):

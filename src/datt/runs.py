@@ -188,9 +188,32 @@ def ignore_stop_signals() -> None:
             signal.signal(sig, signal.SIG_IGN)
 
 
+def scheduler_signal() -> signal.Signals | None:
+    """The signal a job scheduler sends this process before a time limit or a preemption, when the
+    scheduler's own handler for it is installed: submitit (``hydra/launcher=submitit_*``, ``slurm``)
+    installs one for ``SIGUSR2`` (or ``$SUBMITIT_PREEMPT_SIGNAL``) that checkpoints the job's
+    callable and requeues it. None outside such a job."""
+    name = "SIG" + os.environ.get("SUBMITIT_PREEMPT_SIGNAL", "USR2")
+    sig = getattr(signal, name, None)
+    if not isinstance(sig, signal.Signals) or threading.current_thread() is not threading.main_thread():
+        return None
+    owner = getattr(signal.getsignal(sig), "__self__", None)
+    return sig if owner is not None and type(owner).__module__.startswith("submitit.") else None
+
+
+def requeue_with_scheduler(signal_name: str | None) -> None:
+    """After a loop stopped on the scheduler's signal (:func:`scheduler_signal`) and saved, hand the
+    signal to the scheduler's handler: it requeues the job (which resumes from the saved state) and
+    exits the process. Returns (does nothing) for any other signal or outside a scheduler job."""
+    sig = scheduler_signal()
+    if sig is not None and signal_name == sig.name:
+        signal.getsignal(sig)(sig, None)  # submitit: requeue, then SystemExit
+
+
 class StopRequest:
-    """While active (``with StopRequest() as stop``), SIGINT and SIGTERM only set ``stop.signal``
-    (``"SIGINT"``/``"SIGTERM"``), so a loop can finish its step and save before it stops; a second
+    """While active (``with StopRequest() as stop``), SIGINT and SIGTERM (and, in a scheduler's job,
+    its preemption signal: :func:`scheduler_signal`) only set ``stop.signal`` (``"SIGINT"``,
+    ``"SIGTERM"``, ``"SIGUSR2"``), so a loop can finish its step and save before it stops; a second
     signal raises ``KeyboardInterrupt`` at once. Outside the main thread it does nothing."""
 
     def __init__(self) -> None:
@@ -203,7 +226,8 @@ class StopRequest:
         self.signal = signal.Signals(signum).name
 
     def __enter__(self) -> StopRequest:
-        self._handlers.enter_context(stop_signals(self._handle))
+        preempt = scheduler_signal()
+        self._handlers.enter_context(stop_signals(self._handle, STOP_SIGNALS + ((preempt,) if preempt else ())))
         return self
 
     def __exit__(self, *exc: object) -> None:

@@ -6,12 +6,13 @@ record file (no login, no network)."""
 from __future__ import annotations
 
 import json
+import shutil
 
 import pytest
 
 from ..test_faults import run_cli
 from .test_training import TINY
-from .wandb_record import summary_and_history
+from .wandb_record import run_info, summary_and_history
 
 WANDB_TINY = ["logger=wandb", *[o for o in TINY if not o.startswith("logger=")], "curriculum.fixed_ref_steps=0"]
 
@@ -43,3 +44,69 @@ def test_offline_run_record_holds_the_evaluation_plots_and_table_and_resume_cont
     summary, _, resumed_ids = summary_and_history(run)
     assert set(resumed_ids) == set(ids)  # the same wandb run, carried on
     assert summary["frames"] == json.loads((run / "metrics.json").read_text())["frames"] >= 2048
+
+
+def _as_sweep_job(tmp_path, checkpoint):
+    """``checkpoint`` placed as job 3 of an ablation sweep (the layout train.py -m writes)."""
+    sweep = tmp_path / "2026-01-01_00-00-00_abcd"
+    job = sweep / "3"
+    (job / ".hydra").mkdir(parents=True)
+    (sweep / "multirun.yaml").write_text("{}\n")
+    (job / "config.yaml").write_text("sweep_name: ablation\n")
+    (job / ".hydra" / "config.yaml").write_text("sweep_name: ablation\n")
+    shutil.copy(checkpoint, job / "last.pt")
+    return job
+
+
+def test_eval_py_logs_its_evaluation_to_wandb_beside_the_training_run(
+    tmp_path, monkeypatch, capsys, tiny_policy_checkpoint
+):
+    pytest.importorskip("wandb")
+    job = _as_sweep_job(tmp_path, tiny_policy_checkpoint)
+    out = tmp_path / "e"
+    args = [
+        f"checkpoint={job / 'last.pt'}",
+        "logger=wandb",
+        "eval.seeds=[0,1]",
+        "eval.timing.steps=20",
+        "eval.timing.compile=false",
+        "eval.plots=false",
+        "eval.bank={zigzag:[{traj:zigzag,seed:1000,count:2}]}",
+        f"hydra.run.dir={out}",
+    ]
+    code, lines, _ = run_cli("eval", args, tmp_path, monkeypatch, capsys)
+    assert code == 0, lines
+    metrics = json.loads((out / "metrics.json").read_text())
+    summary, history, _ = summary_and_history(out)
+    (run,) = run_info(out)
+    assert run["group"] == "ablation/2026-01-01_00-00-00_abcd" and run["job_type"] == "eval"
+    assert run["config"]["train_run_id"] == "2026-01-01_00-00-00_abcd-3"  # train.py's id for that job
+    for seed, (_, result) in enumerate(sorted(metrics["conditions"].items())):
+        for group, stats in result["groups"].items():
+            key = f"eval/none-none-seed{seed}/{group}"
+            assert summary[f"{key}/crashes"] == stats["crashes"] and summary[f"{key}/episodes"] == stats["episodes"]
+            mean = stats["mean_m"]  # every episode of a barely trained policy may crash: no mean (null)
+            assert summary[f"{key}/mean_m"] == (pytest.approx(mean) if mean is not None and mean == mean else None)
+    assert summary["inference/median_ms"] == pytest.approx(metrics["inference_ms"]["median_ms"])
+    assert "eval/table/_type" in history
+
+
+def test_tables_py_logs_the_table_to_its_sweep_s_group(tmp_path, monkeypatch, capsys):
+    pytest.importorskip("wandb")
+    sweep = tmp_path / "2026-01-01_00-00-00_abcd"
+    for num, h in enumerate([1, 5]):
+        job = sweep / str(num)
+        (job / ".hydra").mkdir(parents=True)
+        (job / ".hydra" / "config.yaml").write_text("sweep_name: horizon\n")
+        (job / ".hydra" / "overrides.yaml").write_text(f"- horizon={h}\n- seed=0\n")
+        cond = {"groups": {"zigzag": {"mean_m": 0.05 + h / 1000, "std_m": 0.01, "crashes": 0, "episodes": 2}}}
+        (job / "metrics.json").write_text(json.dumps({"frames": 10, "conditions": {"clean": cond}}))
+    (sweep / "multirun.yaml").write_text("{}\n")
+    code, lines, _ = run_cli(
+        "tables", ["horizon", f"runs={sweep}", "logger=wandb", "plots=false"], tmp_path, monkeypatch, capsys
+    )
+    assert code == 0, lines
+    summary, history, _ = summary_and_history(sweep)
+    (run,) = run_info(sweep)
+    assert run["group"] == "horizon/2026-01-01_00-00-00_abcd" and run["job_type"] == "table"
+    assert summary["jobs"] == 2 and "table/horizon/_type" in history

@@ -58,3 +58,16 @@ def summary_and_history(run_dir: Path) -> tuple[dict, set[str], list[str]]:
                 for item in rec.history.item:
                     history.add(item.key or "/".join(item.nested_key))
     return summary, history, ids
+
+
+def run_info(run_dir: Path) -> list[dict]:
+    """Each wandb run record under ``run_dir/wandb``: its id, group, job type and config."""
+    out = []
+    for path in sorted(Path(run_dir).glob("wandb/*run-*/run-*.wandb")):
+        for rec in records(path):
+            if rec.WhichOneof("record_type") == "run":
+                config = {item.key: json.loads(item.value_json) for item in rec.run.config.update}
+                out.append(
+                    {"id": rec.run.run_id, "group": rec.run.run_group, "job_type": rec.run.job_type, "config": config}
+                )
+    return out

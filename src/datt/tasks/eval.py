@@ -12,8 +12,10 @@ from datt.configuration import command_overrides, structured
 from datt.control.factory import build_controller
 from datt.eval.conditions import evaluate_conditions, measure_inference, print_metrics, write_metrics_csv
 from datt.eval.schema import EvalParams
-from datt.tasks.common import console, hydra_run_dir, set_threads
+from datt.paths import resolve_path
+from datt.tasks.common import console, hydra_run_dir, set_threads, sweep_group
 from datt.tasks.validation import validate_config
+from datt.train.loggers import RESULT_COLUMNS, eval_summary, log_results_run, result_rows
 
 
 def bank_of_given_traj(cfg: DictConfig, count: int) -> DictConfig:
@@ -43,7 +45,7 @@ def run_eval(cfg: DictConfig, run_dir: Path | None = None) -> dict:
     name = labels["controller"]
     cond = {"disturbance": merged.disturbance, "adaptation": merged.adaptation}
     label = f"{name} {labels['disturbance']}/{labels['adaptation']}"
-    results = {}
+    results, wandb_names = {}, {}
     for seed in params.seeds:
         trace = run_dir / f"trace_seed{seed}.pt" if params.save_trace else None
         results.update(
@@ -58,6 +60,7 @@ def run_eval(cfg: DictConfig, run_dir: Path | None = None) -> dict:
                 trace_path=trace,
             )
         )
+        wandb_names[f"{label} seed {seed}"] = f"{labels['disturbance']}-{labels['adaptation']}-seed{seed}"
     metrics = {**labels, "conditions": results}
     print_metrics(console, f"{name} on the seeded bank", results)
     inference = measure_inference(merged, controller, params.timing)
@@ -69,4 +72,40 @@ def run_eval(cfg: DictConfig, run_dir: Path | None = None) -> dict:
         )
     (run_dir / "metrics.json").write_text(json.dumps(metrics, indent=2, default=str) + "\n")
     write_metrics_csv(run_dir / "metrics.csv", results)
+    _log_to_wandb(cfg, run_dir, metrics, {wandb_names[k]: v for k, v in results.items()})
     return metrics
+
+
+def training_run(checkpoint: str) -> tuple[str | None, str | None]:
+    """The wandb run id and group of the training run whose run dir holds ``checkpoint``, as
+    ``train.py`` named them (id ``<parent dir>-<run dir>``; a multirun job's group
+    ``<sweep_name or multirun>/<sweep dir>``); (None, None) for a checkpoint outside a run dir."""
+    run_dir = resolve_path(checkpoint)
+    run_dir = run_dir if run_dir.is_dir() else run_dir.parent
+    if not (run_dir / "config.yaml").is_file():
+        return None, None
+    return f"{run_dir.parent.name}-{run_dir.name}", sweep_group(run_dir)
+
+
+def _log_to_wandb(cfg: DictConfig, run_dir: Path, metrics: dict, conditions: dict) -> None:
+    """``logger=wandb``: a wandb run (job type ``eval``) in the checkpoint's training run's group,
+    its id in the config (``train_run_id``), the summary ``eval/<disturbance>-<adaptation>-seed<k>/
+    <group>/<stat>`` and ``inference/<stat>``, the plots and the evaluation as a Table."""
+    if not cfg.logger.wandb:
+        return
+    train_run_id, group = training_run(str(cfg.checkpoint)) if cfg.get("checkpoint") else (None, None)
+    summary = eval_summary(conditions)
+    summary.update({f"inference/{k}": v for k, v in (metrics.get("inference_ms") or {}).items()})
+    rows = result_rows(conditions)
+    config = {**OmegaConf.to_container(cfg, resolve=True), "train_run_id": train_run_id}
+    log_results_run(
+        cfg.logger,
+        run_dir,
+        config,
+        name=f"eval-{run_dir.name}",
+        group=group,
+        job_type="eval",
+        summary=summary,
+        images={p.stem: p for p in sorted(run_dir.glob("*.png"))},
+        tables={"eval/table": (RESULT_COLUMNS, rows)} if rows else {},
+    )

@@ -125,7 +125,7 @@ def run_phases(cfg: DictConfig, run_dir: Path, train_one) -> dict:
                 metrics = train_one(phase_config(cfg, k, plan, previous), phase_dir, resumed)
             except TrainingInterrupted as exc:
                 where = f"phase {k + 1} of {len(plan)}; resume the whole run with resume={run_dir}"
-                raise TrainingInterrupted(f"{exc} ({where})") from None
+                raise TrainingInterrupted(f"{exc} ({where})", signal=exc.signal) from None
         frames, wall = metrics.get("frames"), metrics.get("train_wall_s")
         done.append({"phase": name, "steps": steps, "frames": frames, "train_wall_s": wall})
         previous = phase_dir / "last.pt"

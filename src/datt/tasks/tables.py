@@ -17,7 +17,8 @@ from datt.errors import ConfigError, TrainingInterrupted
 from datt.eval import tables
 from datt.paths import original_cwd, resolve_path
 from datt.runs import run_stoppable
-from datt.tasks.common import console
+from datt.tasks.common import console, sweep_group
+from datt.train.loggers import LoggerParams, log_results_run
 
 
 @dataclass
@@ -40,9 +41,11 @@ class TablesParams:
     sweep_overrides: list[str] = MISSING
     plots: bool = MISSING
     side_by_side: SideBySide = field(default_factory=SideBySide)
+    logger: LoggerParams = field(default_factory=LoggerParams)  # logger=wandb: the table to its sweep's group
 
     def validate(self) -> None:
         self.side_by_side.validate()
+        self.logger.validate()
 
 
 def run_roots(runs: Any) -> list[Path]:
@@ -106,4 +109,21 @@ def run_tables(cfg: DictConfig, run_dir: Path | None = None) -> dict:
     for note in tables.job_notes(jobs):
         console.print(note)
     console.print("wrote " + ", ".join(str(f) for f in files))
+    _log_table(cfg, spec, rendered, jobs, roots, out_dir, files)
     return {"files": [str(f) for f in files], "rows": rendered["rows"], "jobs": len(jobs)}
+
+
+def _log_table(cfg: DictConfig, spec, rendered: dict, jobs: list, roots: list[Path], out_dir: Path, files) -> None:
+    """``logger=wandb``: the table (a wandb Table and its plots) as a run in its sweep's group."""
+    groups = {sweep_group(job.path) for job in jobs if job.path.is_dir()} - {None}
+    log_results_run(
+        cfg.logger,
+        out_dir,
+        {"table": spec.name, "runs": [str(r) for r in roots], "jobs": len(jobs)},
+        name=f"table-{spec.name}",
+        group=groups.pop() if len(groups) == 1 else None,  # jobs of several sweeps: no one group
+        job_type="table",
+        summary={"jobs": len(jobs)},
+        images={Path(f).stem: f for f in files if str(f).endswith(".png")},
+        tables={f"table/{spec.name}": (list(rendered["header"]), [list(r) for r in rendered["rows"]])},
+    )

@@ -14,12 +14,12 @@ from datt.errors import TrainingDiverged
 from datt.eval.conditions import evaluate_end_of_run, print_metrics
 from datt.eval.plots import plot_learning_curve
 from datt.eval.schema import EndOfRunEvalParams
-from datt.runs import RunLock, finite_json, record_failure, write_json
+from datt.runs import RunLock, finite_json, record_failure, scheduler_signal, write_json
 from datt.tasks.common import console, hydra_run_dir, set_threads
 from datt.tasks.phases import is_phased, phase_plan, run_phases
 from datt.tasks.resume import finished_frames, resume_config, resume_dir
 from datt.tasks.validation import validate_config
-from datt.train.loggers import CsvLogger, MultiLogger, WandbLogger, eval_summary
+from datt.train.loggers import RESULT_COLUMNS, CsvLogger, MultiLogger, WandbLogger, eval_summary, result_rows
 from datt.train.ppo import Trainer
 from datt.train.schema import TrainParams, budget_factor, check_ablation, run_params
 
@@ -57,25 +57,47 @@ def run_train(cfg: DictConfig, run_dir: Path | None = None) -> dict:
         from datt.tasks.rma import run_rma
 
         return run_rma(cfg, run_dir or hydra_run_dir())
-    resumed = resume_dir(run.resume)
+    resumed = resume_dir(run.resume) or _requeued_attempt(run_dir)
     if resumed is not None:
         cfg = resume_config(cfg, resumed, config_groups(search_roots()))
         validate_config("train", cfg)  # the run's saved config is a file: checked like a command line
         _drop_own_hydra_dir(resumed, run_dir)
         done = finished_frames(resumed, int(int(cfg.train.total_steps) * budget_factor(cfg)))
-        if done is not None:  # report, write nothing
+        metrics_path = resumed / "metrics.json"
+        if done is not None and metrics_path.is_file():  # report, write nothing
             console.print(
                 f"run {resumed} is finished ({done:,} frames); nothing to do. To train on, resume with a larger "
                 f"train.total_steps (> {done:,})"
             )
-            metrics_path = resumed / "metrics.json"
-            return json.loads(metrics_path.read_text()) if metrics_path.is_file() else {"frames": done}
+            return json.loads(metrics_path.read_text())
+        # trained to its end but stopped before metrics.json: the resume only evaluates
         run_dir = resumed
     run_dir = run_dir or hydra_run_dir()
     with RunLock(run_dir):
         if is_phased(cfg):
             return run_phases(cfg, run_dir, _train_locked)
         return _train_locked(cfg, run_dir, resumed is not None)
+
+
+def _requeued_attempt(given: Path | None) -> Path | None:
+    """In a scheduler's job (:func:`datt.runs.scheduler_signal`: submitit, locally or on Slurm), a
+    run dir that already holds a checkpoint is this job's own earlier attempt, stopped by a time
+    limit or a preemption and requeued with the same overrides: it resumes there. Elsewhere a run
+    dir is new (``${uid:}``), so nothing is resumed without ``resume=``."""
+    if scheduler_signal() is None:
+        return None
+    try:
+        run_dir = given or hydra_run_dir()
+    except ValueError:  # not inside a Hydra job
+        return None
+    if (run_dir / "last.pt").is_file() or ((run_dir / "config.yaml").is_file() and _is_phased_run(run_dir)):
+        console.print(f"requeued job: resuming its own run {run_dir}")
+        return run_dir
+    return None
+
+
+def _is_phased_run(run_dir: Path) -> bool:
+    return is_phased(OmegaConf.load(run_dir / "config.yaml"))
 
 
 def _drop_own_hydra_dir(resumed: Path, given: Path | None) -> None:
@@ -153,14 +175,10 @@ def _train_and_evaluate(cfg, run_dir: Path, trainer, run, train, end_eval) -> di
     write_json(run_dir / "metrics.json", metrics)
     summary = {"frames": trainer.frames, "train_wall_s": trainer.train_wall_s}
     summary.update(eval_summary(metrics.get("conditions") or {}))
-    rows = [
-        [cond, group, stats.get("mean_m"), stats.get("std_m"), stats.get("crashes"), stats.get("episodes")]
-        for cond, result in (metrics.get("conditions") or {}).items()
-        for group, stats in (result.get("groups") or {}).items()
-    ]
+    rows = result_rows(metrics.get("conditions") or {})
     trainer.logger.results(
         summary,
         images={p.stem: p for p in sorted(run_dir.glob("*.png"))},
-        tables={"eval/table": (["condition", "group", "mean_m", "std_m", "crashes", "episodes"], rows)} if rows else {},
+        tables={"eval/table": (RESULT_COLUMNS, rows)} if rows else {},
     )
     return finite_json(metrics)

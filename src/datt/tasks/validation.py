@@ -36,7 +36,7 @@ NODE_SCHEMAS: dict[str, dict[str, type]] = {
         "eval": EndOfRunEvalParams,
         "logger": LoggerParams,
     },
-    "eval": {"eval": EvalParams},
+    "eval": {"eval": EvalParams, "logger": LoggerParams},
 }
 # nodes that hold a _target_ (what instantiate builds): their arguments' declared ranges
 TARGET_NODES = ("traj", "disturbance", "adaptation", "controller", "curriculum", "randomization")

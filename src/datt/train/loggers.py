@@ -14,11 +14,13 @@ from typing import Any
 
 from omegaconf import MISSING
 
-from datt.configuration import Range, ranged
+from datt.configuration import Range, ranged, structured
 from datt.errors import ConfigError, one_line
 from datt.runs import atomic_write
 
 WANDB_MODES = ("offline", "online", "disabled")
+# the columns of an evaluation's wandb Table (one row per condition and reference group)
+RESULT_COLUMNS = ["condition", "group", "mean_m", "std_m", "crashes", "episodes"]
 
 
 @dataclass
@@ -51,6 +53,15 @@ def eval_summary(conditions: Mapping[str, Any], prefix: str = "eval") -> dict[st
                     # a group where every episode crashed has no mean: null, as in metrics.json
                     out[f"{prefix}/{cond}/{group}/{key}"] = None if isinstance(value, str) else value
     return out
+
+
+def result_rows(conditions: Mapping[str, Any]) -> list[list[Any]]:
+    """An evaluation's conditions as the rows of a table with :data:`RESULT_COLUMNS`."""
+    return [
+        [cond, group, *(stats.get(k) for k in RESULT_COLUMNS[2:])]
+        for cond, result in conditions.items()
+        for group, stats in (result.get("groups") or {}).items()
+    ]
 
 
 class Logger:
@@ -114,6 +125,7 @@ class WandbLogger(Logger):
         mode: str = "offline",
         name: str | None = None,
         run_id: str | None = None,
+        job_type: str = "train",
     ) -> None:
         import wandb
 
@@ -135,6 +147,7 @@ class WandbLogger(Logger):
                 name=name,
                 id=run_id,
                 resume="allow" if run_id else None,
+                job_type=job_type,
                 settings=wandb.Settings(console="off", x_disable_stats=True),
             )
         except (wandb.errors.UsageError, wandb.errors.CommError) as exc:
@@ -156,6 +169,40 @@ class WandbLogger(Logger):
 
     def close(self) -> None:
         self.run.finish()
+
+
+def log_results_run(
+    logger_cfg: Mapping[str, Any],
+    run_dir: str | Path,
+    config: Mapping[str, Any],
+    *,
+    name: str,
+    group: str | None,
+    job_type: str,
+    summary: Mapping[str, Any],
+    images: Mapping[str, str | Path] | None = None,
+    tables: Mapping[str, tuple[list[str], list[list[Any]]]] | None = None,
+) -> None:
+    """One wandb run that holds only results (``eval.py``, ``tables.py``), when ``logger.wandb``:
+    ``summary`` keys, ``images`` and ``tables`` (name -> (columns, rows)), in ``group`` beside
+    the training runs it reports on. Nothing without ``logger.wandb``."""
+    params = structured(LoggerParams, logger_cfg, "logger")
+    if not params.wandb:
+        return
+    run = WandbLogger(
+        run_dir,
+        config,
+        project=params.project,
+        group=group or params.group,
+        tags=params.tags,
+        mode=params.mode,
+        name=name,
+        job_type=job_type,
+    )
+    try:
+        run.results(summary, images, tables)
+    finally:
+        run.close()
 
 
 class MultiLogger(Logger):

@@ -288,6 +288,13 @@ class Trainer:
         self._update_curriculum_stage()
 
     # -- loop -------------------------------------------------------------------------------
+    def _interrupted(self, signal_name: str) -> TrainingInterrupted:
+        return TrainingInterrupted(
+            f"{signal_name}: checkpoint at {self.frames:,} of {self.total_frames:,} frames in "
+            f"{self.run_dir / 'last.pt'}; resume with resume={self.run_dir}",
+            signal=signal_name,
+        )
+
     def _update_curriculum_stage(self) -> None:
         # Drones pick up the new family as their episodes end (within one episode).
         if self.curriculum_stage == "fixed" and self.frames >= self.fixed_ref_steps:
@@ -445,10 +452,7 @@ class Trainer:
                     self.save("last.pt")
                 if stop.signal:
                     collector.shutdown()
-                    raise TrainingInterrupted(
-                        f"{stop.signal}: checkpoint at {self.frames:,} of {self.total_frames:,} frames in "
-                        f"{self.run_dir / 'last.pt'}; resume with resume={self.run_dir}"
-                    )
+                    raise self._interrupted(stop.signal)
         collector.shutdown()
         self.save("last.pt")
         if self.curriculum_stage != "main" or not (self.run_dir / "best.pt").exists():
