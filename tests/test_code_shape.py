@@ -63,3 +63,55 @@ def test_the_history_patterns_match_what_they_are_meant_to():
     assert ISSUE_REFERENCE.search("# see issue 37") and ISSUE_REFERENCE.search("fixed in #123")
     assert not ISSUE_REFERENCE.search("thrust[0] += 1")
     assert DATED.search("measured 2026-12-03") and not DATED.search("version 2026.08")
+
+
+TORCH_FACTORIES = {"zeros", "ones", "empty", "tensor", "arange", "full", "rand", "randn", "randint", "linspace", "eye"}
+TORCH_FACTORIES |= {"as_tensor"}
+# Modules that run on the CPU by design: the vehicle's side (link, simulated Crazyflie, flight log,
+# predictor) and the exports.
+CPU_BY_DESIGN = ("deploy/", "export/")
+# Tensors built on the host as construction data and moved where they are used (a module's
+# parameters and buffers follow its .to(device); reference tables and MPPI's noise move at
+# sample/bind; the L1 error dynamics are an analysis): file -> how many such calls it holds.
+HOST_CONSTRUCTION = {
+    "adapt/l1.py": 2,  # error_dynamics: float64 analysis matrices
+    "adapt/rma.py": 3,  # input scales (a registered buffer) and the conv's size probe
+    "control/mppi.py": 1,  # noise_std, moved to env.device at reset
+    "envs/tracking.py": 3,  # set_state: as_tensor then copy_ into the device state
+    "policies/networks.py": 6,  # initial weights and buffers of an nn.Module
+    "refs/composite.py": 1,  # family weights, moved to the generator's device at sample
+    "refs/csv.py": 1,  # the file's points, moved to the query's device at sample
+    "sim/frames.py": 1,  # the rotation's quadratic form, .to(q) where used
+}
+
+
+def factories_without_device(root: Path) -> dict[str, int]:
+    """Per file under ``root``: calls of a ``torch`` factory with neither ``device=`` nor ``**kw``."""
+    counts: dict[str, int] = {}
+    for path in sorted(root.rglob("*.py")):
+        rel = str(path.relative_to(root))
+        for node in ast.walk(ast.parse(path.read_text())):
+            f = node.func if isinstance(node, ast.Call) else None
+            if (
+                isinstance(f, ast.Attribute)
+                and isinstance(f.value, ast.Name)
+                and f.value.id == "torch"
+                and f.attr in TORCH_FACTORIES
+                and not any(k.arg in ("device", None) for k in node.keywords)
+            ):
+                counts[rel] = counts.get(rel, 0) + 1
+    return counts
+
+
+def test_no_tensor_is_created_on_a_hard_coded_device():
+    """env.device=cuda moves the env, policy, PPO, evaluation and MPPI: a factory call without a
+    device outside the CPU-by-design modules is construction data counted above, or a bug."""
+    found = {f: n for f, n in factories_without_device(SRC).items() if not f.startswith(CPU_BY_DESIGN)}
+    assert found == HOST_CONSTRUCTION
+
+
+def test_the_device_rule_finds_a_factory_call_without_a_device(tmp_path):
+    (tmp_path / "m.py").write_text(
+        "import torch\na = torch.zeros(3)\nb = torch.zeros(3, device=d)\nc = torch.ones(2, **kw)\n"
+    )
+    assert factories_without_device(tmp_path) == {"m.py": 1}

@@ -127,6 +127,7 @@ class RmaAdaptation(Adaptation):
 
     def bind(self, n: int, dt_s: float, gravity_mps2: float, device, dtype) -> None:
         super().bind(n, dt_s, gravity_mps2, device, dtype)
+        self.net.to(device)  # the adapter runs beside the env's drones (env.device)
         self.history = torch.zeros(n, self.history_len, FEATURES, device=device, dtype=dtype)
 
     def reset(self, idx: Tensor, true_d_mps2: Tensor | None = None, state=None) -> None:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import torch
 from omegaconf import DictConfig, OmegaConf
 
 from datt.configuration import command_overrides, hydra_choice, instantiate_option, with_options
@@ -33,6 +34,7 @@ def build_controller(cfg: DictConfig):
     if "_target_" in node:
         return instantiate_option(OmegaConf.create({"controller": node}), "controller"), merged, labels
     actor, train_cfg, data = load_actor(cfg.checkpoint)
+    actor.to(torch.device(cfg.env.device))  # beside the env's drones (env.device)
     layout = {key: train_cfg.env.obs[key] for key in OBS_LAYOUT_KEYS if key in train_cfg.env.obs}
     merged = OmegaConf.merge(merged, {"horizon": train_cfg.horizon, "env": {"obs": layout}})
     OmegaConf.set_struct(merged, False)

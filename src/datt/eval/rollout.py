@@ -63,7 +63,7 @@ def run_controller(env, controller: Controller, steps: int | None = None) -> Tra
     pos = [env.sim.state.pos_m.clone()]
     refs = [env.reference_now_m().clone()]
     errs, acts, ds, dhats, step_ms = [], [], [], [], []
-    crashed_at = torch.full((n,), steps, dtype=torch.long)
+    crashed_at = torch.full((n,), steps, dtype=torch.long, device=env.device)
     for k in range(steps):
         t0 = time.perf_counter()
         action = controller.act(env, td)

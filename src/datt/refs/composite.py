@@ -68,7 +68,8 @@ class Mixed(RefFamily):
         self.probs = w / w.sum()
 
     def sample(self, n: int, t_s: Tensor, generator: torch.Generator) -> Tensor:
-        choice = torch.multinomial(self.probs, n, replacement=True, generator=generator).to(t_s.device)
+        probs = self.probs.to(generator.device)  # the draw runs where the env's generator lives (env.device)
+        choice = torch.multinomial(probs, n, replacement=True, generator=generator).to(t_s.device)
         out = torch.empty(n, t_s.shape[0], 3, dtype=t_s.dtype, device=t_s.device)
         for k, fam in enumerate(self.families):  # loop over families, not drones
             idx = (choice == k).nonzero().squeeze(-1)

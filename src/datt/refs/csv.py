@@ -113,7 +113,8 @@ class CsvReference(RefFamily):
 
     def sample(self, n: int, t_s: Tensor, generator: torch.Generator) -> Tensor:
         query = t_s.double()
+        knots_t_s, knots_m = self.t_s.to(query.device), self.pos_m.to(query.device)  # the file: read to the CPU
         if self.loop:
-            query = torch.remainder(query, self.t_s[-1])
-        table = piecewise_linear(self.t_s[None], self.pos_m[None], query)
+            query = torch.remainder(query, knots_t_s[-1])
+        table = piecewise_linear(knots_t_s[None], knots_m[None], query)
         return table.to(t_s.dtype).expand(n, -1, -1)

@@ -177,10 +177,10 @@ class Trainer:
             self.env.stagger_episodes()
         self.actor = make_actor(
             self.env.horizon, self.env.action_low, self.env.action_high, self.policy_params, self.env.state_dim
-        )
+        ).to(self.env.device)  # env.device: the policy, the critic and PPO's tensors live beside the drones
         self.critic = make_critic(
             self.env.horizon, self.policy_params, self.env.state_dim, len(self.env.critic_offsets)
-        )
+        ).to(self.env.device)
         algo = self.algo
         self.loss = ClipPPOLoss(
             self.actor,
