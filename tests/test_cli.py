@@ -71,7 +71,7 @@ def test_corrupt_checkpoint_is_one_line(tmp_path):
 
 def test_datt_console_script_usage(tmp_path):
     proc = run(["-c", "import sys; sys.argv=['datt']; from datt.cli import main; main()"], tmp_path)
-    assert proc.returncode == 2 and "usage: datt {train,eval,tables,deploy,export}" in proc.stderr
+    assert proc.returncode == 2 and "usage: datt {train,fit_rma,eval,tables,deploy,export}" in proc.stderr
 
 
 EXAMPLES = ROOT / "tests" / "examples" / "conf"

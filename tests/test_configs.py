@@ -18,11 +18,11 @@ from datt.envs.factory import env_params_from_cfg
 from datt.envs.params import EnvParams
 from datt.eval import tables
 from datt.eval.rollout import build_bank
-from datt.eval.schema import EndOfRunEvalParams, EvalParams
+from datt.eval.schema import AdapterEvalParams, EndOfRunEvalParams, EvalParams
 from datt.policies.networks import PolicyParams
 from datt.tasks.tables import TablesParams
 from datt.train.ppo import AlgoParams
-from datt.train.schema import CurriculumParams, RmaParams, TrainParams, run_params
+from datt.train.schema import CurriculumParams, RmaParams, TrainParams, fit_rma_params, run_params
 
 # the primary config whose defaults list holds each group
 PRIMARY = {"controller": "eval", "deploy": "deploy"}
@@ -84,13 +84,16 @@ def test_every_option_composes_and_instantiates(group, option, tmp_path):
         for cls, key in (
             (TrainParams, "train"),
             (CurriculumParams, "curriculum"),
-            (RmaParams, "rma"),
             (EndOfRunEvalParams, "eval"),
             (AlgoParams, "algo"),
             (PolicyParams, "policy"),
         ):
             structured(cls, cfg[key], key)
         env_params_from_cfg(cfg.env)
+    if "rma" in cfg:  # fit_rma.py's config (the rma sweep)
+        fit_rma_params(cfg)
+        structured(RmaParams, cfg.rma, "rma")
+        structured(AdapterEvalParams, cfg.eval, "eval")
     if "deploy" in cfg:
         deploy_params(cfg.deploy)
     if "eval" in cfg and "seeds" in cfg.eval:
@@ -195,8 +198,12 @@ def test_python_defaults_are_the_config_defaults(group):
 
 @pytest.mark.parametrize(
     "override, replacement",
-    [("env.num_envs=512", "use algo.num_envs (training) or rma.num_envs"), ("train.threads=1", "use threads")],
-    ids=["env.num_envs", "train.threads"],
+    [
+        ("env.num_envs=512", "use algo.num_envs (training) or rma.num_envs"),
+        ("train.threads=1", "use threads"),
+        ("stage=rma", "use python fit_rma.py base_checkpoint=<policy> to fit an RMA adapter"),
+    ],
+    ids=["env.num_envs", "train.threads", "stage"],
 )
 def test_a_retired_key_on_the_command_line_is_one_line_naming_its_replacement(override, replacement):
     from datt.cli import preflight
@@ -222,3 +229,8 @@ def test_a_saved_config_with_retired_keys_is_read_in_todays_keys():
     assert OmegaConf.to_container(both) == {"train": {}, "threads": 4}
     today = {"env": {"dt_s": 0.02}, "threads": None}
     assert OmegaConf.to_container(upgrade_saved_config(OmegaConf.create(today))) == today
+    # a training config saved when train.py also fitted RMA adapters (stage=, base_checkpoint=, rma:)
+    fitted = {"train": {"progress": True}, "stage": "ppo", "base_checkpoint": None, "rma": {"num_envs": 1024}}
+    assert OmegaConf.to_container(upgrade_saved_config(OmegaConf.create(fitted))) == {"train": {"progress": True}}
+    rma_run = {"rma": {"num_envs": 1024}, "base_checkpoint": "p.pt"}  # an RMA fit's own config keeps them
+    assert OmegaConf.to_container(upgrade_saved_config(OmegaConf.create(rma_run))) == rma_run

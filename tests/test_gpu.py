@@ -40,4 +40,3 @@ def test_a_tiny_training_run_and_its_evaluation_run_on_cuda(tmp_path, monkeypatc
         code, lines, _ = run_cli("eval", args, tmp_path, monkeypatch, capsys)
         assert code == 0, (controller, lines)
         assert json.loads((out / "metrics.json").read_text())["conditions"]
-

@@ -61,7 +61,7 @@ def run(args, cwd):
         pytest.param(
             ["train.py", "train.init_from={ckpt}", "logger=csv", "train.total_steps=1"], marks=pytest.mark.slow
         ),
-        pytest.param(["train.py", "stage=rma", "base_checkpoint={ckpt}", "logger=csv"], marks=pytest.mark.slow),
+        pytest.param(["fit_rma.py", "base_checkpoint={ckpt}"], marks=pytest.mark.slow),
         pytest.param(["eval.py", "checkpoint={ckpt}"], marks=pytest.mark.slow),
         pytest.param(["deploy.py", "checkpoint={ckpt}"], marks=pytest.mark.slow),
         ["tools/reevaluate_checkpoint.py", "{ckpt}", "{run}/metrics.json"],

@@ -42,6 +42,7 @@ from datt.errors import ConfigError
 # entry point -> config name and the command-line arguments its walk starts from
 ENTRY_POINTS: dict[str, tuple[str, list[str]]] = {
     "train": ("train", []),
+    "fit_rma": ("fit_rma", []),
     "eval": ("eval", []),
     "export": ("export", []),
     "deploy": ("deploy", []),

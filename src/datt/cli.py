@@ -375,7 +375,15 @@ eval_main = hydra_main("eval", _task("datt.tasks.eval", "run_eval"))
 tables_main = _tables_entry(hydra_main("tables", _task("datt.tasks.tables", "run_tables")))
 deploy_main = hydra_main("deploy", _task("datt.tasks.deploy", "run_deploy_command"))
 export_main = hydra_main("export", _task("datt.tasks.export", "run_export"))
-COMMANDS = {"train": train_main, "eval": eval_main, "tables": tables_main, "deploy": deploy_main, "export": export_main}
+fit_rma_main = hydra_main("fit_rma", _task("datt.tasks.rma", "run_fit_rma"))
+COMMANDS = {
+    "train": train_main,
+    "fit_rma": fit_rma_main,
+    "eval": eval_main,
+    "tables": tables_main,
+    "deploy": deploy_main,
+    "export": export_main,
+}
 
 
 def main() -> None:
@@ -388,4 +396,4 @@ def main() -> None:
     COMMANDS[command]()
 
 
-__all__ = ["main", "train_main", "eval_main", "tables_main", "deploy_main", "export_main", "preflight"]
+__all__ = ["main", "train_main", "fit_rma_main", "eval_main", "tables_main", "deploy_main", "export_main", "preflight"]

@@ -315,8 +315,11 @@ RETIRED_KEYS: dict[str, str] = {
     "env.num_envs": "algo.num_envs (training) or rma.num_envs (RMA fitting); evaluation, export and "
     "deployment size their own batches",
     "train.threads": "threads",
+    "stage": "python fit_rma.py base_checkpoint=<policy> to fit an RMA adapter (stage=rma); python train.py trains",
 }
 RENAMED_KEYS: dict[str, str] = {"train.threads": "threads"}  # the retired keys whose value moves
+# keys a saved training config may still hold from when train.py also fitted RMA adapters: dropped
+FIT_RMA_KEYS_IN_SAVED_TRAIN_CONFIGS = ("base_checkpoint", "rma")
 
 
 def refuse_retired_keys(overrides: list[str]) -> None:
@@ -344,6 +347,9 @@ def upgrade_saved_config(cfg: DictConfig) -> DictConfig:
             new = RENAMED_KEYS.get(key)
             if new is not None and OmegaConf.select(cfg, new, default="absent") == "absent":
                 OmegaConf.update(cfg, new, value, force_add=True)
+        if "train" in cfg:  # a training run's config
+            for key in FIT_RMA_KEYS_IN_SAVED_TRAIN_CONFIGS:
+                cfg.pop(key, None)
     return cfg
 
 

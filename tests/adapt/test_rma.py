@@ -10,10 +10,8 @@ from datt.train.rma import train_rma
 
 
 def tiny_rma_cfg(checkpoint, *extra):
-    """``stage=rma`` for ``checkpoint``: two iterations on eight drones."""
-    return compose(
-        "train", ["stage=rma", f"base_checkpoint={checkpoint}", "rma.iterations=2", "rma.num_envs=8", *extra]
-    )
+    """``fit_rma.py`` for ``checkpoint``: two iterations on eight drones."""
+    return compose("fit_rma", [f"base_checkpoint={checkpoint}", "rma.iterations=2", "rma.num_envs=8", *extra])
 
 
 def test_network_shapes_and_paper_structure():
@@ -69,16 +67,14 @@ def test_history_buffer_across_partial_resets():
 
 def test_rma_training_loss_decreases(tmp_path, tiny_policy_checkpoint):
     cfg = compose(
-        "train",
+        "fit_rma",
         [
-            "stage=rma",
             f"base_checkpoint={tiny_policy_checkpoint}",
             "disturbance=constant",
             "rma.iterations=150",
             "rma.num_envs=128",
             "rma.lr=3e-3",
             "rma.log_every=10",
-            "env.safety_box_m=[100,100,100]",
         ],
     )
     result = train_rma(cfg, tmp_path)
@@ -151,6 +147,25 @@ def test_rma_inputs_layout_is_saved_with_the_adapter(tmp_path, tiny_policy_check
     train_rma(tiny_rma_cfg(tiny_policy_checkpoint, "rma.inputs=authors", "rma.accel_input=false"), tmp_path)
     net = load_rma(tmp_path / "rma.pt")
     assert net.inputs == "authors" and net.accel_dt_s is None
-    bad = compose("train", ["stage=rma", f"base_checkpoint={tiny_policy_checkpoint}", "rma.inputs=world"])
+    bad = compose("fit_rma", [f"base_checkpoint={tiny_policy_checkpoint}", "rma.inputs=world"])
     with pytest.raises(ConfigError, match=r"^rma.inputs: unknown value 'world'; allowed: project, authors$"):
         train_rma(bad, tmp_path)
+
+
+def test_fit_rma_takes_the_env_from_the_policy_and_refuses_env_overrides(tmp_path):
+    """The adapter is fitted on the policy's own env (its checkpoint's config): fit_rma.py has no
+    env settings, so an ``env.*`` override is refused in one line instead of being ignored."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[2]
+    out = subprocess.run(
+        [sys.executable, str(root / "fit_rma.py"), "env.safety_box_m=[100,100,100]", f"hydra.run.dir={tmp_path}"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        cwd=tmp_path,
+    )
+    assert out.returncode == 2 and out.stderr.startswith("error: env.safety_box_m"), out.stderr[-1000:]
+    assert len(out.stderr.strip().splitlines()) == 1

@@ -115,12 +115,14 @@ def step_features(state, cmd: Tensor, gravity_mps2: float, inputs: str = "projec
 class RmaAdaptation(Adaptation):
     """d̂ from an :class:`RmaNet` over a rolling history buffer ``[N, L, 14]`` (zeros after reset).
 
-    ``checkpoint``: an RMA checkpoint written by ``train.py stage=rma`` (or pass ``net``)."""
+    ``checkpoint``: an RMA checkpoint written by ``fit_rma.py`` (or pass ``net``)."""
 
     def __init__(self, checkpoint: str | None = None, net: RmaNet | None = None) -> None:
         if net is None:
             if checkpoint is None:
-                raise ConfigError("adaptation.checkpoint: RMA needs a trained adapter (train.py stage=rma ...)")
+                raise ConfigError(
+                    "adaptation.checkpoint: RMA needs a trained adapter (python fit_rma.py base_checkpoint=<policy>)"
+                )
             net = load_rma(checkpoint)
         self.net = net.eval()
         self.history_len = net.history_len
@@ -152,7 +154,7 @@ class RmaAdaptation(Adaptation):
 
 # -- checkpoints ---------------------------------------------------------------------------
 def load_rma(path: str | Path) -> RmaNet:
-    """The adapter network of an RMA checkpoint (written by ``train.py stage=rma``)."""
+    """The adapter network of an RMA checkpoint (written by ``fit_rma.py``)."""
     p = resolve_path(path)
     data = load_checkpoint(p, key="adaptation.checkpoint")
     if "rma" not in data:

@@ -84,6 +84,18 @@ class EvalParams:
 
 
 @dataclass
+class AdapterEvalParams:
+    """``eval`` of ``fit_rma.py``: the evaluation after the fit (its four d̂ sources are fixed)."""
+
+    protocol: str = ranged(MISSING, Range(choices=tuple(PROTOCOLS)))
+    seed: int = ranged(MISSING, SEED)
+    bank: Any = MISSING
+
+    def validate(self) -> None:
+        check_bank(self.bank, "eval.bank")
+
+
+@dataclass
 class EndOfRunEvalParams:
     """``eval`` of ``train.py``: conditions evaluated at the end of training."""
 

@@ -13,7 +13,7 @@ Kinds of table (``datt/eval/paper_tables/<name>.yaml``, loaded into ``TABLES``):
 
 * ``train`` (ablation, horizon): one number per run, the end-of-training error on the zigzag bank
   without disturbance; rows = swept keys.
-* ``rma``: the four Brownian rows each ``stage=rma`` run evaluates (d̂ = 0, L1, RMA, privileged).
+* ``rma``: the four Brownian rows each ``fit_rma.py`` run evaluates (d̂ = 0, L1, RMA, privileged).
 * ``eval`` (main, wind): per controller (and disturbance), per-episode errors pooled over the
   eval seeds; inference time from ``inference_ms``.
 """

@@ -28,7 +28,7 @@ from datt.errors import ConfigError, TrainingInterrupted
 from datt.runs import atomic_write, finite_json, read_failure, write_json
 
 # Keys a phase may not set: they say which run this is, or the schedule itself.
-FORBIDDEN_PREFIXES = ("train.phases", "train.init_from", "train.total_steps", "resume", "stage", "seed", "horizon")
+FORBIDDEN_PREFIXES = ("train.phases", "train.init_from", "train.total_steps", "resume", "seed", "horizon")
 PHASE_NAME = re.compile(r"^[A-Za-z0-9_-]+$")
 
 

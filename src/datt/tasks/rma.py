@@ -1,4 +1,4 @@
-"""``train.py stage=rma base_checkpoint=<policy>``: fit an RMA adapter for a frozen policy, then
+"""``fit_rma.py base_checkpoint=<policy>``: fit an RMA adapter for a frozen policy, then
 evaluate DATT under Brownian disturbance with d̂ = 0, L1, RMA and the privileged d."""
 
 from __future__ import annotations
@@ -12,15 +12,24 @@ from datt.configuration import structured
 from datt.control.datt import DattController
 from datt.eval.conditions import print_metrics
 from datt.eval.rollout import evaluate
-from datt.eval.schema import EndOfRunEvalParams
+from datt.eval.schema import AdapterEvalParams
 from datt.policies.loading import load_actor
-from datt.tasks.common import console
+from datt.tasks.common import console, hydra_run_dir, set_threads
+from datt.tasks.validation import validate_config
 from datt.train.rma import train_rma
+from datt.train.schema import fit_rma_params
+
+
+def run_fit_rma(cfg: DictConfig, run_dir: Path | None = None) -> dict:
+    """The ``fit_rma.py`` command: validate, then :func:`run_rma` in the Hydra run dir."""
+    validate_config("fit_rma", cfg)
+    set_threads(fit_rma_params(cfg).threads)
+    return run_rma(cfg, run_dir or hydra_run_dir())
 
 
 def run_rma(cfg: DictConfig, run_dir: Path) -> dict:
     """Fit, save ``rma.pt`` and compare the four sources of d̂; returns ``metrics.json``."""
-    end_eval = structured(EndOfRunEvalParams, cfg.eval, "eval")
+    end_eval = structured(AdapterEvalParams, cfg.eval, "eval")
     run_dir.mkdir(parents=True, exist_ok=True)
     (run_dir / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
     result = train_rma(cfg, run_dir, console)

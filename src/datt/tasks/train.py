@@ -1,5 +1,5 @@
 """``train.py``: train a DATT policy with PPO, checkpoint it and evaluate it on the seeded bank
-(``stage=rma`` fits an RMA adapter instead, :mod:`datt.tasks.rma`)."""
+(an RMA adapter for a trained policy is ``fit_rma.py``, :mod:`datt.tasks.rma`)."""
 
 from __future__ import annotations
 
@@ -53,10 +53,6 @@ def run_train(cfg: DictConfig, run_dir: Path | None = None) -> dict:
     if is_phased(cfg):
         phase_plan(cfg)  # a bad schedule is refused before anything is written
     set_threads(run.threads)
-    if run.stage == "rma":
-        from datt.tasks.rma import run_rma
-
-        return run_rma(cfg, run_dir or hydra_run_dir())
     resumed = resume_dir(run.resume) or _requeued_attempt(run_dir)
     if resumed is not None:
         cfg = resume_config(cfg, resumed, config_groups(search_roots()))

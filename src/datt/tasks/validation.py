@@ -18,25 +18,25 @@ from datt.configuration import SEED, THREADS, Range, check_horizon, check_option
 from datt.control.factory import refuse_unused_adaptation_overrides
 from datt.envs.factory import env_params_from_cfg
 from datt.errors import ConfigError
-from datt.eval.schema import EndOfRunEvalParams, EvalParams
+from datt.eval.schema import AdapterEvalParams, EndOfRunEvalParams, EvalParams
 from datt.paths import resolve_path
 from datt.policies.networks import PolicyParams
 from datt.tasks.resume import resume_dir
 from datt.train.loggers import LoggerParams
 from datt.train.ppo import AlgoParams
-from datt.train.schema import CurriculumParams, RmaParams, TrainParams, run_params
+from datt.train.schema import CurriculumParams, RmaParams, TrainParams, fit_rma_params, run_params
 
 # config name -> node -> its schema (a dataclass), beyond the nodes every config with them has
 NODE_SCHEMAS: dict[str, dict[str, type]] = {
     "train": {
         "curriculum": CurriculumParams,
-        "rma": RmaParams,
         "algo": AlgoParams,
         "policy": PolicyParams,
         "eval": EndOfRunEvalParams,
         "logger": LoggerParams,
     },
     "eval": {"eval": EvalParams, "logger": LoggerParams},
+    "fit_rma": {"rma": RmaParams, "eval": AdapterEvalParams},
 }
 # nodes that hold a _target_ (what instantiate builds): their arguments' declared ranges
 TARGET_NODES = ("traj", "disturbance", "adaptation", "controller", "curriculum", "randomization")
@@ -58,13 +58,15 @@ def _check_file(cfg: DictConfig, key: str) -> None:
 
 def _run_level(config_name: str, cfg: DictConfig) -> None:
     if config_name == "train":
-        run_params(cfg)  # horizon, seed, stage, budget
-        _check_file(cfg, "base_checkpoint")
+        run_params(cfg)  # horizon, seed, budget, resume, threads
         resume = cfg.get("resume")
         if isinstance(resume, str):  # a run dir: it must hold a run to carry on
             resume_dir(resume)
         elif resume is not None and not isinstance(resume, bool):
             raise ConfigError(f"resume: must be true, false or a run dir, got {resume!r}")
+    elif config_name == "fit_rma":
+        fit_rma_params(cfg)  # seed, budget, base_checkpoint, threads
+        _check_file(cfg, "base_checkpoint")
     else:
         if "horizon" in cfg:
             check_horizon(cfg.horizon)

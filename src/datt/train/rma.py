@@ -31,7 +31,7 @@ def _setup(cfg: DictConfig, rma: RmaParams) -> tuple:
     run's disturbance and references, an untrained adapter as their adaptation, episodes
     staggered. Returns (env, adapter, controller, the base checkpoint's payload)."""
     if cfg.base_checkpoint in (None, ""):
-        raise ConfigError("base_checkpoint: stage=rma needs the policy checkpoint to adapt (base_checkpoint=...)")
+        raise ConfigError("base_checkpoint: fit_rma.py needs the policy checkpoint to adapt (base_checkpoint=...)")
     actor, train_cfg, base = load_actor(cfg.base_checkpoint, key="base_checkpoint")
     for p in actor.parameters():
         p.requires_grad_(False)
@@ -48,7 +48,7 @@ def _setup(cfg: DictConfig, rma: RmaParams) -> tuple:
 
 
 def train_rma(cfg: DictConfig, run_dir: Path, console=None) -> dict:
-    """``train.py stage=rma base_checkpoint=<policy>``: fit an adapter for a frozen policy."""
+    """``fit_rma.py base_checkpoint=<policy>``: fit an adapter for a frozen policy."""
     rma = structured(RmaParams, cfg.rma, "rma")
     env, adapter, controller, base = _setup(cfg, rma)
     net = adapter.net

@@ -40,11 +40,23 @@ class RunParams:
 
     horizon: int = ranged(MISSING, HORIZON)
     seed: int = ranged(MISSING, SEED)
-    stage: str = ranged(MISSING, Range(choices=("ppo", "rma")))
-    budget: float = ranged(MISSING, BUDGET)  # scales train.total_steps, curriculum.fixed_ref_steps, rma.iterations
+    budget: float = ranged(MISSING, BUDGET)  # scales train.total_steps, curriculum.fixed_ref_steps
     sweep_name: str | None = MISSING
-    base_checkpoint: str | None = MISSING
     resume: Any = MISSING  # false | true | <run dir>
+    threads: int | None = ranged(MISSING, Range(1, 1024, integer=True, optional=True))  # null = torch default
+
+    def validate(self) -> None:
+        check_budget(self.budget)
+
+
+@dataclass
+class FitRmaParams:
+    """Top-level keys of an RMA fit (``conf/fit_rma.yaml``)."""
+
+    seed: int = ranged(MISSING, SEED)
+    budget: float = ranged(MISSING, BUDGET)  # scales rma.iterations
+    sweep_name: str | None = MISSING
+    base_checkpoint: str = MISSING  # the policy to adapt (frozen)
     threads: int | None = ranged(MISSING, Range(1, 1024, integer=True, optional=True))  # null = torch default
 
     def validate(self) -> None:
@@ -86,7 +98,7 @@ class CurriculumParams:
 
 @dataclass
 class RmaParams:
-    """``rma``: fitting an RMA adapter (``stage=rma``, :mod:`datt.train.rma`)."""
+    """``rma``: fitting an RMA adapter (``fit_rma.py``, :mod:`datt.train.rma`)."""
 
     iterations: int = ranged(MISSING, COUNT)
     num_envs: int = ranged(MISSING, BATCH)
@@ -103,8 +115,16 @@ class RmaParams:
 
 def run_params(cfg: DictConfig) -> RunParams:
     """The run-level keys of a composed training config, validated."""
-    keys = RunParams.__dataclass_fields__
-    return structured(RunParams, {k: cfg.get(k) for k in keys if k in cfg}, "")
+    return _top_level(RunParams, cfg)
+
+
+def fit_rma_params(cfg: DictConfig) -> FitRmaParams:
+    """The run-level keys of a composed RMA-fit config, validated."""
+    return _top_level(FitRmaParams, cfg)
+
+
+def _top_level(schema: type, cfg: DictConfig):
+    return structured(schema, {k: cfg.get(k) for k in schema.__dataclass_fields__ if k in cfg}, "")
 
 
 def check_budget(value: Any) -> float:
@@ -114,8 +134,8 @@ def check_budget(value: Any) -> float:
 
 
 def budget_factor(cfg: DictConfig) -> float:
-    """``cfg.budget``, checked: the factor on train.total_steps, curriculum.fixed_ref_steps and
-    rma.iterations (sweeps on small machines)."""
+    """``cfg.budget``, checked: the factor on train.total_steps and curriculum.fixed_ref_steps
+    (train.py) or rma.iterations (fit_rma.py), for sweeps on small machines."""
     return check_budget(cfg.budget)
 
 
