@@ -35,8 +35,8 @@ def main() -> None:
     ap.add_argument("--steps", type=int, default=400_000)
     a = ap.parse_args()
     common = [
-        f"train.total_steps={a.steps}",
-        "curriculum.fixed_ref_steps=0",
+        f"train.total_frames={a.steps}",
+        "curriculum.fixed_ref_frames=0",
         "logger=csv",
         "train.progress=false",
         "eval.plots=false",

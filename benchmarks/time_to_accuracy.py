@@ -3,7 +3,7 @@
     python benchmarks/time_to_accuracy.py --label defaults [--eval-every 2000000]
         [--max-minutes 30] [--thresholds 0.2 0.1 0.07 0.055] [train overrides...]
 
-Trains with ``conf/train.yaml`` plus the overrides (``train.total_steps`` bounds the run) and,
+Trains with ``conf/train.yaml`` plus the overrides (``train.total_frames`` bounds the run) and,
 every ``--eval-every`` frames, flies the policy deterministically on the evaluation bank's
 zigzags (``conf/bank/default.yaml``: the authors' generator, seed 1000, 10 references; no
 disturbance, d̂ = 0). The training clock excludes those evaluations. Stops when every threshold

@@ -42,7 +42,7 @@ def main() -> None:
     per_iter = probe.algo.num_envs * probe.algo.rollout_steps
     overrides = [
         *args.overrides,
-        f"train.total_steps={per_iter * args.iterations}",
+        f"train.total_frames={per_iter * args.iterations}",
         "train.progress=false",
         "train.checkpoint_every=1000000",
         "logger=csv",

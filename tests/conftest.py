@@ -54,8 +54,8 @@ def train_tiny_policy(run_dir, *extra):
             "algo.rollout_steps=8",
             "algo.minibatch_size=256",
             "algo.epochs=1",
-            "train.total_steps=512",
-            "curriculum.fixed_ref_steps=0",
+            "train.total_frames=512",
+            "curriculum.fixed_ref_frames=0",
             *extra,
         ],
     )

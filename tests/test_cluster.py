@@ -125,11 +125,11 @@ TINY_JOB = [
     "algo.rollout_steps=16",
     "algo.minibatch_size=512",
     "algo.epochs=1",
-    "curriculum.fixed_ref_steps=0",
+    "curriculum.fixed_ref_frames=0",
     "eval.plots=false",
     "eval.bank={zigzag:[{traj:zigzag,seed:1000,count:2}]}",
     "eval.conditions.brownian=null",
-    "train.total_steps=102400",
+    "train.total_frames=102400",
     "train.checkpoint_every=1000",  # only the stop signal's save: a resume from it loses nothing
     "threads=1",
 ]

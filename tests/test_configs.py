@@ -129,8 +129,8 @@ def test_tables_config_passes_its_schema():
 def test_a_missing_key_is_a_one_line_error_naming_it():
     cfg = compose("train")
     OmegaConf.set_struct(cfg, False)
-    del cfg.train["total_steps"]
-    with pytest.raises(Exception, match=r"^train\.total_steps: "):
+    del cfg.train["total_frames"]
+    with pytest.raises(Exception, match=r"^train\.total_frames: "):
         structured(TrainParams, cfg.train, "train")
 
 
@@ -202,8 +202,10 @@ def test_python_defaults_are_the_config_defaults(group):
         ("env.num_envs=512", "use algo.num_envs (training) or rma.num_envs"),
         ("train.threads=1", "use threads"),
         ("stage=rma", "use python fit_rma.py base_checkpoint=<policy> to fit an RMA adapter"),
+        ("train.total_steps=1000", "use train.total_frames (the same number: frames"),
+        ("curriculum.fixed_ref_steps=0", "use curriculum.fixed_ref_frames (the same number: frames)"),
     ],
-    ids=["env.num_envs", "train.threads", "stage"],
+    ids=["env.num_envs", "train.threads", "stage", "train.total_steps", "curriculum.fixed_ref_steps"],
 )
 def test_a_retired_key_on_the_command_line_is_one_line_naming_its_replacement(override, replacement):
     from datt.cli import preflight
@@ -232,5 +234,14 @@ def test_a_saved_config_with_retired_keys_is_read_in_todays_keys():
     # a training config saved when train.py also fitted RMA adapters (stage=, base_checkpoint=, rma:)
     fitted = {"train": {"progress": True}, "stage": "ppo", "base_checkpoint": None, "rma": {"num_envs": 1024}}
     assert OmegaConf.to_container(upgrade_saved_config(OmegaConf.create(fitted))) == {"train": {"progress": True}}
+    # frames once named steps: the run's total, the curriculum's fixed stage, each phase's length
+    counted = {
+        "train": {"total_steps": 2048, "phases": [{"name": "a", "steps": 2048, "set": {}}]},
+        "curriculum": {"fixed_ref_steps": 1024},
+    }
+    assert OmegaConf.to_container(upgrade_saved_config(OmegaConf.create(counted))) == {
+        "train": {"phases": [{"name": "a", "set": {}, "frames": 2048}], "total_frames": 2048},
+        "curriculum": {"fixed_ref_frames": 1024},
+    }
     rma_run = {"rma": {"num_envs": 1024}, "base_checkpoint": "p.pt"}  # an RMA fit's own config keeps them
     assert OmegaConf.to_container(upgrade_saved_config(OmegaConf.create(rma_run))) == rma_run

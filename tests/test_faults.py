@@ -32,7 +32,7 @@ from .train.test_training import TINY as TRAIN_TINY
 
 ROOT = Path(__file__).resolve().parents[1]
 # a few-second training run, nothing written but the run dir
-TINY = [*TRAIN_TINY, "curriculum.fixed_ref_steps=0", "train.eval_at_end=false", "eval.plots=false"]
+TINY = [*TRAIN_TINY, "curriculum.fixed_ref_frames=0", "train.eval_at_end=false", "eval.plots=false"]
 RESUME = ["logger=csv", "train.progress=false"]  # a resume repeats nothing of the run's own settings
 FLIGHT = SHORT_FLIGHT
 
@@ -101,16 +101,16 @@ SMALL_CSV = [[0.0, 0.0, 0.0, 0.0], [1.0, 0.2, 0.0, 0.0], [2.0, 0.2, 0.2, 0.0], [
 
 # -- 1-4: data loss and aborted work ------------------------------------------------------------
 def test_01_resume_trains_on_with_the_runs_own_config(tmp_path, monkeypatch, capsys):
-    run = train_run(tmp_path / "R", monkeypatch, capsys, "train.total_steps=2048", "algo.num_envs=32")
+    run = train_run(tmp_path / "R", monkeypatch, capsys, "train.total_frames=2048", "algo.num_envs=32")
     code, lines, out = run_cli(
-        "train", [*RESUME, f"resume={run}", "train.total_steps=4096"], tmp_path, monkeypatch, capsys
+        "train", [*RESUME, f"resume={run}", "train.total_frames=4096"], tmp_path, monkeypatch, capsys
     )
     assert code == 0, lines
     assert "resuming" in out and "of 4,096 frames" in out
     ckpt = load_checkpoint(run / "last.pt")
     assert ckpt["frames"] == 4096
     assert "num_envs: 32" in (run / "config.yaml").read_text()  # not the command's 64 nor the default 1024
-    assert "total_steps: 4096" in (run / "config.yaml").read_text()
+    assert "total_frames: 4096" in (run / "config.yaml").read_text()
     assert not list(tmp_path.glob("outputs/*/*"))  # the resume command left no run dir of its own
 
 
@@ -119,7 +119,7 @@ def test_01_resume_of_a_run_written_before_a_config_key_existed(tmp_path, monkey
     ``env.obs.timing`` existed resumes with today's values for them (the values that keep what
     the code did then), and its config.yaml then records them; one written with retired keys
     (``train.threads``, ``env.num_envs``) resumes in today's keys (the threads moved)."""
-    run = train_run(tmp_path / "R", monkeypatch, capsys, "train.total_steps=2048", "algo.num_envs=32")
+    run = train_run(tmp_path / "R", monkeypatch, capsys, "train.total_frames=2048", "algo.num_envs=32")
     text = (run / "config.yaml").read_text()
     for line in ("  protocol: project\n", "  fixed_ref: steps\n", "    timing: project\n", "\nthreads: null\n"):
         assert line in text
@@ -127,7 +127,7 @@ def test_01_resume_of_a_run_written_before_a_config_key_existed(tmp_path, monkey
     text = text.replace("env:\n", "env:\n  num_envs: 1024\n", 1).replace("train:\n", "train:\n  threads: 1\n", 1)
     (run / "config.yaml").write_text(text)
     code, lines, out = run_cli(
-        "train", [*RESUME, f"resume={run}", "train.total_steps=4096"], tmp_path, monkeypatch, capsys
+        "train", [*RESUME, f"resume={run}", "train.total_frames=4096"], tmp_path, monkeypatch, capsys
     )
     assert code == 0, lines
     assert load_checkpoint(run / "last.pt")["frames"] == 4096
@@ -138,7 +138,7 @@ def test_01_resume_of_a_run_written_before_a_config_key_existed(tmp_path, monkey
 
 
 def test_01_resume_refuses_an_override_that_changes_the_run(tmp_path, monkeypatch, capsys):
-    run = train_run(tmp_path / "R", monkeypatch, capsys, "train.total_steps=1024")
+    run = train_run(tmp_path / "R", monkeypatch, capsys, "train.total_frames=1024")
     before = snapshot(run)
     result = run_cli("train", [*RESUME, f"resume={run}", "algo.num_envs=128"], tmp_path, monkeypatch, capsys)
     one_line(result, "error: resume: algo.num_envs=128 changes what the run trains (it used 64)")
@@ -148,7 +148,7 @@ def test_01_resume_refuses_an_override_that_changes_the_run(tmp_path, monkeypatc
 
 
 def test_01_resume_of_a_finished_run_writes_nothing(tmp_path, monkeypatch, capsys):
-    run = train_run(tmp_path / "R", monkeypatch, capsys, "train.total_steps=1024")
+    run = train_run(tmp_path / "R", monkeypatch, capsys, "train.total_frames=1024")
     before = snapshot(run)
     code, lines, out = run_cli("train", [*RESUME, f"resume={run}"], tmp_path, monkeypatch, capsys)
     assert code == 0 and not lines
@@ -160,7 +160,7 @@ def test_02_failing_and_diverging_jobs_do_not_stop_the_sweep(tmp_path, monkeypat
     sweep = tmp_path / "sweep"
     corrupt = tmp_path / "corrupt.pt"
     corrupt.write_text("not a checkpoint")  # passes the up-front checks (it exists), fails to load
-    args = [*TINY, "train.total_steps=1024", "algo.lr=1e-3,1e6", f"train.init_from=null,{corrupt}"]
+    args = [*TINY, "train.total_frames=1024", "algo.lr=1e-3,1e6", f"train.init_from=null,{corrupt}"]
     code, lines, _ = run_cli("train", [*args, f"hydra.sweep.dir={sweep}", "-m"], tmp_path, monkeypatch, capsys)
     assert code == 3  # the number of jobs that did not finish
     assert lines[-1] == f"sweep {sweep}: 4 jobs: 1 done, 1 diverged, 2 errored"
@@ -177,7 +177,7 @@ def test_02_failing_and_diverging_jobs_do_not_stop_the_sweep(tmp_path, monkeypat
 
 def test_02_a_bad_value_in_any_variant_refuses_the_sweep_before_any_job(tmp_path, monkeypatch, capsys):
     sweep = tmp_path / "sweep"
-    args = [*TINY, "train.total_steps=1024", "algo.lr=1e-3,1e6,abc", f"hydra.sweep.dir={sweep}", "-m"]
+    args = [*TINY, "train.total_frames=1024", "algo.lr=1e-3,1e6,abc", f"hydra.sweep.dir={sweep}", "-m"]
     code, lines, _ = run_cli("train", args, tmp_path, monkeypatch, capsys)
     assert code == 2
     assert lines == ["error: algo.lr: Value 'abc' of type 'str' could not be converted to Float"]
@@ -188,7 +188,7 @@ def test_02_a_job_that_never_started_is_listed_as_missing(tmp_path, monkeypatch,
     sweep = tmp_path / "sweep"
     run_cli(
         "train",
-        [*TINY, "train.total_steps=1024", "seed=0,1", f"hydra.sweep.dir={sweep}", "-m"],
+        [*TINY, "train.total_frames=1024", "seed=0,1", f"hydra.sweep.dir={sweep}", "-m"],
         tmp_path,
         monkeypatch,
         capsys,
@@ -201,7 +201,7 @@ def test_02_a_job_that_never_started_is_listed_as_missing(tmp_path, monkeypatch,
 
 
 def test_03_runs_started_together_get_their_own_dirs(tmp_path):
-    cmd = [sys.executable, str(ROOT / "train.py"), *TINY, "train.total_steps=1024"]
+    cmd = [sys.executable, str(ROOT / "train.py"), *TINY, "train.total_frames=1024"]
     procs = [subprocess.Popen(cmd, cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE) for _ in range(2)]
     for p in procs:
         assert p.wait(timeout=300) == 0, p.stderr.read().decode()[-2000:]
@@ -213,7 +213,7 @@ def test_03_a_run_dir_in_use_is_refused(tmp_path, monkeypatch, capsys):
     run = tmp_path / "R"
     with RunLock(run):
         result = run_cli(
-            "train", [*TINY, "train.total_steps=1024", f"hydra.run.dir={run}"], tmp_path, monkeypatch, capsys
+            "train", [*TINY, "train.total_frames=1024", f"hydra.run.dir={run}"], tmp_path, monkeypatch, capsys
         )
     one_line(result, f"error: run dir '{run}' is in use by pid {os.getpid()} on ")
     assert not (run / "last.pt").exists()
@@ -320,7 +320,7 @@ def test_05_eval_of_a_missing_csv_is_one_line(tmp_path, monkeypatch, capsys):
 )
 def test_06_values_that_would_train_something_else(tmp_path, monkeypatch, capsys, args, message):
     result = run_cli(
-        "train", [*TINY, "train.total_steps=1024", *args, "hydra.run.dir=r"], tmp_path, monkeypatch, capsys
+        "train", [*TINY, "train.total_frames=1024", *args, "hydra.run.dir=r"], tmp_path, monkeypatch, capsys
     )
     one_line(result, message)
     assert not (tmp_path / "r" / "last.pt").exists()
@@ -328,7 +328,7 @@ def test_06_values_that_would_train_something_else(tmp_path, monkeypatch, capsys
 
 def test_06_csv_reference_far_from_the_origin(tmp_path, monkeypatch, capsys):
     ref = write_csv(tmp_path / "big.csv", [[0.0, 0.0, 0.0, 0.0], [1.0, 1e6, 0.0, 0.0]])
-    args = [*TINY, "train.total_steps=1024", "traj=csv", f"traj.path={ref}", "hydra.run.dir=r"]
+    args = [*TINY, "train.total_frames=1024", "traj=csv", f"traj.path={ref}", "hydra.run.dir=r"]
     one_line(run_cli("train", args, tmp_path, monkeypatch, capsys), "error: traj.max_abs_m: big.csv line 3 is 1e+06 m")
 
 
@@ -348,10 +348,10 @@ def test_06_reference_outside_the_geofence_is_refused_before_arming(tmp_path, mo
 
 def test_07_resume_bookkeeping(tmp_path, monkeypatch, capsys):
     os.umask(0o022)
-    run = train_run(tmp_path / "R", monkeypatch, capsys, "train.total_steps=2048", "eval.plots=true")
+    run = train_run(tmp_path / "R", monkeypatch, capsys, "train.total_frames=2048", "eval.plots=true")
     first = json.loads((run / "metrics.json").read_text())
     code, lines, _ = run_cli(
-        "train", [*RESUME, f"resume={run}", "train.total_steps=4096"], tmp_path, monkeypatch, capsys
+        "train", [*RESUME, f"resume={run}", "train.total_frames=4096"], tmp_path, monkeypatch, capsys
     )
     assert code == 0, lines
     rows = list(csv.DictReader((run / "metrics.csv").open()))
@@ -375,12 +375,12 @@ def test_07_metrics_json_has_no_nan(tmp_path):
     [
         (["train.totl_steps=5"], "error: train.totl_steps: no such key"),
         (["seed=abc"], "error: seed: Value 'abc' of type 'str' could not be converted to Integer"),
-        (["train.total_steps=abc"], "error: train.total_steps: Value 'abc' of type 'str' could not be converted"),
+        (["train.total_frames=abc"], "error: train.total_frames: Value 'abc' of type 'str' could not be converted"),
         (["hydra.run.dir=/proc/datt_run"], "error: hydra.run.dir: /proc/datt_run: cannot write in /proc"),
     ],
 )
 def test_08_train_input_errors(tmp_path, monkeypatch, capsys, args, message):
-    one_line(run_cli("train", [*TINY, "train.total_steps=1024", *args], tmp_path, monkeypatch, capsys), message)
+    one_line(run_cli("train", [*TINY, "train.total_frames=1024", *args], tmp_path, monkeypatch, capsys), message)
 
 
 def test_08_output_dir_below_a_file(tmp_path, monkeypatch, capsys):
@@ -402,19 +402,19 @@ def test_08_wandb_online_without_a_login(tmp_path, monkeypatch, capsys):
     monkeypatch.delenv("WANDB_API_KEY", raising=False)
     monkeypatch.setenv("HOME", str(tmp_path))  # no ~/.netrc
     monkeypatch.setenv("NETRC", str(tmp_path / "none"))
-    args = [*[a for a in TINY if a != "logger=csv"], "logger.mode=online", "train.total_steps=1024", "hydra.run.dir=r"]
+    args = [*[a for a in TINY if a != "logger=csv"], "logger.mode=online", "train.total_frames=1024", "hydra.run.dir=r"]
     one_line(run_cli("train", args, tmp_path, monkeypatch, capsys), "error: logger.mode: online needs a wandb login")
 
 
 def test_08_divergence_at_iteration_0_names_no_missing_checkpoint(tmp_path, monkeypatch, capsys):
-    args = [*TINY, "train.total_steps=1024", "algo.lr=1e6", "hydra.run.dir=r"]
+    args = [*TINY, "train.total_frames=1024", "algo.lr=1e6", "hydra.run.dir=r"]
     result = run_cli("train", args, tmp_path, monkeypatch, capsys)
     one_line(result, "error: training diverged: non-finite loss at iteration 0 (frame 0); no checkpoint was written", 3)
     assert json.loads((tmp_path / "r" / "failed.json").read_text())["status"] == "diverged"
 
 
 def test_08_ctrl_c_during_training_saves_a_checkpoint(tmp_path):
-    cmd = [sys.executable, str(ROOT / "train.py"), *TINY, "train.total_steps=100000000", "hydra.run.dir=r"]
+    cmd = [sys.executable, str(ROOT / "train.py"), *TINY, "train.total_frames=100000000", "hydra.run.dir=r"]
     proc = _popen(cmd, tmp_path)
     _read_until(proc, "run dir:", 120)
     time.sleep(3.0)
@@ -511,7 +511,7 @@ def test_10_a_full_disk_while_checkpointing_is_one_line_and_keeps_the_log(tmp_pa
             raise OSError(errno.ENOSPC, "No space left on device")
 
     monkeypatch.setattr(checkpoint, "atomic_write", full_disk)
-    args = [*TINY, "train.total_steps=1024", "hydra.run.dir=r"]
+    args = [*TINY, "train.total_frames=1024", "hydra.run.dir=r"]
     code, lines, _ = run_cli("train", args, tmp_path, monkeypatch, capsys)
     one_line((code, lines), f"error: {tmp_path / 'r'}/")
     assert lines[0].split(": ", 2)[1].endswith(".pt") and "No space left on device; free some space" in lines[0]
@@ -524,7 +524,7 @@ def test_10_resuming_on_a_read_only_mount_is_one_line(tmp_path, monkeypatch, cap
 
     run = tmp_path / "r"
     code, _, _ = run_cli(
-        "train", [*TINY, "train.total_steps=1024", f"hydra.run.dir={run}"], tmp_path, monkeypatch, capsys
+        "train", [*TINY, "train.total_frames=1024", f"hydra.run.dir={run}"], tmp_path, monkeypatch, capsys
     )
     assert code == 0
     before = snapshot(run)
@@ -534,7 +534,7 @@ def test_10_resuming_on_a_read_only_mount_is_one_line(tmp_path, monkeypatch, cap
 
     monkeypatch.setattr(RunLock, "acquire", read_only)
     code, lines, _ = run_cli(
-        "train", [*RESUME, f"resume={run}", "train.total_steps=2048"], tmp_path, monkeypatch, capsys
+        "train", [*RESUME, f"resume={run}", "train.total_frames=2048"], tmp_path, monkeypatch, capsys
     )
     one_line((code, lines), f"error: {run / '.lock'}: Read-only file system; copy the run to a writable place")
     assert snapshot(run) == before
@@ -544,7 +544,7 @@ def test_10_corrupt_job_files_are_listed_and_the_table_goes_on(tmp_path, monkeyp
     sweep = tmp_path / "sweep"
     code, _, _ = run_cli(
         "train",
-        [*TINY, "train.total_steps=1024", "seed=0,1,2", f"hydra.sweep.dir={sweep}", "-m"],
+        [*TINY, "train.total_frames=1024", "seed=0,1,2", f"hydra.sweep.dir={sweep}", "-m"],
         tmp_path,
         monkeypatch,
         capsys,
@@ -568,7 +568,7 @@ def test_10_tables_run_stops_its_sweep_on_sigterm_and_keeps_what_finished(tmp_pa
     """``tables.py ... run=true`` runs the sweep as a child in its own process group; SIGTERM is
     passed to the whole group (no orphan keeps training), and the command exits 130 naming the
     sweep dir. Before, the child sweep kept running after tables.py died."""
-    overrides = [o for o in TINY if not o.startswith("hydra")] + ["train.total_steps=100000000", "seed=0,1"]
+    overrides = [o for o in TINY if not o.startswith("hydra")] + ["train.total_frames=100000000", "seed=0,1"]
     quoted = ",".join(f"'{o}'" for o in overrides)
     proc = subprocess.Popen(
         [sys.executable, str(ROOT / "tables.py"), "ablation", "run=true", f"sweep_overrides=[{quoted}]"],

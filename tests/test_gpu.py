@@ -18,7 +18,7 @@ SMALL_BANK = "eval.bank={zigzag:[{traj:zigzag,seed:1000,count:2}]}"
 
 def test_a_tiny_training_run_and_its_evaluation_run_on_cuda(tmp_path, monkeypatch, capsys):
     run = tmp_path / "run"
-    args = [*TINY, "env.device=cuda", "train.total_steps=4096", "eval.plots=false", SMALL_BANK, f"hydra.run.dir={run}"]
+    args = [*TINY, "env.device=cuda", "train.total_frames=4096", "eval.plots=false", SMALL_BANK, f"hydra.run.dir={run}"]
     code, lines, _ = run_cli("train", args, tmp_path, monkeypatch, capsys)
     assert code == 0, lines
     metrics = json.loads((run / "metrics.json").read_text())

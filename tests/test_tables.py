@@ -12,12 +12,12 @@ from datt.eval import tables
 
 REPO = Path(__file__).resolve().parents[1]
 TINY = [
-    "train.total_steps=4096",
+    "train.total_frames=4096",
     "algo.num_envs=64",
     "algo.rollout_steps=16",
     "algo.minibatch_size=512",
     "algo.epochs=1",
-    "curriculum.fixed_ref_steps=1024",
+    "curriculum.fixed_ref_frames=1024",
     "logger=csv",
     "env.compile=false",
     "train.progress=false",
@@ -42,7 +42,7 @@ def test_multirun_then_table_end_to_end(tmp_path):
     md = (sweep / "horizon.md").read_text()
     assert "H = 1 " in md and "H = 5 " in md  # both rows
     assert "0.240 ± 0.008" in md  # next to the paper's number
-    assert "train.total_steps" not in md  # a fixed override is not a row key
+    assert "train.total_frames" not in md  # a fixed override is not a row key
     rows = (sweep / "horizon.csv").read_text().splitlines()
     assert len(rows) == 3
     assert (sweep / "horizon.tex").read_text().startswith("\\begin{tabular}")
@@ -61,7 +61,7 @@ def test_every_sweep_composes_from_any_directory(tmp_path, name):
 def test_ablation_sweep_settings_and_budget(tmp_path):
     out = run("train.py", "+sweep=ablation", "budget=0.1", "--cfg", "job", "--resolve", cwd=tmp_path)
     assert "_target_: datt.refs.Zigzag" in out.stdout and "datt.sim.NoDisturbance" in out.stdout
-    assert "total_steps: 15000000" in out.stdout and "budget: 0.1" in out.stdout
+    assert "total_frames: 15000000" in out.stdout and "budget: 0.1" in out.stdout
     assert "brownian: null" in out.stdout
 
 
@@ -71,7 +71,7 @@ def test_the_paper_setting_ablation_sweep_is_the_ablation_sweep_with_the_authors
     from omegaconf import OmegaConf
 
     cfg = OmegaConf.create(out.stdout)
-    assert cfg.sweep_name == "ablation_authors" and cfg.train.total_steps == 15_000_000
+    assert cfg.sweep_name == "ablation_authors" and cfg.train.total_frames == 15_000_000
     assert cfg.env.obs.timing == "authors" and cfg.env.quad.initial_thrust_mps2 == 0.0
     assert cfg.policy.encoder == "authors" and cfg.curriculum.fixed_ref == "whole_run"
     assert cfg.eval.protocol == "authors" and cfg.eval.conditions.brownian is None

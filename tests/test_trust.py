@@ -44,7 +44,7 @@ def crafted(tmp_path: Path, source: Path, where: tuple[str, ...] = ("traj",)) ->
         node = node[part]
     node[where[-1]] = evil_node(tmp_path)
     cfg["eval"]["conditions"]["clean"]["disturbance"] = evil_node(tmp_path)
-    cfg["train"]["total_steps"] = 10 * int(data["frames"])
+    cfg["train"]["total_frames"] = 10 * int(data["frames"])
     data["config_yaml"] = yaml.safe_dump(cfg)
     run_dir = tmp_path / "run"
     return save_checkpoint(run_dir / "last.pt", {k: v for k, v in data.items() if k != "format"})
@@ -59,7 +59,7 @@ def run(args, cwd):
     [  # the two where the pickle ran before the boundary stay in the default suite
         ["train.py", "resume={run}", "logger=csv"],
         pytest.param(
-            ["train.py", "train.init_from={ckpt}", "logger=csv", "train.total_steps=1"], marks=pytest.mark.slow
+            ["train.py", "train.init_from={ckpt}", "logger=csv", "train.total_frames=1"], marks=pytest.mark.slow
         ),
         pytest.param(["fit_rma.py", "base_checkpoint={ckpt}"], marks=pytest.mark.slow),
         pytest.param(["eval.py", "checkpoint={ckpt}"], marks=pytest.mark.slow),

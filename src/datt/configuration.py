@@ -315,9 +315,16 @@ RETIRED_KEYS: dict[str, str] = {
     "env.num_envs": "algo.num_envs (training) or rma.num_envs (RMA fitting); evaluation, export and "
     "deployment size their own batches",
     "train.threads": "threads",
+    "train.total_steps": "train.total_frames (the same number: frames, env steps summed over the drones)",
+    "curriculum.fixed_ref_steps": "curriculum.fixed_ref_frames (the same number: frames)",
     "stage": "python fit_rma.py base_checkpoint=<policy> to fit an RMA adapter (stage=rma); python train.py trains",
 }
-RENAMED_KEYS: dict[str, str] = {"train.threads": "threads"}  # the retired keys whose value moves
+# the retired keys whose value moves
+RENAMED_KEYS: dict[str, str] = {
+    "train.threads": "threads",
+    "train.total_steps": "train.total_frames",
+    "curriculum.fixed_ref_steps": "curriculum.fixed_ref_frames",
+}
 # keys a saved training config may still hold from when train.py also fitted RMA adapters: dropped
 FIT_RMA_KEYS_IN_SAVED_TRAIN_CONFIGS = ("base_checkpoint", "rma")
 
@@ -350,6 +357,9 @@ def upgrade_saved_config(cfg: DictConfig) -> DictConfig:
         if "train" in cfg:  # a training run's config
             for key in FIT_RMA_KEYS_IN_SAVED_TRAIN_CONFIGS:
                 cfg.pop(key, None)
+            for phase in OmegaConf.select(cfg, "train.phases", default=None) or []:
+                if isinstance(phase, DictConfig) and "steps" in phase and "frames" not in phase:
+                    phase["frames"] = phase.pop("steps")  # a phase's length: frames, once named steps
     return cfg
 
 

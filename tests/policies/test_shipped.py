@@ -102,4 +102,4 @@ def test_shipped_checkpoint_is_the_output_of_python_train_py(checkpoint, overrid
     }
     assert data["lineage"] == [] and trained["train"]["init_from"] is None
     batch = cfg["algo"]["num_envs"] * cfg["algo"]["rollout_steps"]
-    assert data["frames"] == -(-cfg["train"]["total_steps"] // batch) * batch
+    assert data["frames"] == -(-cfg["train"]["total_frames"] // batch) * batch

@@ -19,8 +19,8 @@ BATCH = 64 * 16  # TINY: 64 envs x 16 steps
 
 def small(*extra):
     return tiny_cfg(
-        f"train.total_steps={2 * BATCH}",
-        "curriculum.fixed_ref_steps=0",
+        f"train.total_frames={2 * BATCH}",
+        "curriculum.fixed_ref_frames=0",
         "train.eval_at_end=false",
         "eval.plots=false",
         *extra,
@@ -64,7 +64,7 @@ def test_a_resumed_fine_tune_keeps_its_lineage(tmp_path):
     run_train(small(), run_dir=first)
     run_train(small(f"train.init_from={first / 'last.pt'}"), run_dir=second)
     before = load_checkpoint(second / "last.pt")["lineage"]
-    resumed = small(f"train.init_from={first / 'last.pt'}", f"train.total_steps={3 * BATCH}", f"resume={second}")
+    resumed = small(f"train.init_from={first / 'last.pt'}", f"train.total_frames={3 * BATCH}", f"resume={second}")
     run_train(resumed, run_dir=second)
     after = load_checkpoint(second / "last.pt")
     assert after["frames"] == 3 * BATCH and after["lineage"] == before and len(before) == 1

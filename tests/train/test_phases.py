@@ -18,20 +18,20 @@ from .test_training import tiny_cfg
 
 ZIGZAG_ONLY = {"zigzag": 1, "poly": 0, "chained_poly": 0}
 TWO_PHASES = [
-    {"name": "a", "steps": 1024, "set": {"algo.lr": 2.0e-3}},
-    {"name": "b", "steps": 1024, "set": {"env.reward.vel": 0.0, "traj.weights": ZIGZAG_ONLY}},
+    {"name": "a", "frames": 1024, "set": {"algo.lr": 2.0e-3}},
+    {"name": "b", "frames": 1024, "set": {"env.reward.vel": 0.0, "traj.weights": ZIGZAG_ONLY}},
 ]
 
 
 def one(values):
     """A single 2048-step phase that sets ``values``."""
-    return {"name": "a", "steps": 2048, "set": values}
+    return {"name": "a", "frames": 2048, "set": values}
 
 
 def phased_cfg(phases=TWO_PHASES, total=2048, *extra):
     cfg = tiny_cfg(
-        f"train.total_steps={total}",
-        "curriculum.fixed_ref_steps=512",
+        f"train.total_frames={total}",
+        "curriculum.fixed_ref_frames=512",
         "train.eval_at_end=false",
         "eval.plots=false",
         *extra,
@@ -52,18 +52,18 @@ def test_shipped_experiment_is_the_five_phase_schedule():
         "phase4_wide",
         "phase5_no_vel",
     ]
-    assert sum(steps for _, steps, _ in plan) == 64_000_000
+    assert sum(frames for _, frames, _ in plan) == 64_000_000
     first, last = phase_config(cfg, 0, plan, None), phase_config(cfg, 4, plan, "p4/last.pt")
-    assert first.curriculum.fixed_ref_steps == 2_500_000 and first.train.init_from is None
+    assert first.curriculum.fixed_ref_frames == 2_500_000 and first.train.init_from is None
     assert dict(first.traj.weights) == {"zigzag": 2, "poly": 1, "chained_poly": 1}
     assert (first.algo.lr, first.algo.lr_final_frac, first.algo.num_envs) == (1e-3, 0.1, 1024)
-    assert last.curriculum.fixed_ref_steps == 0 and last.train.init_from == "p4/last.pt"
+    assert last.curriculum.fixed_ref_frames == 0 and last.train.init_from == "p4/last.pt"
     assert (last.algo.lr, last.algo.num_envs, last.algo.minibatch_size, last.env.reward.vel) == (1e-4, 2048, 4096, 0.0)
     assert dict(last.traj.weights) == {"zigzag": 6, "poly": 1, "chained_poly": 1}
     # the checkpoint's zigzags: the iid ones (the training default when it was trained)
     for family in (first.traj.families.zigzag, first.curriculum.fixed.family):
         assert (family.waypoints, family.seg_min_s, family.seg_max_s, family.range_m) == ("iid", 0.5, 1.5, 1.0)
-    assert last.train.phases is None and last.train.total_steps == 10_000_000
+    assert last.train.phases is None and last.train.total_frames == 10_000_000
     # the evaluation runs once, after the last phase
     assert not first.train.eval_at_end and last.train.eval_at_end
 
@@ -72,9 +72,9 @@ def test_phases_chain_weights_and_the_run_is_the_last_phase(tmp_path):
     metrics = run_train(phased_cfg(), run_dir=tmp_path)
     one, two = tmp_path / "phase1_a", tmp_path / "phase2_b"
     cfg_one, cfg_two = OmegaConf.load(one / "config.yaml"), OmegaConf.load(two / "config.yaml")
-    assert cfg_one.algo.lr == 2e-3 and cfg_one.train.init_from is None and cfg_one.curriculum.fixed_ref_steps == 512
+    assert cfg_one.algo.lr == 2e-3 and cfg_one.train.init_from is None and cfg_one.curriculum.fixed_ref_frames == 512
     assert cfg_one.env.reward.vel == 0.1
-    assert cfg_two.algo.lr == 1e-3 and cfg_two.env.reward.vel == 0.0 and cfg_two.curriculum.fixed_ref_steps == 0
+    assert cfg_two.algo.lr == 1e-3 and cfg_two.env.reward.vel == 0.0 and cfg_two.curriculum.fixed_ref_frames == 0
     assert cfg_two.train.init_from == str(one / "last.pt")
     assert dict(cfg_two.traj.weights) == {"zigzag": 1, "poly": 0, "chained_poly": 0}
     run_ckpt, last_ckpt = load_checkpoint(tmp_path / "last.pt"), load_checkpoint(two / "last.pt")
@@ -144,14 +144,14 @@ def test_resume_keeps_finished_phases_and_runs_the_rest(tmp_path):
 @pytest.mark.parametrize(
     "phases, total, message",
     [
-        (TWO_PHASES, 4096, "train.phases: the phases add up to 2,048 steps but train.total_steps is 4,096; "),
+        (TWO_PHASES, 4096, "train.phases: the phases add up to 2,048 frames but train.total_frames is 4,096; "),
         ([one({"algo.lrr": 1.0})], 2048, "train.phases[0].set: unknown config key 'algo.lrr'"),
         ([one({"seed": 3})], 2048, "train.phases[0].set: seed cannot change between phases"),
         ([one({"train.init_from": "x.pt"})], 2048, "train.phases[0].set: train.init_from cannot"),
-        ([{"name": "a b", "steps": 2048}], 2048, "train.phases[0].name: 'a b' must be unique"),
-        ([{"name": "a", "steps": 1024}, {"name": "a", "steps": 1024}], 2048, "train.phases[1].name: 'a' must be"),
-        ([{"name": "a", "steps": 0}], 2048, "train.phases[0].steps: must be an integer >= 1, got 0"),
-        ([{"name": "a", "steps": 2048, "lr": 1}], 2048, "train.phases[0]: must be a mapping with keys name, steps"),
+        ([{"name": "a b", "frames": 2048}], 2048, "train.phases[0].name: 'a b' must be unique"),
+        ([{"name": "a", "frames": 1024}, {"name": "a", "frames": 1024}], 2048, "train.phases[1].name: 'a' must be"),
+        ([{"name": "a", "frames": 0}], 2048, "train.phases[0].frames: must be an integer >= 1, got 0"),
+        ([{"name": "a", "frames": 2048, "lr": 1}], 2048, "train.phases[0]: must be a mapping with keys name, frames"),
         ([], 2048, "train.phases: empty list; use null"),
     ],
 )
@@ -165,7 +165,7 @@ def test_bad_schedules_are_refused_before_anything_is_written(tmp_path, phases, 
 def test_a_bad_schedule_on_the_command_line_is_one_line(tmp_path, monkeypatch, capsys):
     from ..test_faults import TINY, one_line, run_cli
 
-    args = [*TINY, "experiment=shipped_iid", "train.total_steps=1000"]
+    args = [*TINY, "experiment=shipped_iid", "train.total_frames=1000"]
     result = run_cli("train", args, tmp_path, monkeypatch, capsys)
-    one_line(result, "error: train.phases: the phases add up to 64,000,000 steps but train.total_steps is 1,000; ")
+    one_line(result, "error: train.phases: the phases add up to 64,000,000 frames but train.total_frames is 1,000; ")
     assert not (tmp_path / "outputs").exists() or not list((tmp_path / "outputs").rglob("*.pt"))

@@ -178,7 +178,7 @@ def test_learning_rate_schedule(tmp_path, schedule):
     """linear: lr (1 − (1 − f) frames / total), down to f · lr at the end; exponential:
     lr · f^(frames / total), the same end; constant: lr."""
     trainer = Trainer(
-        tiny_cfg(f"algo.lr_schedule={schedule}", "algo.lr=0.002", "algo.lr_final_frac=0.25", "train.total_steps=4000"),
+        tiny_cfg(f"algo.lr_schedule={schedule}", "algo.lr=0.002", "algo.lr_final_frac=0.25", "train.total_frames=4000"),
         tmp_path,
         CsvLogger(tmp_path),
     )
@@ -392,7 +392,7 @@ def test_the_entropy_bonus_is_on_exactly_when_its_coefficient_is_positive(tmp_pa
 
 def test_the_smallest_budgets_are_accepted(tmp_path):
     """One step of training and one step of the fixed reference are valid settings."""
-    trainer = Trainer(tiny_cfg("train.total_steps=1", "curriculum.fixed_ref_steps=1"), tmp_path, CsvLogger(tmp_path))
+    trainer = Trainer(tiny_cfg("train.total_frames=1", "curriculum.fixed_ref_frames=1"), tmp_path, CsvLogger(tmp_path))
     assert trainer.total_frames == 1 and trainer.fixed_traj is not None and trainer.curriculum_stage == "fixed"
 
 

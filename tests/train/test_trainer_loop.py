@@ -62,7 +62,7 @@ def _recording_console():
 @pytest.mark.parametrize("frames_done, batches", [(0, 3), (BATCH, 2), (3 * BATCH - 1, 1)])
 def test_collects_exactly_the_batches_that_reach_the_total(tmp_path, frames_done, batches):
     """Batches of 1,024 frames up to (at least) the total, counted from where the run stands."""
-    trainer = _trainer(tmp_path, f"train.total_steps={3 * BATCH}", "curriculum.fixed_ref_steps=0")
+    trainer = _trainer(tmp_path, f"train.total_frames={3 * BATCH}", "curriculum.fixed_ref_frames=0")
     trainer.frames = frames_done
     history = trainer.train()
     assert len(history) == batches
@@ -73,7 +73,7 @@ def test_collects_exactly_the_batches_that_reach_the_total(tmp_path, frames_done
 
 def test_a_complete_run_trains_nothing_and_writes_nothing(tmp_path):
     console = _recording_console()
-    trainer = _trainer(tmp_path, f"train.total_steps={2 * BATCH}", console=console)
+    trainer = _trainer(tmp_path, f"train.total_frames={2 * BATCH}", console=console)
     trainer.frames = 2 * BATCH
     before = {name: param.clone() for name, param in trainer.actor.named_parameters()}
     assert trainer.train() == []
@@ -87,8 +87,8 @@ def test_each_row_describes_its_batch(tmp_path):
     the mean reward per step × the episode's steps; the curriculum stage is the one the batch was trained in."""
     trainer = _trainer(
         tmp_path,
-        f"train.total_steps={3 * BATCH}",
-        f"curriculum.fixed_ref_steps={BATCH}",
+        f"train.total_frames={3 * BATCH}",
+        f"curriculum.fixed_ref_frames={BATCH}",
         "algo.reward_scale=0.5",
         "env.episode_steps=8",  # episodes that end within a batch: by truncation, and
         "env.max_tracking_error_m=0.3",  # by a crash for some drones
@@ -119,8 +119,8 @@ def test_checkpoints_every_n_iterations_and_the_best_of_the_main_stage(tmp_path)
     logger = CheckpointSpy(tmp_path)
     trainer = _trainer(
         tmp_path,
-        f"train.total_steps={5 * BATCH}",
-        f"curriculum.fixed_ref_steps={BATCH}",
+        f"train.total_frames={5 * BATCH}",
+        f"curriculum.fixed_ref_frames={BATCH}",
         "train.checkpoint_every=2",
         logger=logger,
     )
@@ -144,21 +144,21 @@ def test_checkpoints_every_n_iterations_and_the_best_of_the_main_stage(tmp_path)
 
 
 def test_a_run_that_never_leaves_the_fixed_stage_still_has_a_best(tmp_path):
-    trainer = _trainer(tmp_path, f"train.total_steps={2 * BATCH}", f"curriculum.fixed_ref_steps={10 * BATCH}")
+    trainer = _trainer(tmp_path, f"train.total_frames={2 * BATCH}", f"curriculum.fixed_ref_frames={10 * BATCH}")
     history = trainer.train()
     assert [row["curriculum_stage"] for row in history] == ["fixed", "fixed"]
     best = load_checkpoint(tmp_path / "best.pt")
     assert best["iteration"] == 2 and best["curriculum_stage"] == "fixed"
 
 
-@pytest.mark.parametrize("fixed_ref_steps, stages", [(BATCH, ["fixed"] * 3), (0, ["main"] * 3)])
+@pytest.mark.parametrize("fixed_ref_frames, stages", [(BATCH, ["fixed"] * 3), (0, ["main"] * 3)])
 def test_the_whole_run_curriculum_flies_the_fixed_reference_to_the_end_unless_skipped(
-    tmp_path, fixed_ref_steps, stages
+    tmp_path, fixed_ref_frames, stages
 ):
     trainer = _trainer(
         tmp_path,
-        f"train.total_steps={3 * BATCH}",
-        f"curriculum.fixed_ref_steps={fixed_ref_steps}",
+        f"train.total_frames={3 * BATCH}",
+        f"curriculum.fixed_ref_frames={fixed_ref_frames}",
         "curriculum.fixed_ref=whole_run",
     )
     assert [row["curriculum_stage"] for row in trainer.train()] == stages
@@ -168,9 +168,9 @@ def test_progress_bar_shows_steps_rate_error_and_return(tmp_path):
     console = _recording_console()
     trainer = _trainer(
         tmp_path,
-        f"train.total_steps={3 * BATCH}",
+        f"train.total_frames={3 * BATCH}",
         "train.progress=true",
-        "curriculum.fixed_ref_steps=0",
+        "curriculum.fixed_ref_frames=0",
         console=console,
     )
     trainer.frames = BATCH  # a resumed run: the bar starts where the run stands
@@ -188,7 +188,7 @@ def test_progress_bar_shows_steps_rate_error_and_return(tmp_path):
 
 def test_no_progress_bar_when_switched_off(tmp_path):
     console = _recording_console()
-    trainer = _trainer(tmp_path, f"train.total_steps={BATCH}", "train.progress=false", console=console)
+    trainer = _trainer(tmp_path, f"train.total_frames={BATCH}", "train.progress=false", console=console)
     trainer.train()
     assert "steps/s" not in console.export_text()
 
@@ -205,7 +205,7 @@ def test_a_stop_signal_saves_and_stops_after_the_batch(tmp_path):
 
     handler = signal.getsignal(signal.SIGTERM)
     trainer = _trainer(
-        tmp_path, f"train.total_steps={5 * BATCH}", "train.checkpoint_every=100", logger=SignalAt2(tmp_path)
+        tmp_path, f"train.total_frames={5 * BATCH}", "train.checkpoint_every=100", logger=SignalAt2(tmp_path)
     )
     with pytest.raises(TrainingInterrupted) as info:
         trainer.train()
@@ -217,23 +217,23 @@ def test_a_stop_signal_saves_and_stops_after_the_batch(tmp_path):
 
 
 def test_budget_scales_the_total_and_the_fixed_stage(tmp_path):
-    trainer = _trainer(tmp_path, "budget=0.5", "train.total_steps=4096", "curriculum.fixed_ref_steps=2048")
-    assert (trainer.total_frames, trainer.fixed_ref_steps) == (2048, 1024)
+    trainer = _trainer(tmp_path, "budget=0.5", "train.total_frames=4096", "curriculum.fixed_ref_frames=2048")
+    assert (trainer.total_frames, trainer.fixed_ref_frames) == (2048, 1024)
     from datt.errors import ConfigError
 
-    with pytest.raises(ConfigError, match=r"^train.total_steps: must be >= 1, got 0$"):
-        _trainer(tmp_path, "budget=0.0001", "train.total_steps=4096")
+    with pytest.raises(ConfigError, match=r"^train.total_frames: must be >= 1, got 0$"):
+        _trainer(tmp_path, "budget=0.0001", "train.total_frames=4096")
 
 
 def test_the_env_flies_the_main_family_once_the_fixed_stage_is_over(tmp_path):
-    trainer = _trainer(tmp_path, f"train.total_steps={2 * BATCH}", f"curriculum.fixed_ref_steps={BATCH}")
+    trainer = _trainer(tmp_path, f"train.total_frames={2 * BATCH}", f"curriculum.fixed_ref_frames={BATCH}")
     assert trainer.curriculum_stage == "fixed" and trainer.env.traj is trainer.fixed_traj
     trainer.train()
     assert trainer.curriculum_stage == "main" and trainer.env.traj is trainer.main_traj
     trainer.frames = 0  # e.g. a checkpoint from before the switch: back to the fixed reference
     trainer._update_curriculum_stage()
     assert trainer.curriculum_stage == "fixed" and trainer.env.traj is trainer.fixed_traj
-    no_curriculum = _trainer(tmp_path, "curriculum.fixed_ref_steps=0")
+    no_curriculum = _trainer(tmp_path, "curriculum.fixed_ref_frames=0")
     assert no_curriculum.curriculum_stage == "main" and no_curriculum.fixed_traj is None
 
 
@@ -266,7 +266,7 @@ def test_rates_and_wall_time_come_from_the_clock(tmp_path, monkeypatch):
     monkeypatch.setattr(ppo, "time", SimpleNamespace(perf_counter=lambda: next(ticks)))
     console = _recording_console()
     trainer = _trainer(
-        tmp_path, f"train.total_steps={3 * BATCH}", "train.progress=true", "curriculum.fixed_ref_steps=0",
+        tmp_path, f"train.total_frames={3 * BATCH}", "train.progress=true", "curriculum.fixed_ref_frames=0",
         console=console,
     )  # fmt: skip
     trainer.frames = BATCH
@@ -283,7 +283,7 @@ def test_update_sets_the_scheduled_lr_and_averages_its_minibatches(tmp_path):
     """Each update sets every parameter group to the schedule's learning rate (whatever the
     optimiser held), and its loss and gradient-norm figures are the means over its minibatches."""
     trainer = _trainer(
-        tmp_path, f"train.total_steps={4 * BATCH}", "algo.lr_schedule=linear", "curriculum.fixed_ref_steps=0",
+        tmp_path, f"train.total_frames={4 * BATCH}", "algo.lr_schedule=linear", "curriculum.fixed_ref_frames=0",
         cls=SpyTrainer,
     )  # fmt: skip
     trainer.train()  # collects the batches the update below reuses
@@ -310,7 +310,7 @@ def test_update_sets_the_scheduled_lr_and_averages_its_minibatches(tmp_path):
 def test_divergence_names_what_went_non_finite(tmp_path, what):
     from datt.errors import TrainingDiverged
 
-    trainer = _trainer(tmp_path, f"train.total_steps={BATCH}", "curriculum.fixed_ref_steps=0", cls=SpyTrainer)
+    trainer = _trainer(tmp_path, f"train.total_frames={BATCH}", "curriculum.fixed_ref_frames=0", cls=SpyTrainer)
     trainer.train()
     loss = trainer.loss
     weight = next(trainer.actor.parameters())
@@ -330,7 +330,7 @@ def test_divergence_names_what_went_non_finite(tmp_path, what):
 
 
 def test_a_resumed_main_stage_at_the_fixed_stage_end_stays_main(tmp_path):
-    trainer = _trainer(tmp_path, f"train.total_steps={4 * BATCH}", f"curriculum.fixed_ref_steps={BATCH}")
+    trainer = _trainer(tmp_path, f"train.total_frames={4 * BATCH}", f"curriculum.fixed_ref_frames={BATCH}")
     trainer.curriculum_stage, trainer.frames = "main", BATCH
     trainer._update_curriculum_stage()
     assert trainer.curriculum_stage == "main"
@@ -342,14 +342,14 @@ def test_a_resumed_main_stage_at_the_fixed_stage_end_stays_main(tmp_path):
 def test_a_main_stage_that_never_beat_its_best_still_writes_one(tmp_path):
     """A resumed main stage whose batches never beat the best error it carried (best.pt lost):
     the end of the run writes best.pt from the last state."""
-    trainer = _trainer(tmp_path, f"train.total_steps={BATCH}", "curriculum.fixed_ref_steps=0")
+    trainer = _trainer(tmp_path, f"train.total_frames={BATCH}", "curriculum.fixed_ref_frames=0")
     trainer.best_error = -1.0
     trainer.train()
     assert load_checkpoint(tmp_path / "best.pt")["iteration"] == 1
 
 
 def test_checkpoints_hold_the_resolved_config(tmp_path):
-    trainer = _trainer(tmp_path, f"train.total_steps={BATCH}", "adaptation=l1")
+    trainer = _trainer(tmp_path, f"train.total_frames={BATCH}", "adaptation=l1")
     trainer.train()
     text = load_checkpoint(tmp_path / "last.pt")["config_yaml"]
     assert "${" not in text and "k_thrust: 0.4" in text
@@ -368,7 +368,7 @@ def test_the_logger_gets_numbers_only(tmp_path):
             super().log(metrics, step)
 
     logger = KeySpy(tmp_path)
-    history = _trainer(tmp_path, f"train.total_steps={2 * BATCH}", logger=logger).train()
+    history = _trainer(tmp_path, f"train.total_frames={2 * BATCH}", logger=logger).train()
     assert logger.keys and all("curriculum_stage" not in keys for keys in logger.keys)
     assert all("tracking_error_m" in keys for keys in logger.keys)
     assert all(row["curriculum_stage"] in ("fixed", "main") for row in history)

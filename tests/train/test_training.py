@@ -39,7 +39,7 @@ def test_ablation_options_set_exactly_their_keys():
     expect = {
         "no_body_frame": ("env", "obs", "body_frame", False),
         "no_feedback": ("env", "obs", "feedback", False),
-        "no_fixed_ref": ("curriculum", "fixed_ref_steps", 0),
+        "no_fixed_ref": ("curriculum", "fixed_ref_frames", 0),
     }
     for name, (*path, value) in expect.items():
         cfg = OmegaConf.to_container(tiny_cfg(f"ablation={name}"), resolve=True)
@@ -70,8 +70,8 @@ def test_tiny_training_improves_return(tmp_path):
         "algo.rollout_steps=25",
         "algo.minibatch_size=640",
         "algo.epochs=4",
-        "train.total_steps=96000",
-        "curriculum.fixed_ref_steps=0",
+        "train.total_frames=96000",
+        "curriculum.fixed_ref_frames=0",
     )
     trainer = Trainer(cfg, tmp_path, CsvLogger(tmp_path))
 
@@ -91,8 +91,8 @@ def test_tiny_training_improves_return(tmp_path):
 def test_interrupted_run_resumes_to_the_same_total(tmp_path):
     total = 4 * 64 * 16
     cfg = tiny_cfg(
-        f"train.total_steps={total}",
-        "curriculum.fixed_ref_steps=2048",
+        f"train.total_frames={total}",
+        "curriculum.fixed_ref_frames=2048",
         "train.checkpoint_every=1",
         "train.eval_at_end=false",
     )
@@ -112,8 +112,8 @@ def test_interrupted_run_resumes_to_the_same_total(tmp_path):
     ckpt = load_checkpoint(tmp_path / "last.pt")
     assert ckpt["frames"] == 1024 and ckpt["curriculum_stage"] == "fixed"  # killed before iteration 2's save
     cfg_resume = tiny_cfg(
-        f"train.total_steps={total}",
-        "curriculum.fixed_ref_steps=2048",
+        f"train.total_frames={total}",
+        "curriculum.fixed_ref_frames=2048",
         "train.checkpoint_every=1",
         "train.eval_at_end=false",
         f"resume={tmp_path}",
@@ -132,7 +132,7 @@ def test_interrupted_run_resumes_to_the_same_total(tmp_path):
 
 
 def test_nan_guard_stops_with_last_good_checkpoint(tmp_path):
-    cfg = tiny_cfg("train.total_steps=4096", "train.checkpoint_every=1")
+    cfg = tiny_cfg("train.total_frames=4096", "train.checkpoint_every=1")
     trainer = Trainer(cfg, tmp_path, CsvLogger(tmp_path))
     trainer.save()
     good = load_checkpoint(tmp_path / "last.pt")
@@ -190,8 +190,8 @@ def test_train_py_end_to_end_writes_run_dir(tmp_path):
             sys.executable,
             str(ROOT / "train.py"),
             *TINY,
-            "train.total_steps=2048",
-            "curriculum.fixed_ref_steps=1024",
+            "train.total_frames=2048",
+            "curriculum.fixed_ref_frames=1024",
             f"hydra.run.dir={tmp_path}",
         ],
         capture_output=True,

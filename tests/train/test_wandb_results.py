@@ -14,13 +14,13 @@ from ..test_faults import run_cli
 from .test_training import TINY
 from .wandb_record import run_info, summary_and_history
 
-WANDB_TINY = ["logger=wandb", *[o for o in TINY if not o.startswith("logger=")], "curriculum.fixed_ref_steps=0"]
+WANDB_TINY = ["logger=wandb", *[o for o in TINY if not o.startswith("logger=")], "curriculum.fixed_ref_frames=0"]
 
 
 def test_offline_run_record_holds_the_evaluation_plots_and_table_and_resume_continues_it(tmp_path, monkeypatch, capsys):
     pytest.importorskip("wandb")
     run = tmp_path / "r"
-    args = [*WANDB_TINY, "train.total_steps=1024", f"hydra.run.dir={run}"]
+    args = [*WANDB_TINY, "train.total_frames=1024", f"hydra.run.dir={run}"]
     code, lines, _ = run_cli("train", args, tmp_path, monkeypatch, capsys)
     assert code == 0, lines
     metrics = json.loads((run / "metrics.json").read_text())
@@ -35,7 +35,7 @@ def test_offline_run_record_holds_the_evaluation_plots_and_table_and_resume_cont
 
     code, lines, _ = run_cli(
         "train",
-        ["logger=wandb", "train.progress=false", f"resume={run}", "train.total_steps=2048"],
+        ["logger=wandb", "train.progress=false", f"resume={run}", "train.total_frames=2048"],
         tmp_path,
         monkeypatch,
         capsys,

@@ -1,7 +1,7 @@
 """Resuming a training run: the run's own saved config, and which overrides may change it.
 
 A resumed run trains on with ``<run>/config.yaml``. An override on the resume command may only
-change how the run is carried on (``RESUMABLE``: extend ``train.total_steps``, logging,
+change how the run is carried on (``RESUMABLE``: extend ``train.total_frames``, logging,
 checkpoint cadence, threads, end-of-run evaluation); anything that changes what is trained
 (env, policy, algo, references, seed ...) is refused in one line.
 """
@@ -23,7 +23,7 @@ from datt.tasks.phases import is_phased, phased_parent
 # Dotted keys (or prefixes ending in ".") an override may change on resume.
 RESUMABLE = (
     "resume",
-    "train.total_steps",
+    "train.total_frames",
     "train.checkpoint_every",
     "train.progress",
     "threads",

@@ -58,12 +58,12 @@ def run_train(cfg: DictConfig, run_dir: Path | None = None) -> dict:
         cfg = resume_config(cfg, resumed, config_groups(search_roots()))
         validate_config("train", cfg)  # the run's saved config is a file: checked like a command line
         _drop_own_hydra_dir(resumed, run_dir)
-        done = finished_frames(resumed, int(int(cfg.train.total_steps) * budget_factor(cfg)))
+        done = finished_frames(resumed, int(int(cfg.train.total_frames) * budget_factor(cfg)))
         metrics_path = resumed / "metrics.json"
         if done is not None and metrics_path.is_file():  # report, write nothing
             console.print(
                 f"run {resumed} is finished ({done:,} frames); nothing to do. To train on, resume with a larger "
-                f"train.total_steps (> {done:,})"
+                f"train.total_frames (> {done:,})"
             )
             return json.loads(metrics_path.read_text())
         # trained to its end but stopped before metrics.json: the resume only evaluates

@@ -8,7 +8,7 @@ minibatches cost hours, so ``conf/algo/ppo.yaml`` uses thousands of envs, short 
 epochs over minibatches of a few thousand and a larger learning rate (documented there);
 ``algo=sb3`` restores the authors' values.
 
-Curriculum (paper §4.1): the first ``curriculum.fixed_ref_steps`` frames fly one fixed
+Curriculum (paper §4.1): the first ``curriculum.fixed_ref_frames`` frames fly one fixed
 reference (``curriculum.fixed``), then the configured family (``curriculum.fixed_ref=whole_run``:
 the fixed reference for the whole run, as the authors' code ran it). Checkpoints (``last.pt`` every
 ``train.checkpoint_every`` iterations and at the end, ``best.pt`` on the best training tracking
@@ -161,14 +161,14 @@ class Trainer:
         train_params = self.train_params = structured(TrainParams, cfg.train, "train")
         curriculum = structured(CurriculumParams, cfg.curriculum, "curriculum")
         budget = budget_factor(cfg)
-        self.total_frames = int(int(train_params.total_steps) * budget)
+        self.total_frames = int(int(train_params.total_frames) * budget)
         if self.total_frames < 1:
-            raise ConfigError(f"train.total_steps: must be >= 1, got {self.total_frames}")
-        self.fixed_ref_steps = int(curriculum.fixed_ref_steps * budget)
-        if curriculum.fixed_ref == "whole_run" and self.fixed_ref_steps > 0:
-            self.fixed_ref_steps = self.total_frames
+            raise ConfigError(f"train.total_frames: must be >= 1, got {self.total_frames}")
+        self.fixed_ref_frames = int(curriculum.fixed_ref_frames * budget)
+        if curriculum.fixed_ref == "whole_run" and self.fixed_ref_frames > 0:
+            self.fixed_ref_frames = self.total_frames
         self.main_traj = instantiate_option(cfg, "traj")
-        self.fixed_traj = instantiate_option(cfg.curriculum, "fixed") if self.fixed_ref_steps > 0 else None
+        self.fixed_traj = instantiate_option(cfg.curriculum, "fixed") if self.fixed_ref_frames > 0 else None
         seed = int(cfg.seed)
         torch.manual_seed(seed)
         self.env = make_env(cfg, num_envs=self.algo.num_envs, seed=seed, traj=self.fixed_traj or self.main_traj)
@@ -297,10 +297,10 @@ class Trainer:
 
     def _update_curriculum_stage(self) -> None:
         # Drones pick up the new family as their episodes end (within one episode).
-        if self.curriculum_stage == "fixed" and self.frames >= self.fixed_ref_steps:
+        if self.curriculum_stage == "fixed" and self.frames >= self.fixed_ref_frames:
             self.curriculum_stage = "main"
             self.env.traj = self.main_traj
-        elif self.curriculum_stage == "main" and self.fixed_traj is not None and self.frames < self.fixed_ref_steps:
+        elif self.curriculum_stage == "main" and self.fixed_traj is not None and self.frames < self.fixed_ref_frames:
             self.curriculum_stage = "fixed"
             self.env.traj = self.fixed_traj
 

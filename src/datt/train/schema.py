@@ -40,7 +40,7 @@ class RunParams:
 
     horizon: int = ranged(MISSING, HORIZON)
     seed: int = ranged(MISSING, SEED)
-    budget: float = ranged(MISSING, BUDGET)  # scales train.total_steps, curriculum.fixed_ref_steps
+    budget: float = ranged(MISSING, BUDGET)  # scales train.total_frames, curriculum.fixed_ref_frames
     sweep_name: str | None = MISSING
     resume: Any = MISSING  # false | true | <run dir>
     threads: int | None = ranged(MISSING, Range(1, 1024, integer=True, optional=True))  # null = torch default
@@ -67,7 +67,7 @@ class FitRmaParams:
 class TrainParams:
     """``train``: the PPO run's length and bookkeeping."""
 
-    total_steps: int = ranged(MISSING, COUNT)  # frames (env steps summed over the drones)
+    total_frames: int = ranged(MISSING, COUNT)  # frames (env steps summed over the drones)
     checkpoint_every: int = ranged(MISSING, COUNT)  # iterations between last.pt writes
     init_from: str | None = MISSING  # start from this checkpoint's weights (fine-tuning)
     eval_at_end: bool = MISSING
@@ -81,14 +81,14 @@ class TrainParams:
 
 @dataclass
 class CurriculumParams:
-    """``curriculum``: the first ``fixed_ref_steps`` frames fly the one reference ``fixed``
+    """``curriculum``: the first ``fixed_ref_frames`` frames fly the one reference ``fixed``
     (``fixed_ref: steps``, the paper's 2.5 M), or every frame of the run (``fixed_ref: whole_run``,
     what the authors' code did: one zigzag of one seed until an env's 5000th episode,
     ``reset_thresh`` in ``configuration/configuration.py`` line 139 and ``TrajectoryEnv.reset`` in
     ``learning/tasks/trajectory_fbff.py`` lines 47-55, past the end of a 15-25 M-step run of 10
-    envs). ``fixed_ref_steps: 0`` skips the fixed reference under both (the no_fixed_ref ablation)."""
+    envs). ``fixed_ref_frames: 0`` skips the fixed reference under both (the no_fixed_ref ablation)."""
 
-    fixed_ref_steps: int = ranged(MISSING, NON_NEGATIVE_COUNT)
+    fixed_ref_frames: int = ranged(MISSING, NON_NEGATIVE_COUNT)
     fixed_ref: str = ranged(MISSING, Range(choices=FIXED_REF_MODES))
     fixed: Any = MISSING  # a reference family node with _target_ (datt.refs.Fixed)
 
@@ -134,7 +134,7 @@ def check_budget(value: Any) -> float:
 
 
 def budget_factor(cfg: DictConfig) -> float:
-    """``cfg.budget``, checked: the factor on train.total_steps and curriculum.fixed_ref_steps
+    """``cfg.budget``, checked: the factor on train.total_frames and curriculum.fixed_ref_frames
     (train.py) or rma.iterations (fit_rma.py), for sweeps on small machines."""
     return check_budget(cfg.budget)
 
