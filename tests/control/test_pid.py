@@ -156,3 +156,17 @@ def test_the_integral_is_error_times_dt_clamped_and_restarts_only_for_a_restarte
     pid.act(env, td)
     assert pid.integral[0].tolist() == pytest.approx([0.5 * dt, 0.0, 0.0])
     assert torch.equal(pid.integral[1], held)  # saturated: one more step keeps it at the limit
+
+
+@pytest.mark.parametrize("sign", [1.0, -1.0], ids=["above", "below"])
+def test_the_integral_saturates_at_the_limit_on_either_side(sign):
+    """A drone held 10 m from its reference on each axis accumulates ∫e until the anti-windup limit,
+    +limit for a positive error and −limit for a negative one, per axis."""
+    env = env_at([0.0, 0.0, 0.0], n=1)
+    td = env.reset()
+    pid = PidController(kp=0.0, ki=1.0, kd=0.0, integral_limit_m_s=0.5)
+    pid.reset(env)
+    env.set_state([[10.0 * sign, 10.0 * sign, 10.0 * sign]], torch.zeros(1, 3), [[1.0, 0.0, 0.0, 0.0]])
+    for _ in range(10):  # 10 m x 0.02 s per step: the limit after 3 steps
+        pid.act(env, td)
+    assert pid.integral[0].tolist() == pytest.approx([0.5 * sign] * 3)

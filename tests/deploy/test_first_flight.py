@@ -44,6 +44,7 @@ def tilt_after(server, link, seconds, roll_degps):
 
 
 # -- 1 and 2: the controller that flies the setpoints ------------------------------------------
+@pytest.mark.flight  # a real flight through cflib (seconds): not in the mutation-testing selection
 @pytest.mark.parametrize(
     "controller, rates_flown", [("PID", True), ("INDI", True), ("Lee", False), ("Mellinger", False)]
 )
@@ -66,6 +67,7 @@ def test_only_rate_controllers_fly_rate_setpoints(controller, rates_flown):
     assert (tilt > 10.0) == rates_flown, tilt
 
 
+@pytest.mark.flight  # a real flight through cflib (seconds): not in the mutation-testing selection
 def test_off_board_selects_the_pid_and_clears_the_holds_then_restores_them(tmp_path):
     """A vehicle left in Lee with the altitude and position holds on (parameters persist until a
     reboot: an earlier flight, a cfclient session) flies the PID in rate mode, and gets its
@@ -94,6 +96,7 @@ def test_off_board_selects_the_pid_and_clears_the_holds_then_restores_them(tmp_p
     assert {k: server.params[k] for k in left} == left  # restored on close
 
 
+@pytest.mark.flight  # a real flight through cflib (seconds): not in the mutation-testing selection
 @needs_gcc
 def test_onboard_selects_the_controller_the_app_publishes(tmp_path):
     """The app publishes ``datt.controllerId`` (``ControllerTypeOot`` of its firmware, 6 in
@@ -118,6 +121,7 @@ def test_onboard_selects_the_controller_the_app_publishes(tmp_path):
     assert any("stabilizer.controller = 6" in e["text"] for e in summary["events"])
 
 
+@pytest.mark.flight  # a real flight through cflib (seconds): not in the mutation-testing selection
 @needs_gcc
 def test_the_app_refuses_to_start_without_its_hook(tmp_path):
     """Under any controller but the out-of-tree one the hook never runs: the app refuses
@@ -140,6 +144,7 @@ def test_the_app_refuses_to_start_without_its_hook(tmp_path):
     assert server.app.phase == onboard.IDLE
 
 
+@pytest.mark.flight  # a real flight through cflib (seconds): not in the mutation-testing selection
 @needs_gcc
 def test_an_app_that_stops_stepping_is_taken_over_by_the_host(tmp_path):
     """The controller switched away mid-track: the hook's state goes stale, the app pushes no
@@ -197,6 +202,7 @@ def test_the_simulated_firmware_echoes_a_write_as_sent_and_ignores_read_only_wri
 
 
 # -- 4: arming confirmed -----------------------------------------------------------------------
+@pytest.mark.flight  # a real flight through cflib (seconds): not in the mutation-testing selection
 def test_a_vehicle_that_does_not_arm_does_not_take_off(tmp_path):
     summary, server = fly(tmp_path, ["deploy.server.refuse_arming=true"])
     assert summary["outcome"].startswith("arming failed: the supervisor did not report the vehicle armed")
@@ -236,6 +242,7 @@ def test_the_upload_never_sends_more_than_the_queue_holds():
     assert len(sent) == firmware.APP_CHANNEL_RX_QUEUE
 
 
+@pytest.mark.flight  # a real flight through cflib (seconds): not in the mutation-testing selection
 @needs_gcc
 def test_onboard_upload_fits_the_queue_and_is_timed(tmp_path):
     summary, server = fly(tmp_path, ["deploy.onboard=true"])

@@ -250,3 +250,24 @@ def test_every_layout_branch_of_the_fixed_c_matches_torch(tmp_path_factory):
     for k in range(1, 200):
         lib.cf_l1_step(ctypes.byref(state), *(x[k].ctypes.data_as(F) for x in c))
     assert np.abs(np.array(state.d_hat) - expect_d[-1].numpy()).max() <= 1e-4
+
+
+def test_the_traced_example_is_one_level_drone_at_rest_on_its_reference(exported):
+    """What TorchScript and ONNX trace with: one drone at the origin, at rest, level (the identity
+    quaternion: a unit one, as every real input), its reference and d̂ zero, no command history."""
+    from datt.export import ObservePolicyModule
+
+    spec, controller, merged, _, _ = exported
+    module = ObservePolicyModule(controller, spec.horizon, merged.env.obs)
+    pos, vel, quat, ref, d_hat, hist = module.example_inputs()
+    assert [t.shape for t in (pos, vel, quat, ref, d_hat, hist)] == [
+        (1, 3),
+        (1, 3),
+        (1, 4),
+        (1, spec.horizon, 3),
+        (1, 3),
+        (1, 4 * spec.action_history),
+    ]
+    assert quat.tolist() == [[1.0, 0.0, 0.0, 0.0]]
+    assert all(not t.any() for t in (pos, vel, ref, d_hat, hist))
+    assert module.example_inputs(5)[2].tolist() == [[1.0, 0.0, 0.0, 0.0]] * 5
