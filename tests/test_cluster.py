@@ -17,6 +17,8 @@ from omegaconf import OmegaConf
 from datt.runs import StopRequest, requeue_with_scheduler, scheduler_signal
 from datt.tasks.common import launcher_threads
 
+from .train.test_training import TINY
+
 REPO = Path(__file__).resolve().parents[1]
 SLURM = "hydra_plugins.hydra_submitit_launcher.submitit_launcher.SlurmLauncher"
 
@@ -118,13 +120,7 @@ def test_only_a_scheduler_s_own_handler_makes_its_signal_a_stop_request(monkeypa
 
 
 TINY_JOB = [
-    "logger=csv",
-    "env.compile=false",
-    "train.progress=false",
-    "algo.num_envs=64",
-    "algo.rollout_steps=16",
-    "algo.minibatch_size=512",
-    "algo.epochs=1",
+    *TINY,
     "curriculum.fixed_ref_frames=0",
     "eval.plots=false",
     "eval.bank={zigzag:[{traj:zigzag,seed:1000,count:2}]}",
