@@ -182,7 +182,7 @@ def _target_defaults_differ(node):
     return differ
 
 
-@pytest.mark.parametrize("group", ["traj", "disturbance", "adaptation"])
+@pytest.mark.parametrize("group", ["traj", "disturbance", "adaptation", "controller"])
 def test_python_defaults_are_the_config_defaults(group):
     """``Wind()`` in a notebook is the same wind as ``disturbance=wind``: one default per value.
     A class behind several options (``Polygon``: ``polygon`` and ``star``) matches one of them."""

@@ -8,6 +8,7 @@ import torch
 from datt.configuration import compose
 from datt.control.pid import PidController
 from datt.envs.factory import make_env
+from datt.errors import ConfigError
 from datt.eval.rollout import run_controller
 from datt.refs.base import RefFamily
 from datt.sim.frames import quat_from_euler
@@ -170,3 +171,10 @@ def test_the_integral_saturates_at_the_limit_on_either_side(sign):
     for _ in range(10):  # 10 m x 0.02 s per step: the limit after 3 steps
         pid.act(env, td)
     assert pid.integral[0].tolist() == pytest.approx([0.5 * sign] * 3)
+
+
+def test_a_pid_is_named_by_its_estimator_and_refuses_a_bad_gain_naming_the_controller_key():
+    assert PidController().name == "pid" and PidController(use_d_hat=True).name == "l1_pid"
+    assert not PidController().use_d_hat
+    with pytest.raises(ConfigError, match=r"^controller\.kd: must be a finite number >= 0"):
+        PidController(kd=-1.0)
