@@ -100,7 +100,9 @@ class SimulatedMocap(MocapSource):
 class MotionCaptureMocap(MocapSource):
     name = "motioncapture"
 
-    def __init__(self, system: str, host: str, body: str) -> None:
+    def __init__(self, system: str, host: str, body: str, options: dict[str, str] | None = None) -> None:
+        """``system`` and ``host`` (and ``options``: the library's other settings, e.g. a Qualisys
+        ``port``, all strings) go to ``motioncapture.connect``; ``body`` is the rigid body flown."""
         try:
             import motioncapture
         except ImportError:
@@ -108,7 +110,7 @@ class MotionCaptureMocap(MocapSource):
 
             raise ConfigError("deploy.mocap: the motioncapture source needs `pip install motioncapture`") from None
         super().__init__()
-        self.mc = motioncapture.connect(system, {"hostname": host})
+        self.mc = motioncapture.connect(system, {"hostname": host, **{k: str(v) for k, v in (options or {}).items()}})
         self.body = body
         self._latest = None
         self._running = threading.Event()

@@ -4,7 +4,7 @@ only place a default lives. ``flight``, ``safety`` and ``thrust`` have their own
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 from omegaconf import MISSING, DictConfig, OmegaConf
@@ -30,6 +30,7 @@ class MocapParams:
     system: str | None = None  # motioncapture source only (e.g. vicon, optitrack)
     host: str | None = None
     body: str | None = None
+    options: dict[str, str] = field(default_factory=dict)  # motioncapture: more of its settings (port, ...)
 
     def validate(self) -> None:
         if self.source == "motioncapture" and not (self.system and self.host and self.body):

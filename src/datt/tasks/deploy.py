@@ -75,7 +75,7 @@ def _mocap_source(params: DeployParams, server):
             dropout_after_s=m.dropout_after_s,
             noise_std_m=m.noise_std_m,
         )
-    return mocap.MotionCaptureMocap(str(m.system), str(m.host), str(m.body))
+    return mocap.MotionCaptureMocap(str(m.system), str(m.host), str(m.body), dict(m.options))
 
 
 def _flight_kind(params: DeployParams, policy_id: int | None) -> tuple[type, dict]:

@@ -1,0 +1,79 @@
+"""Motion-capture sources: the motioncapture library's own mock system through
+:class:`MotionCaptureMocap`, and the simulated source's latency, dropouts and noise against their
+definitions (real time: a few tenths of a second each)."""
+
+from __future__ import annotations
+
+import statistics
+import sys
+import time
+
+import pytest
+
+from datt.deploy.mocap import MotionCaptureMocap, SimulatedMocap
+from datt.errors import ConfigError
+
+
+def _collect(source, seconds: float) -> list[tuple[tuple, float]]:
+    """(sample, the time it was delivered) for every frame ``source`` publishes in ``seconds``."""
+    got = []
+    source.subscribe(lambda sample: got.append((sample, time.monotonic())))
+    source.start()
+    time.sleep(seconds)
+    source.stop()
+    time.sleep(0.05)  # the loop sees the stop
+    return got
+
+
+def test_the_motioncapture_source_publishes_only_its_body_with_the_quaternion_w_first():
+    pytest.importorskip("motioncapture")
+    bodies = "cf1(1.0,2.0,3.0,0.5,0.5,0.5,0.5);other(9.0,9.0,9.0,1.0,0.0,0.0,0.0)"
+    source = MotionCaptureMocap("mock", "localhost", "cf1", {"rigid_bodies": bodies})
+    got = _collect(source, 0.3)
+    assert got, "the mock system delivered no frame"
+    for (pos, quat, _measured), _ in got:
+        assert pos == pytest.approx((1.0, 2.0, 3.0)) and quat == pytest.approx((0.5, 0.5, 0.5, 0.5))
+    assert source.read() == got[-1][0]
+    n = len(got)
+    time.sleep(0.1)
+    assert len(got) == n  # stopped: no more frames
+
+
+def test_the_motioncapture_source_without_its_library_is_one_line(monkeypatch):
+    monkeypatch.setitem(sys.modules, "motioncapture", None)  # import motioncapture raises ImportError
+    with pytest.raises(
+        ConfigError, match=r"^deploy.mocap: the motioncapture source needs `pip install motioncapture`$"
+    ):
+        MotionCaptureMocap("vicon", "localhost", "cf1")
+
+
+class _Vehicle:
+    """The simulated Crazyflie's ``true_state`` at a fixed pose."""
+
+    def true_state(self) -> dict:
+        return {"pos_m": (0.5, -0.25, 1.0), "quat": (1.0, 0.0, 0.0, 0.0)}
+
+
+def test_simulated_frames_arrive_after_the_latency_at_the_rate_with_the_set_noise():
+    source = SimulatedMocap(_Vehicle(), latency_s=0.03, rate_hz=100.0, noise_std_m=0.01, seed=3)
+    got = _collect(source, 0.8)
+    assert len(got) > 20
+    delays = [delivered - sample[-1] for sample, delivered in got]
+    # held the latency, then released within a loop period or two (a loaded machine sleeps longer)
+    assert min(delays) >= 0.03 and statistics.median(delays) < 0.03 + 0.03
+    gaps = [b[0][-1] - a[0][-1] for a, b in zip(got, got[1:])]
+    assert 0.0095 < statistics.median(gaps) < 0.02  # 100 Hz: a period of sleep plus the loop's own time
+    for axis, true in enumerate((0.5, -0.25, 1.0)):
+        values = [sample[0][axis] for sample, _ in got]
+        assert statistics.fmean(values) == pytest.approx(true, abs=0.006)  # unbiased
+        assert 0.006 < statistics.stdev(values) < 0.015  # spread of the set std, 0.01 m
+    assert all(sample[1] == (1.0, 0.0, 0.0, 0.0) for sample, _ in got)  # the attitude is exact
+
+
+def test_simulated_dropouts_lose_every_frame_or_all_after_the_cut():
+    assert _collect(SimulatedMocap(_Vehicle(), latency_s=0.0, dropout_prob=1.0), 0.2) == []
+    source = SimulatedMocap(_Vehicle(), latency_s=0.0, dropout_after_s=0.1)
+    got = _collect(source, 0.4)
+    assert got and all(sample[-1] - source._t0 <= 0.1 + 0.011 for sample, _ in got)
+    exact = _collect(SimulatedMocap(_Vehicle(), latency_s=0.0), 0.1)
+    assert exact and all(sample[0] == (0.5, -0.25, 1.0) for sample, _ in exact)  # no noise unless set
