@@ -5,6 +5,7 @@ import math
 import re
 import shutil
 import struct
+import threading
 from importlib import resources
 
 import numpy as np
@@ -440,10 +441,20 @@ def test_only_an_acknowledgement_is_read_as_one():
 def test_an_unanswered_upload_sends_each_packet_ten_times_then_fails():
     """Upload's defaults: a packet is sent at most 10 times (waiting 0.1 s for its answer), then
     the upload fails naming the point; a window of packets goes out together."""
-    sent = []
+    sent, failure = [], []
     upload = onboard.Upload(lambda data: sent.append((0.0, data)), [(0.0, 0.0, 0.0)] * 4)
-    with pytest.raises(RuntimeError, match=r"^point 0: no acknowledgement after 10 sends$"):
-        upload.run()
+
+    def run() -> None:
+        try:
+            upload.run()
+        except RuntimeError as exc:
+            failure.append(str(exc))
+
+    uploader = threading.Thread(target=run, daemon=True)  # an upload that never gives up must fail, not hang
+    uploader.start()
+    uploader.join(timeout=10.0)  # 10 windows of 0.1 s
+    assert not uploader.is_alive(), "the upload kept resending: it never gave up"
+    assert failure == ["point 0: no acknowledgement after 10 sends"]
     assert upload.timeout_s == 0.1 and upload.attempts == 10
     indices = [struct.unpack("<BHB", data[:4])[1] for _, data in sent]
     assert indices == [0, 2] * 10  # both packets of the table in every window
