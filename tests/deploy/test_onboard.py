@@ -488,3 +488,50 @@ def test_refused_points_fail_the_upload_naming_each_status():
     message = f"point 0: the app answered status {out_of_range}; point 2: the app answered status {busy}"
     with pytest.raises(RuntimeError, match=f"^{re.escape(message)}$"):
         upload.run()
+
+
+class _FakeClock:
+    """``onboard.time`` on a clock that only moves when the upload sleeps; an acknowledgement is
+    delivered ``ack_after_s`` after its packet was sent (as the radio answers, but deterministic)."""
+
+    def __init__(self, ack_after_s: float) -> None:
+        self.now, self.ack_after_s, self.due = 0.0, ack_after_s, []
+        self.upload = None
+
+    def monotonic(self) -> float:
+        return self.now
+
+    def sleep(self, dt: float) -> None:
+        self.now += dt
+        for t, ack in [d for d in self.due if d[0] <= self.now]:
+            self.due.remove((t, ack))
+            self.upload.on_packet(ack)
+
+    def send(self, data: bytes) -> None:
+        index = struct.unpack("<BHB", data[:4])[1]
+        ack = bytes([onboard.PKT_ACK, index & 0xFF, index >> 8, onboard.ACK_OK])
+        self.due.append((self.now + self.ack_after_s, ack))
+
+
+def test_the_next_window_goes_out_as_soon_as_the_last_is_acknowledged(monkeypatch):
+    """Answers 5 ms after each send: every packet goes once, and each window waits for its answers
+    (polled every 2 ms), not for the 0.1 s timeout. On the upload's own clock, not the wall's."""
+    clock = _FakeClock(ack_after_s=0.005)
+    monkeypatch.setattr(onboard, "time", clock)
+    table = [(0.0, 0.0, 0.0)] * (onboard.POINTS_PER_PACKET * 25)  # 25 packets: windows of 10, 10, 5
+    sent = []
+    upload = onboard.Upload(lambda data: (sent.append(data), clock.send(data)), table)
+    clock.upload = upload
+    upload.run()
+    indices = [struct.unpack("<BHB", data[:4])[1] for data in sent]
+    assert indices == list(range(0, len(table), onboard.POINTS_PER_PACKET))  # each packet once
+    assert clock.now == pytest.approx(3 * 0.006)  # three windows of three 2 ms polls
+
+
+def test_a_repeated_acknowledgement_is_harmless():
+    """A late answer to a packet already answered (its resend crossed the first answer)."""
+    upload = onboard.Upload(lambda data: None, [(0.0, 0.0, 0.0)])
+    ack = bytes([onboard.PKT_ACK, 0, 0, onboard.ACK_OK])
+    upload.on_packet(ack)
+    upload.on_packet(ack)
+    assert upload.pending == {} and upload.errors == []
