@@ -80,7 +80,7 @@ def show(mutant: str) -> str:
 
 def pytest(test: str, work: Path) -> subprocess.CompletedProcess:
     return subprocess.run(
-        [sys.executable, "-m", "pytest", "-q", "-x", "-n", "0", "-p", "no:cacheprovider", test],
+        [sys.executable, "-m", "pytest", "-q", "-x", "-n", "0", "-p", "no:cacheprovider", "-m", "", test],
         cwd=work,
         capture_output=True,
         text=True,

@@ -4,7 +4,7 @@ import pytest
 import torch
 
 from datt.control.mppi import MppiController
-from tests.control.test_pid import Point, env_at
+from tests.control.test_pid import Point, env_at, quadratic_env
 
 
 def test_rollout_model_matches_the_simulator():
@@ -90,7 +90,6 @@ def test_bad_parameters_fail_clearly():
 def test_the_rollout_cost_pairs_step_j_with_the_reference_at_t_plus_j_plus_one():
     """On a moving reference (p_d = ½ a t²) and from a later step of the episode, the cost of one
     noiseless sample is dt Σ_j w_p ‖p_j − p_d(t + (j + 1) dt)‖ over the simulator's own rollout."""
-    from tests.control.test_pid import quadratic_env
 
     env = quadratic_env([0.2, 0.0, 0.0], [1.0, 0.0, -0.5], n=2)
     td = env.reset()
@@ -178,3 +177,19 @@ def test_the_rollout_model_clips_commands_at_the_vehicles_ceiling_as_the_simulat
         env.sim.step(seq[j].expand(1, 4))
         errs.append(torch.linalg.vector_norm(env.sim.state.pos_m - env.ref_table[:, 1 + j], dim=-1))
     torch.testing.assert_close(cost[:, 0], env.dt_s * 5.0 * torch.stack(errs, 1).sum(1))
+
+
+@pytest.mark.slow  # torch.compile of the rollout step: tens of seconds on a CPU
+def test_the_compiled_rollout_costs_what_the_eager_one_does():
+    """``compile=True`` (the option's default) runs the same model step through torch.compile:
+    identical costs for the same sampled sequences."""
+    env = quadratic_env([0.2, 0.0, 0.0], [1.0, 0.0, -0.5], n=2)
+    env.reset()
+    u = (9.81 + torch.randn(2, 16, 10, 4, generator=torch.Generator().manual_seed(0))).to(env.dtype)
+    d = torch.zeros(2, 3, dtype=env.dtype)
+    costs = []
+    for compiled in (False, True):
+        ctrl = MppiController(num_samples=16, horizon_steps=10, compile=compiled)
+        ctrl.reset(env)
+        costs.append(ctrl.rollout_cost(env, u, d))
+    torch.testing.assert_close(costs[1], costs[0])
