@@ -193,3 +193,20 @@ def test_the_compiled_rollout_costs_what_the_eager_one_does():
         ctrl.reset(env)
         costs.append(ctrl.rollout_cost(env, u, d))
     torch.testing.assert_close(costs[1], costs[0])
+
+
+def test_the_mppi_option_holds_the_constructor_s_defaults():
+    """``controller=mppi`` and ``MppiController()`` in a notebook are the same controller."""
+    import inspect
+
+    from omegaconf import OmegaConf
+
+    from datt.configuration import compose
+
+    node = OmegaConf.to_container(compose("eval", ["controller=mppi"]).controller, resolve=True)
+    params = inspect.signature(MppiController).parameters
+    compared = [key for key in node if key in params]
+    assert set(compared) == set(params)  # the option sets every argument
+    for key in compared:
+        default = params[key].default
+        assert (list(default) if isinstance(default, tuple) else default) == node[key], key
