@@ -144,9 +144,7 @@ def check_ablation(cfg: DictConfig) -> None:
     would train one thing under the other's label: every key the chosen ablation sets must keep
     its value."""
     name = hydra_choice("ablation", "none")
-    if name in ("none", "custom"):
-        return
-    sets = OmegaConf.to_container(load_option("ablation", name), resolve=True)
+    sets = OmegaConf.to_container(load_option("ablation", name), resolve=True)  # none: sets nothing
 
     def walk(node, prefix):
         for key, value in node.items():
