@@ -1,0 +1,120 @@
+"""The run loggers on their own: metrics.csv rows and columns, a resume's truncation, the logger
+settings' rules, the evaluation's summary keys and table rows, and wandb's defaults."""
+
+from __future__ import annotations
+
+import csv
+import inspect
+import math
+
+import pytest
+import torch
+
+from datt.configuration import structured
+from datt.errors import ConfigError
+from datt.train.loggers import (
+    RESULT_COLUMNS,
+    CsvLogger,
+    LoggerParams,
+    MultiLogger,
+    WandbLogger,
+    eval_summary,
+    result_rows,
+)
+
+
+def _read(path):
+    with open(path, newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def test_csv_rows_carry_their_step_and_every_column_ever_logged(tmp_path):
+    log = CsvLogger(tmp_path)
+    log.log({"a": 1.5, "b": torch.tensor(2.0)}, step=10)  # a tensor is written as its number
+    log.log({"b": 3.0, "c": float("nan")}, step=20)  # a new column later: the header grows
+    rows = _read(tmp_path / "metrics.csv")
+    assert list(rows[0]) == ["step", "a", "b", "c"]
+    assert rows[0] == {"step": "10", "a": "1.5", "b": "2.0", "c": ""}
+    assert rows[1]["step"] == "20" and rows[1]["a"] == "" and rows[1]["b"] == "3.0" and rows[1]["c"] == "nan"
+    assert CsvLogger(tmp_path, "other.csv").rows == [] and not (tmp_path / "other.csv").exists()
+
+
+def test_a_resumed_csv_keeps_its_rows_up_to_the_checkpoint_and_appends(tmp_path):
+    first = CsvLogger(tmp_path)
+    for step in (10, 20, 30):
+        first.log({"x": step / 10}, step=step)
+    again = CsvLogger(tmp_path)  # a resume reads the file back
+    assert [r["step"] for r in again.rows] == ["10", "20", "30"]
+    again.keep_until(20)  # the checkpoint was written at step 20: row 30 is trained again
+    assert [r["step"] for r in _read(tmp_path / "metrics.csv")] == ["10", "20"]
+    again.log({"x": 3.5}, step=35)
+    assert [r["step"] for r in _read(tmp_path / "metrics.csv")] == ["10", "20", "35"]
+    mtime = (tmp_path / "metrics.csv").stat().st_mtime_ns
+    again.keep_until(100)  # nothing after it: the file is left alone
+    assert (tmp_path / "metrics.csv").stat().st_mtime_ns == mtime
+
+
+def test_multi_logger_passes_every_call_to_each_logger(tmp_path):
+    a, b = CsvLogger(tmp_path, "a.csv"), CsvLogger(tmp_path, "b.csv")
+    both = MultiLogger([a, b])
+    both.log({"x": 1.0}, step=5)
+    both.results({"frames": 5})
+    both.close()
+    assert _read(tmp_path / "a.csv") == _read(tmp_path / "b.csv") == [{"step": "5", "x": "1.0"}]
+
+
+@pytest.mark.parametrize(
+    "node, message",
+    [
+        ({"wandb": True, "mode": None, "project": "datt"}, "logger.mode: must be one of offline, online, disabled"),
+        ({"wandb": True, "mode": "offline", "project": ""}, "logger.project: must name the wandb project"),
+        ({"wandb": False, "mode": "sometimes", "project": "datt"}, "logger.mode: "),
+    ],
+    ids=["wandb_without_mode", "wandb_without_project", "unknown_mode"],
+)
+def test_bad_logger_settings_are_one_line(node, message):
+    with pytest.raises(ConfigError, match="^" + message.replace("(", r"\(").replace(")", r"\)")):
+        structured(LoggerParams, node, "logger")
+
+
+def test_csv_only_needs_none_of_the_wandb_keys():
+    params = structured(LoggerParams, {"wandb": False}, "logger")
+    assert params.mode is None and params.project is None and params.tags == []
+
+
+def test_the_evaluation_becomes_summary_keys_and_table_rows():
+    conditions = {
+        "clean": {"groups": {"zigzag": {"mean_m": 0.05, "std_m": 0.01, "crashes": 0, "episodes": 10}}},
+        "brownian": {
+            "groups": {
+                "star": {"mean_m": math.nan, "std_m": math.nan, "crashes": 10, "episodes": 10},
+                "smooth": {"mean_m": 0.02, "episodes": 10},
+            }
+        },
+        "empty": {},
+    }
+    summary = eval_summary(conditions)
+    assert summary == {
+        "eval/clean/zigzag/mean_m": 0.05,
+        "eval/clean/zigzag/std_m": 0.01,
+        "eval/clean/zigzag/crashes": 0,
+        "eval/clean/zigzag/episodes": 10,
+        "eval/brownian/star/mean_m": None,  # every episode crashed: no mean, null as in metrics.json
+        "eval/brownian/star/std_m": None,
+        "eval/brownian/star/crashes": 10,
+        "eval/brownian/star/episodes": 10,
+        "eval/brownian/smooth/mean_m": 0.02,
+        "eval/brownian/smooth/episodes": 10,
+    }
+    assert list(eval_summary(conditions, prefix="final"))[0] == "final/clean/zigzag/mean_m"
+    assert RESULT_COLUMNS == ["condition", "group", "mean_m", "std_m", "crashes", "episodes"]
+    rows = result_rows(conditions)
+    assert rows[0] == ["clean", "zigzag", 0.05, 0.01, 0, 10]
+    assert rows[2] == ["brownian", "smooth", 0.02, None, None, 10]
+    assert len(rows) == 3
+
+
+def test_wandb_runs_default_to_the_datt_project_offline():
+    params = inspect.signature(WandbLogger).parameters
+    assert params["project"].default == "datt" and params["mode"].default == "offline"
+    assert params["job_type"].default == "train" and params["run_id"].default is None
