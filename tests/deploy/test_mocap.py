@@ -77,3 +77,28 @@ def test_simulated_dropouts_lose_every_frame_or_all_after_the_cut():
     assert got and all(sample[-1] - source._t0 <= 0.1 + 0.011 for sample, _ in got)
     exact = _collect(SimulatedMocap(_Vehicle(), latency_s=0.0), 0.1)
     assert exact and all(sample[0] == (0.5, -0.25, 1.0) for sample, _ in exact)  # no noise unless set
+
+
+def test_sources_read_nothing_before_a_frame_and_run_on_daemon_threads(monkeypatch):
+    """A flight that ends without stopping its source must not keep the process alive."""
+    import threading
+
+    pytest.importorskip("motioncapture")
+    bodies = {"rigid_bodies": "cf1(0.0,0.0,0.0,1.0,0.0,0.0,0.0)"}
+    sources = [SimulatedMocap(_Vehicle(), latency_s=0.0), MotionCaptureMocap("mock", "localhost", "cf1", bodies)]
+    for source in sources:
+        assert source.read() is None  # no frame yet
+        before = set(threading.enumerate())
+        source.start()
+        started = set(threading.enumerate()) - before
+        source.stop()
+        assert started and all(t.daemon for t in started), type(source).__name__
+
+
+def test_the_host_and_options_reach_the_library_as_its_settings(monkeypatch):
+    motioncapture = pytest.importorskip("motioncapture")
+    seen = []
+    real = motioncapture.connect
+    monkeypatch.setattr(motioncapture, "connect", lambda system, cfg: seen.append((system, cfg)) or real("mock", cfg))
+    MotionCaptureMocap("qualisys", "10.0.0.5", "cf1", {"port": 22223})
+    assert seen == [("qualisys", {"hostname": "10.0.0.5", "port": "22223"})]  # every value a string
