@@ -102,3 +102,25 @@ def test_the_host_and_options_reach_the_library_as_its_settings(monkeypatch):
     monkeypatch.setattr(motioncapture, "connect", lambda system, cfg: seen.append((system, cfg)) or real("mock", cfg))
     MotionCaptureMocap("qualisys", "10.0.0.5", "cf1", {"port": 22223})
     assert seen == [("qualisys", {"hostname": "10.0.0.5", "port": "22223"})]  # every value a string
+
+
+def test_the_simulated_source_s_defaults_are_the_deploy_settings_defaults():
+    """``SimulatedMocap(vehicle)`` in a notebook is ``deploy.mocap`` left at its defaults: perfect."""
+    import dataclasses
+    import inspect
+
+    from datt.deploy.schema import MocapParams
+
+    schema = {f.name: f.default for f in dataclasses.fields(MocapParams)}
+    params = inspect.signature(SimulatedMocap).parameters
+    for key in ("latency_s", "dropout_prob", "dropout_after_s", "noise_std_m"):
+        assert params[key].default == schema[key], key
+
+
+def test_the_same_seed_draws_the_same_noise():
+    def first_positions(seed: int) -> list[tuple]:
+        got = _collect(SimulatedMocap(_Vehicle(), noise_std_m=0.01, seed=seed), 0.25)
+        return [sample[0] for sample, _ in got[:5]]
+
+    a, b, c = first_positions(7), first_positions(7), first_positions(8)
+    assert len(a) == 5 and a == b[: len(a)] and a != c[: len(a)]

@@ -56,7 +56,7 @@ class SimulatedMocap(MocapSource):
     def __init__(
         self,
         server,
-        latency_s: float = 0.01,
+        latency_s: float = 0.0,
         dropout_prob: float = 0.0,
         dropout_after_s: float | None = None,
         rate_hz: float = 100.0,
