@@ -5,6 +5,7 @@ record file (no login, no network)."""
 
 from __future__ import annotations
 
+import csv
 import json
 import shutil
 
@@ -12,7 +13,7 @@ import pytest
 
 from ..test_faults import run_cli
 from .test_training import TINY
-from .wandb_record import run_info, summary_and_history
+from .wandb_record import history_rows, run_info, summary_and_history
 
 WANDB_TINY = ["logger=wandb", *[o for o in TINY if not o.startswith("logger=")], "curriculum.fixed_ref_frames=0"]
 
@@ -32,6 +33,11 @@ def test_offline_run_record_holds_the_evaluation_plots_and_table_and_resume_cont
     assert summary["frames"] == metrics["frames"]
     assert {"learning_curve/_type", "tracks_clean/_type", "eval/table/_type", "tracking_error_m"} <= history
     assert len(set(ids)) == 1
+    with open(run / "metrics.csv") as f:
+        csv_rows = list(csv.DictReader(f))
+    logged = [r for r in history_rows(run) if "tracking_error_m" in r]
+    assert [r["_step"] for r in logged] == [int(r["step"]) for r in csv_rows]  # wandb's step is the frame count
+    assert [r["tracking_error_m"] for r in logged] == pytest.approx([float(r["tracking_error_m"]) for r in csv_rows])
 
     code, lines, _ = run_cli(
         "train",
@@ -70,8 +76,8 @@ def test_eval_py_logs_its_evaluation_to_wandb_beside_the_training_run(
         "eval.seeds=[0,1]",
         "eval.timing.steps=20",
         "eval.timing.compile=false",
-        "eval.plots=false",
         "eval.bank={zigzag:[{traj:zigzag,seed:1000,count:2}]}",
+        "logger.tags=[mine]",
         f"hydra.run.dir={out}",
     ]
     code, lines, _ = run_cli("eval", args, tmp_path, monkeypatch, capsys)
@@ -80,6 +86,9 @@ def test_eval_py_logs_its_evaluation_to_wandb_beside_the_training_run(
     summary, history, _ = summary_and_history(out)
     (run,) = run_info(out)
     assert run["group"] == "ablation/2026-01-01_00-00-00_abcd" and run["job_type"] == "eval"
+    assert run["project"] == "datt" and run["name"] == "eval-e" and run["tags"] == ["mine"]
+    pngs = sorted(p.stem for p in out.glob("*.png"))
+    assert pngs and all(f"{stem}/_type" in history for stem in pngs)  # the plots as images
     assert run["config"]["train_run_id"] == "2026-01-01_00-00-00_abcd-3"  # train.py's id for that job
     for seed, (_, result) in enumerate(sorted(metrics["conditions"].items())):
         for group, stats in result["groups"].items():

@@ -68,6 +68,29 @@ def run_info(run_dir: Path) -> list[dict]:
             if rec.WhichOneof("record_type") == "run":
                 config = {item.key: json.loads(item.value_json) for item in rec.run.config.update}
                 out.append(
-                    {"id": rec.run.run_id, "group": rec.run.run_group, "job_type": rec.run.job_type, "config": config}
+                    {
+                        "id": rec.run.run_id,
+                        "group": rec.run.run_group,
+                        "job_type": rec.run.job_type,
+                        "project": rec.run.project,
+                        "name": rec.run.display_name,
+                        "tags": list(rec.run.tags),
+                        "config": config,
+                    }
                 )
     return out
+
+
+def history_rows(run_dir: Path) -> list[dict]:
+    """Every history row (``_step`` and the logged values) of the runs under ``run_dir/wandb``."""
+    rows = []
+    for path in sorted(Path(run_dir).glob("wandb/*run-*/run-*.wandb")):
+        for rec in records(path):
+            if rec.WhichOneof("record_type") == "history":
+                row = {
+                    (item.key or "/".join(item.nested_key)): json.loads(item.value_json) for item in rec.history.item
+                }
+                if rec.history.HasField("step"):
+                    row.setdefault("_step", rec.history.step.num)
+                rows.append(row)
+    return rows
