@@ -87,6 +87,7 @@ def test_eval_py_logs_its_evaluation_to_wandb_beside_the_training_run(
     (run,) = run_info(out)
     assert run["group"] == "ablation/2026-01-01_00-00-00_abcd" and run["job_type"] == "eval"
     assert run["project"] == "datt" and run["name"] == "eval-e" and run["tags"] == ["mine"]
+    assert list(out.glob("wandb/offline-run-*"))  # offline, as logger=wandb's mode says
     pngs = sorted(p.stem for p in out.glob("*.png"))
     assert pngs and all(f"{stem}/_type" in history for stem in pngs)  # the plots as images
     assert run["config"]["train_run_id"] == "2026-01-01_00-00-00_abcd-3"  # train.py's id for that job
