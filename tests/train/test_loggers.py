@@ -6,6 +6,7 @@ from __future__ import annotations
 import csv
 import inspect
 import math
+import os
 
 import pytest
 import torch
@@ -118,3 +119,18 @@ def test_wandb_runs_default_to_the_datt_project_offline():
     params = inspect.signature(WandbLogger).parameters
     assert params["project"].default == "datt" and params["mode"].default == "offline"
     assert params["job_type"].default == "train" and params["run_id"].default is None
+
+
+def test_a_wandb_run_keeps_the_console_quiet(tmp_path, monkeypatch):
+    """wandb's own banner and sync lines would interleave with the progress bar: silent unless the
+    user sets WANDB_SILENT themselves."""
+    pytest.importorskip("wandb")
+    monkeypatch.delenv("WANDB_SILENT", raising=False)
+    run = WandbLogger(tmp_path, {"seed": 0}, mode="offline", name="quiet")
+    try:
+        assert os.environ["WANDB_SILENT"] == "true"
+    finally:
+        run.close()
+    monkeypatch.setenv("WANDB_SILENT", "false")
+    WandbLogger(tmp_path / "b", {}, mode="disabled").close()
+    assert os.environ["WANDB_SILENT"] == "false"  # the user's choice stands
