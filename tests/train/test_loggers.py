@@ -134,3 +134,23 @@ def test_a_wandb_run_keeps_the_console_quiet(tmp_path, monkeypatch):
     monkeypatch.setenv("WANDB_SILENT", "false")
     WandbLogger(tmp_path / "b", {}, mode="disabled").close()
     assert os.environ["WANDB_SILENT"] == "false"  # the user's choice stands
+
+
+def test_a_wandb_login_is_a_netrc_entry_for_the_api_host(tmp_path, monkeypatch):
+    """``logger.mode=online`` is refused in one line without a login: ``wandb login`` writes the
+    key to ~/.netrc under the API host (``WANDB_BASE_URL``, else api.wandb.ai)."""
+    from datt.train.loggers import _wandb_logged_in
+
+    monkeypatch.setenv("HOME", str(tmp_path))
+    monkeypatch.delenv("WANDB_BASE_URL", raising=False)
+    assert not _wandb_logged_in()  # no ~/.netrc
+    netrc = tmp_path / ".netrc"
+    netrc.write_text("machine api.wandb.ai\n  login user\n  password abc123\n")
+    netrc.chmod(0o600)
+    assert _wandb_logged_in()
+    monkeypatch.setenv("WANDB_BASE_URL", "https://wandb.example.org/")
+    assert not _wandb_logged_in()  # a login for another host
+    netrc.write_text("machine wandb.example.org\n  login user\n  password abc123\n")
+    assert _wandb_logged_in()
+    netrc.write_text("machine\n")  # unreadable: not logged in
+    assert not _wandb_logged_in()
