@@ -78,6 +78,7 @@ def test_eval_py_logs_its_evaluation_to_wandb_beside_the_training_run(
         "eval.timing.compile=false",
         "eval.bank={zigzag:[{traj:zigzag,seed:1000,count:2}]}",
         "logger.tags=[mine]",
+        "logger.project=myproject",
         f"hydra.run.dir={out}",
     ]
     code, lines, _ = run_cli("eval", args, tmp_path, monkeypatch, capsys)
@@ -86,7 +87,7 @@ def test_eval_py_logs_its_evaluation_to_wandb_beside_the_training_run(
     summary, history, _ = summary_and_history(out)
     (run,) = run_info(out)
     assert run["group"] == "ablation/2026-01-01_00-00-00_abcd" and run["job_type"] == "eval"
-    assert run["project"] == "datt" and run["name"] == "eval-e" and run["tags"] == ["mine"]
+    assert run["project"] == "myproject" and run["name"] == "eval-e" and run["tags"] == ["mine"]
     assert list(out.glob("wandb/offline-run-*"))  # offline, as logger=wandb's mode says
     pngs = sorted(p.stem for p in out.glob("*.png"))
     assert pngs and all(f"{stem}/_type" in history for stem in pngs)  # the plots as images
@@ -120,3 +121,8 @@ def test_tables_py_logs_the_table_to_its_sweep_s_group(tmp_path, monkeypatch, ca
     (run,) = run_info(sweep)
     assert run["group"] == "horizon/2026-01-01_00-00-00_abcd" and run["job_type"] == "table"
     assert summary["jobs"] == 2 and "table/horizon/_type" in history
+    quiet = tmp_path / "quiet"
+    args = ["horizon", f"runs={sweep}", "logger=wandb", "logger.mode=disabled", f"out_dir={quiet}", "plots=false"]
+    code, lines, _ = run_cli("tables", args, tmp_path, monkeypatch, capsys)
+    assert code == 0, lines
+    assert (quiet / "horizon.md").is_file() and not list(quiet.glob("wandb/*run-*"))  # disabled: no wandb run
