@@ -154,3 +154,18 @@ def test_a_wandb_login_is_a_netrc_entry_for_the_api_host(tmp_path, monkeypatch):
     assert _wandb_logged_in()
     netrc.write_text("machine\n")  # unreadable: not logged in
     assert not _wandb_logged_in()
+
+
+def test_online_without_a_login_is_refused_in_one_line_before_wandb_starts(tmp_path, monkeypatch):
+    pytest.importorskip("wandb")
+    monkeypatch.setenv("HOME", str(tmp_path))  # no ~/.netrc
+    monkeypatch.delenv("WANDB_API_KEY", raising=False)
+    monkeypatch.delenv("WANDB_BASE_URL", raising=False)
+    message = (
+        "logger.mode: online needs a wandb login (`wandb login` or WANDB_API_KEY); "
+        "or use logger.mode=offline and `wandb sync` later"
+    )
+    with pytest.raises(ConfigError) as refused:
+        WandbLogger(tmp_path, {}, mode="online")
+    assert str(refused.value) == message
+    assert not (tmp_path / "wandb").exists()  # refused before wandb made anything
