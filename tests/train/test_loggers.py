@@ -152,6 +152,8 @@ def test_a_wandb_login_is_a_netrc_entry_for_the_api_host(tmp_path, monkeypatch):
     assert not _wandb_logged_in()  # a login for another host
     netrc.write_text("machine wandb.example.org\n  login user\n  password abc123\n")
     assert _wandb_logged_in()
+    monkeypatch.setenv("WANDB_BASE_URL", "wandb.example.org")  # no scheme: the host as given
+    assert _wandb_logged_in()
     netrc.write_text("machine\n")  # unreadable: not logged in
     assert not _wandb_logged_in()
 
