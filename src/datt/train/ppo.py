@@ -371,11 +371,11 @@ class Trainer:
         return out
 
     def _progress(self) -> Progress:
-        """The console's progress bar (steps, rate, the batch's error and return estimate)."""
+        """The console's progress bar (frames, rate, the batch's error and return estimate)."""
         return Progress(
             TextColumn("[bold]{task.description}"),
             BarColumn(),
-            TextColumn("{task.completed:,.0f}/{task.total:,.0f} steps"),
+            TextColumn("{task.completed:,.0f}/{task.total:,.0f} frames"),
             TextColumn("{task.fields[rate]:,.0f} steps/s"),
             TextColumn("err {task.fields[err]:.3f} m"),
             TextColumn("ret {task.fields[ret]:.2f}"),
