@@ -164,7 +164,7 @@ def test_the_whole_run_curriculum_flies_the_fixed_reference_to_the_end_unless_sk
     assert [row["curriculum_stage"] for row in trainer.train()] == stages
 
 
-def test_progress_bar_shows_steps_rate_error_and_return(tmp_path):
+def test_progress_bar_shows_frames_rate_error_and_return(tmp_path):
     console = _recording_console()
     trainer = _trainer(
         tmp_path,
@@ -177,10 +177,10 @@ def test_progress_bar_shows_steps_rate_error_and_return(tmp_path):
     history = trainer.train()
     renders = [line for line in re.split(r"(?=train ━)", console.export_text()) if line.startswith("train ")]
     first, last = renders[0], renders[-1]
-    assert re.search(r"1,024/3,072 steps 0 steps/s err 0\.000 m ret 0\.00", first), first
+    assert re.search(r"1,024/3,072 frames 0 steps/s err 0\.000 m ret 0\.00", first), first
     last_row = history[-1]
     expect = (
-        rf"3,072/3,072 steps [\d,]+ steps/s err {last_row['tracking_error_m']:.3f} m "
+        rf"3,072/3,072 frames [\d,]+ steps/s err {last_row['tracking_error_m']:.3f} m "
         rf"ret {re.escape(format(last_row['episode_return_est'], '.2f'))}"
     )
     assert re.search(expect, last), last
@@ -274,7 +274,7 @@ def test_rates_and_wall_time_come_from_the_clock(tmp_path, monkeypatch):
     assert [row["steps_per_s"] for row in history] == [BATCH / 2, BATCH / 4]
     assert trainer.train_wall_s == 6.0 and load_checkpoint(tmp_path / "last.pt")["train_wall_s"] == 6.0
     text = console.export_text()
-    assert "3,072/3,072 steps 293 steps/s" in text  # 2,048 / 7
+    assert "3,072/3,072 frames 293 steps/s" in text  # 2,048 / 7
     last = [line for line in re.split(r"(?=train ━)", text) if line.startswith("train ")][-1]
     assert "━━━━" in last and len(re.findall(r"(?:\d+:\d\d:\d\d|-:--:--)", last)) == 2, last
 
