@@ -212,6 +212,7 @@ def test_a_stop_signal_saves_and_stops_after_the_batch(tmp_path):
     assert str(info.value) == (
         f"SIGTERM: checkpoint at 2,048 of 5,120 frames in {tmp_path / 'last.pt'}; resume with resume={tmp_path}"
     )
+    assert info.value.signal == "SIGTERM"  # which signal: a scheduler's is handed back to it for a requeue
     assert load_checkpoint(tmp_path / "last.pt")["iteration"] == 2
     assert signal.getsignal(signal.SIGTERM) is handler
 
