@@ -132,6 +132,7 @@ def test_stale_mocap_is_never_sent(tmp_path):
     assert len(sent) > 100
 
 
+@pytest.mark.slow  # a real-time flight that 4 test workers on 2 cores can starve into a tilt KILL; alone it lands
 def test_no_mocap_needs_a_positioning_deck(tmp_path):
     with pytest.raises(ConfigError, match=r"^deploy.mocap.source: none, and the vehicle has no positioning deck"):
         _fly(tmp_path, "deploy.mocap.source=none")
