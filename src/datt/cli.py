@@ -34,7 +34,6 @@ from datt.runs import (
     read_failure,
     record_failure,
     requeue_with_scheduler,
-    scheduler_signal,
     stop_signals,
 )
 
@@ -289,9 +288,8 @@ def _run_job(task: Callable[[DictConfig], object], cfg: DictConfig) -> None:
             _fail(f"flight {exc}", 4)
         _job_failed("errored", f"flight {exc}")
     except TrainingInterrupted as exc:
-        if scheduler_signal() is not None and exc.signal == scheduler_signal().name:
-            print(f"preempted ({exc}); the scheduler requeues this job", file=sys.stderr)
-            requeue_with_scheduler(exc.signal)  # the requeued job resumes from last.pt in its own run dir
+        # a scheduler's preemption signal: requeued, and the next attempt resumes in its own run dir
+        requeue_with_scheduler(exc.signal, f"preempted ({exc}); the scheduler requeues this job")
         ignore_stop_signals()
         _fail(f"interrupted by {exc}", 130)  # the user stops the whole sweep too
     except FlightStopped as exc:

@@ -13,6 +13,7 @@ import math
 import os
 import signal
 import socket
+import sys
 import tempfile
 import threading
 import time
@@ -201,12 +202,15 @@ def scheduler_signal() -> signal.Signals | None:
     return sig if owner is not None and type(owner).__module__.startswith("submitit.") else None
 
 
-def requeue_with_scheduler(signal_name: str | None) -> None:
-    """After a loop stopped on the scheduler's signal (:func:`scheduler_signal`) and saved, hand the
-    signal to the scheduler's handler: it requeues the job (which resumes from the saved state) and
-    exits the process. Returns (does nothing) for any other signal or outside a scheduler job."""
+def requeue_with_scheduler(signal_name: str | None, message: str = "") -> None:
+    """After a loop stopped on the scheduler's signal (:func:`scheduler_signal`) and saved, print
+    ``message`` and hand the signal to the scheduler's handler: it requeues the job (which resumes
+    from the saved state) and exits the process. Returns (does nothing) for any other signal or
+    outside a scheduler job."""
     sig = scheduler_signal()
     if sig is not None and signal_name == sig.name:
+        if message:
+            print(message, file=sys.stderr)
         signal.getsignal(sig)(sig, None)  # submitit: requeue, then SystemExit
 
 

@@ -49,6 +49,12 @@ def set_threads(n: int | None) -> None:
         torch.set_num_threads(int(n))
 
 
+def wandb_run_id(run_dir: Path) -> str:
+    """The wandb run id of a training run dir (``<parent dir>-<run dir>``): a resume or a requeued
+    attempt continues that run, and ``eval.py`` names it as the training run it evaluates."""
+    return f"{run_dir.parent.name}-{run_dir.name}"
+
+
 def sweep_group(job_dir: Path) -> str | None:
     """The wandb group of a multirun job dir (``<sweep dir>/<job number>``), as its training run
     named it: ``<sweep_name or multirun>/<sweep dir name>``; None for a single run."""

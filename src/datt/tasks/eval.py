@@ -13,7 +13,7 @@ from datt.control.factory import build_controller
 from datt.eval.conditions import evaluate_conditions, measure_inference, print_metrics, write_metrics_csv
 from datt.eval.schema import EvalParams
 from datt.paths import resolve_path
-from datt.tasks.common import console, hydra_run_dir, set_threads, sweep_group
+from datt.tasks.common import console, hydra_run_dir, set_threads, sweep_group, wandb_run_id
 from datt.tasks.validation import validate_config
 from datt.train.loggers import RESULT_COLUMNS, eval_summary, log_results_run, result_rows
 
@@ -84,7 +84,7 @@ def training_run(checkpoint: str) -> tuple[str | None, str | None]:
     run_dir = run_dir if run_dir.is_dir() else run_dir.parent
     if not (run_dir / "config.yaml").is_file():
         return None, None
-    return f"{run_dir.parent.name}-{run_dir.name}", sweep_group(run_dir)
+    return wandb_run_id(run_dir), sweep_group(run_dir)
 
 
 def _log_to_wandb(cfg: DictConfig, run_dir: Path, metrics: dict, conditions: dict) -> None:

@@ -50,9 +50,14 @@ def resume_dir(resume) -> Path | None:
         return free[-1]
     path = resolve_path(resume)
     path = phased_parent(path) or path
-    if not (path / "last.pt").is_file() and not _phased_run(path):
+    if not holds_a_run(path):
         raise ConfigError(f"resume: {str(path)!r} has no last.pt")
     return path
+
+
+def holds_a_run(path: Path) -> bool:
+    """Whether ``path`` holds a run to carry on: a ``last.pt``, or a phased run's config."""
+    return (path / "last.pt").is_file() or _phased_run(path)
 
 
 def _phased_run(path: Path) -> bool:

@@ -15,9 +15,9 @@ from datt.eval.conditions import evaluate_end_of_run, print_metrics
 from datt.eval.plots import plot_learning_curve
 from datt.eval.schema import EndOfRunEvalParams
 from datt.runs import RunLock, finite_json, record_failure, scheduler_signal, write_json
-from datt.tasks.common import console, hydra_run_dir, set_threads
+from datt.tasks.common import console, hydra_run_dir, set_threads, wandb_run_id
 from datt.tasks.phases import is_phased, phase_plan, run_phases
-from datt.tasks.resume import finished_frames, resume_config, resume_dir
+from datt.tasks.resume import finished_frames, holds_a_run, resume_config, resume_dir
 from datt.tasks.validation import validate_config
 from datt.train.loggers import RESULT_COLUMNS, CsvLogger, MultiLogger, WandbLogger, eval_summary, result_rows
 from datt.train.ppo import Trainer
@@ -86,14 +86,10 @@ def _requeued_attempt(given: Path | None) -> Path | None:
         run_dir = given or hydra_run_dir()
     except ValueError:  # not inside a Hydra job
         return None
-    if (run_dir / "last.pt").is_file() or ((run_dir / "config.yaml").is_file() and _is_phased_run(run_dir)):
+    if holds_a_run(run_dir):
         console.print(f"requeued job: resuming its own run {run_dir}")
         return run_dir
     return None
-
-
-def _is_phased_run(run_dir: Path) -> bool:
-    return is_phased(OmegaConf.load(run_dir / "config.yaml"))
 
 
 def _drop_own_hydra_dir(resumed: Path, given: Path | None) -> None:
@@ -133,7 +129,7 @@ def _train_locked(cfg: DictConfig, run_dir: Path, resumed: bool) -> dict:
                 tags=tags,
                 mode=cfg.logger.mode,
                 name=run_dir.name,
-                run_id=f"{run_dir.parent.name}-{run_dir.name}",
+                run_id=wandb_run_id(run_dir),
             )
         )
     logger = trainer.logger
