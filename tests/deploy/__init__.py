@@ -3,6 +3,7 @@ UDP ports of this test process's simulated Crazyflies."""
 
 import itertools
 import os
+import shutil
 
 # One counter per test process, in a block of its own per pytest-xdist worker (gw0, gw1, ...), so
 # that parallel workers never bind each other's simulated Crazyflie; below the kernel's ephemeral
@@ -24,19 +25,50 @@ SHORT_FLIGHT = [
 ]
 
 
+# A simulated vehicle whose physics loop fell this far behind its clock was stalled by the test
+# machine (its threads share the host's process and CPUs; a real Crazyflie's stabilizer runs on
+# its own MCU): that flight is not the vehicle's and is flown again, at most STALL_ATTEMPTS times.
+# Shorter stalls are flown through (SHORT_FLIGHT's state and mocap limits allow 0.4 s and more);
+# the host freezes the collector's heap while airborne, which took the stalls seen in the default
+# suite from 0.5-1.1 s (full collections of a test worker's heap) to below 0.15 s.
+STALL_LIMIT_S = 0.2
+STALL_ATTEMPTS = 3
+
+
 def fly_sim(tmp_path, port: int, overrides=(), hook=None, estop=None) -> tuple[dict, object, object]:
     """One shortened ``deploy.py`` flight against the simulated Crazyflie on ``port``;
-    ``hook(server, runner)`` runs once both exist. Returns (summary, server, runner)."""
+    ``hook(server, runner)`` runs once both exist. Returns (summary, server, runner).
+
+    A flight the machine stalled (``server.physics_lag_max_s`` > ``STALL_LIMIT_S``) is flown
+    again on a fresh port, the files it added to ``tmp_path`` removed and ``estop`` cleared;
+    a test fails when every attempt was stalled."""
+    import pytest
+
     from datt.configuration import compose
     from datt.tasks.deploy import run_deploy
 
-    cfg = compose("deploy", [f"deploy.uri=udp://127.0.0.1:{port}", *SHORT_FLIGHT, *overrides])
-    seen = {}
+    lags = []
+    for attempt in range(STALL_ATTEMPTS):
+        before = set(tmp_path.iterdir())
+        cfg = compose("deploy", [f"deploy.uri=udp://127.0.0.1:{port}", *SHORT_FLIGHT, *overrides])
+        seen = {}
 
-    def server_hook(server, runner):
-        seen["server"], seen["runner"] = server, runner
-        if hook is not None:
-            hook(server, runner)
+        def server_hook(server, runner, seen=seen):
+            seen["server"], seen["runner"] = server, runner
+            if hook is not None:
+                hook(server, runner)
 
-    summary = run_deploy(cfg, run_dir=tmp_path, estop=estop, server_hook=server_hook)
-    return summary, seen["server"], seen["runner"]
+        summary = run_deploy(cfg, run_dir=tmp_path, estop=estop, server_hook=server_hook)
+        lags.append(seen["server"].physics_lag_max_s)
+        if lags[-1] <= STALL_LIMIT_S:
+            return summary, seen["server"], seen["runner"]
+        print(f"flight {attempt + 1} re-flown: the machine stalled the simulated vehicle {lags[-1] * 1e3:.0f} ms")
+        for path in set(tmp_path.iterdir()) - before:
+            if path.is_dir():
+                shutil.rmtree(path)
+            else:
+                path.unlink()
+        if estop is not None:
+            estop.clear()
+        port = next(ports)
+    pytest.fail(f"the machine stalled the simulated vehicle in every flight: {[round(x, 3) for x in lags]} s")

@@ -9,13 +9,11 @@ import pytest
 
 pytest.importorskip("cflib")
 
-from datt.configuration import compose  # noqa: E402
 from datt.deploy import crtp  # noqa: E402
 from datt.deploy.sim import SimCrazyflie, SimCrazyflieParams  # noqa: E402
 from datt.errors import ConfigError  # noqa: E402
-from datt.tasks.deploy import run_deploy  # noqa: E402
 
-from . import SHORT_FLIGHT, ports  # noqa: E402
+from . import fly_sim, ports  # noqa: E402
 
 pytestmark = pytest.mark.flight
 
@@ -100,10 +98,7 @@ def test_extpose_golden_bytes_reach_the_simulated_filter():
 
 
 def _fly(tmp_path, *overrides):
-    cfg = compose("deploy", [f"deploy.uri=udp://127.0.0.1:{next(ports)}", *SHORT_FLIGHT, *overrides])
-    seen = {}
-    summary = run_deploy(cfg, run_dir=tmp_path, server_hook=lambda s, r: seen.update(server=s, runner=r))
-    return summary, seen["server"], seen["runner"]
+    return fly_sim(tmp_path, next(ports), overrides)
 
 
 def test_connect_selects_kalman_and_rate_mode_and_close_restores_angle_mode(tmp_path):

@@ -5,6 +5,7 @@ Every fault must end with the motors stopped (or a controlled landing where safe
 the reason in the log and the flight log written.
 """
 
+import gc
 import json
 import math
 import re
@@ -54,8 +55,12 @@ def motors_stopped(server):
 
 
 def test_nominal_flight_tracks_and_lands(tmp_path):
-    summary, server = fly(tmp_path)
+    frozen = {}
+    summary, server = fly(tmp_path, hook=lambda s, r: after(0.1, lambda: frozen.update(n=gc.get_freeze_count()), r))
     assert summary["outcome"] == "landed"
+    # airborne, the collector skips the heap the host had before arming (a full collection of it
+    # pauses every thread for several ticks); it is handed back after the flight
+    assert frozen["n"] > 100_000 and gc.get_freeze_count() == 0
     assert summary["track_steps"] == 150 and summary["track_error_m"] < 0.15
     assert motors_stopped(server) and server.true_state()["pos_m"][2] < 0.1
     phases = [e["text"] for e in summary["events"] if e["kind"] == "phase"]
@@ -107,6 +112,31 @@ def test_mocap_dropout_lands(tmp_path):
     summary, server = fly(tmp_path, ["deploy.mocap.dropout_after_s=3.5"])
     assert summary["outcome"].startswith("landed early: mocap stale"), summary["outcome"]
     assert motors_stopped(server) and server.true_state()["pos_m"][2] < 0.15
+
+
+def test_a_stalled_host_says_so_beside_the_landing_it_caused(tmp_path):
+    """The host's loop stalls 0.6 s mid-track while the mocap drops out: the next tick, 0.6 s
+    late, lands on the stale mocap, and the log says the tick ran late (the stale mocap was
+    partly the host's own doing)."""
+
+    def stall_once(server, runner):
+        act, stalled = runner._act, []
+
+        def stalling(*args):
+            if runner.phase == "TRACK" and not stalled:
+                stalled.append(True)
+                runner.mocap.dropout_prob = 1.0  # every later frame is lost
+                time.sleep(0.6)
+            return act(*args)
+
+        runner._act = stalling
+
+    summary, _ = fly(tmp_path, hook=stall_once)
+    assert summary["outcome"].startswith("landed early: mocap stale"), summary["outcome"]
+    kinds = [(e["kind"], e["text"]) for e in summary["events"]]
+    late = next(i for i, (kind, text) in enumerate(kinds) if kind == "warning" and "behind schedule" in text)
+    assert kinds[late + 1][0] == "LAND"
+    assert 550 <= int(re.search(r"ran (\d+) ms", kinds[late][1]).group(1)) < 2000
 
 
 def test_server_killed_mid_flight(tmp_path):

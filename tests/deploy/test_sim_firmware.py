@@ -125,3 +125,18 @@ def test_connect_to_nothing_fails_with_one_line():
 def test_bad_io_timeout_fails_with_one_line():
     with pytest.raises(LinkError, match=r"^deploy.io_timeout_s: must be > 0, got 0$"):
         CrazyflieLink("udp://127.0.0.1:19999", io_timeout_s=0)
+
+
+def test_a_stall_of_the_machine_is_measured_and_the_vehicle_catches_up():
+    """The physics loop records how far it fell behind its clock (a real vehicle never does: the
+    flight tests fly again when the machine stalled the simulation), then runs the missed steps
+    so that simulated time keeps up with the host's."""
+    with SimCrazyflie(SimCrazyflieParams(port=next(ports))) as server:
+        time.sleep(0.1)
+        assert server.physics_lag_max_s < 0.05
+        with server._lock:  # the physics thread waits here, as when the machine stalls it
+            start_sim_s = server.sim_time_s
+            time.sleep(0.3)
+        time.sleep(0.1)
+        assert server.physics_lag_max_s > 0.25
+        assert server.sim_time_s - start_sim_s == pytest.approx(0.4, abs=0.06)

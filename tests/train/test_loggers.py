@@ -136,6 +136,26 @@ def test_a_wandb_run_keeps_the_console_quiet(tmp_path, monkeypatch):
     assert os.environ["WANDB_SILENT"] == "false"  # the user's choice stands
 
 
+def test_a_closed_wandb_run_has_written_its_whole_record(tmp_path):
+    """When ``close`` returns the offline ``.wandb`` file holds the run and everything logged
+    (``run.finish`` alone leaves it at its 7-byte header until wandb's service closes the stream):
+    a job that reports done has a record ``wandb sync`` and the table generator can read."""
+    pytest.importorskip("wandb")
+    from .wandb_record import run_info, summary_and_history
+
+    run = WandbLogger(tmp_path, {"seed": 3}, mode="offline", name="whole")
+    run.log({"loss": 1.5}, step=1)
+    run.results({"eval/mean_m": 0.25})
+    run.close()
+    from wandb.sdk import wandb_setup
+
+    assert wandb_setup._singleton is None  # the service is stopped: the stream was closed, not just left to flush
+    (info,) = run_info(tmp_path)
+    summary, history, _ = summary_and_history(tmp_path)
+    assert info["name"] == "whole" and info["config"]["seed"] == 3
+    assert "loss" in history and summary["eval/mean_m"] == 0.25
+
+
 def test_a_wandb_login_is_a_netrc_entry_for_the_api_host(tmp_path, monkeypatch):
     """``logger.mode=online`` is refused in one line without a login: ``wandb login`` writes the
     key to ~/.netrc under the API host (``WANDB_BASE_URL``, else api.wandb.ai)."""

@@ -17,7 +17,9 @@ row per tick), ``events.json`` (phases, safety decisions, timing), and track plo
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import gc
 import math
 import signal
 import threading
@@ -37,6 +39,21 @@ from datt.deploy.thrust import ThrustMap
 from datt.errors import LinkError
 from datt.refs.base import RefFamily
 from datt.runs import stop_signals
+
+
+@contextlib.contextmanager
+def frozen_heap():
+    """Every object alive now moves to the collector's permanent generation until the block ends.
+
+    A full (generation 2) collection walks every tracked object while holding the interpreter
+    lock: with torch, torchrl, hydra and cflib loaded, a pause of every thread of the host as long
+    as several control ticks (``benchmarks/host_pause.py``), while the vehicle flies its last rate
+    setpoint. Frozen, a collection walks only what the flight itself allocated."""
+    gc.freeze()
+    try:
+        yield
+    finally:
+        gc.unfreeze()
 
 
 def _raise_interrupt(signum: int, frame: object) -> None:
@@ -257,7 +274,8 @@ class FlightRunner:
     def _flight(self, build, airborne) -> dict:
         """CONNECT -> PREFLIGHT -> ``build(start)`` -> ARM -> ``airborne(origin, built)`` -> DISARM;
         the flight log is written whatever happens. Models are built (and the policy traced)
-        before the motors spin, so nothing stalls the control loop mid-flight. A stop request
+        before the motors spin and the heap is frozen while they do (``frozen_heap``), so nothing
+        stalls the control loop mid-flight. A stop request
         before arming (also one made while the flight was being prepared: ``stop_request``) ends
         the flight unarmed; after arming it KILLs."""
         try:
@@ -269,8 +287,9 @@ class FlightRunner:
                 origin = self._origin()
                 built = build(start - origin)
                 self._stop_if_requested()
-                self._arm()
-                airborne(origin, built)
+                with frozen_heap():
+                    self._arm()
+                    airborne(origin, built)
         except _Abort:
             pass
         except KeyboardInterrupt as exc:
@@ -489,6 +508,22 @@ class FlightRunner:
             self.link.send_estop_watchdog()
         return command
 
+    def _act_on(self, decision, jitter_ms: float, allow_land: bool) -> str | None:
+        """The safety decision's effect on this tick: KILL or LAND ends the phase (returned), a LAND
+        while already landing is noted and the landing goes on (None)."""
+        if decision.action != OK and jitter_ms > self.p.late_tick_ms:
+            # a stalled host sees stale state and mocap: say so beside the decision it caused
+            self._event("warning", f"this tick ran {jitter_ms:.0f} ms behind schedule (the host stalled)")
+        if decision.action == KILL:
+            self._kill(decision.reason)
+            return KILL
+        if decision.action == LAND and allow_land:
+            self._event("LAND", decision.reason)
+            return LAND
+        if decision.action == LAND:  # already landing: keep landing, note why
+            self._event("warning", decision.reason)
+        return None
+
     def _tick_loop(self, model: FlightModel, steps: int, origin: np.ndarray, allow_land: bool = True) -> str:
         dt = 1.0 / self.p.rate_hz
         next_t = time.monotonic()
@@ -519,14 +554,9 @@ class FlightRunner:
                 link_lost=self.link.link_lost.is_set(),
                 mocap_age_s=mocap_age,
             )
-            if decision.action == KILL:
-                self._kill(decision.reason)
-                return KILL
-            if decision.action == LAND and allow_land:
-                self._event("LAND", decision.reason)
-                return LAND
-            if decision.action == LAND:  # already landing: keep landing, note why
-                self._event("warning", decision.reason)
+            ended = self._act_on(decision, jitter_ms, allow_land)
+            if ended is not None:
+                return ended
             command = self._send_tick(model, action)
             self.rows.append(
                 {

@@ -168,7 +168,12 @@ class WandbLogger(Logger):
             self.run.log(media, commit=True)
 
     def close(self) -> None:
+        """Finish the run and stop wandb's service: ``finish`` returns before the service has
+        written the run's ``.wandb`` file (offline, it holds only its header until the stream
+        closes), so without the teardown a job could report done with its record still unwritten
+        (``wandb sync`` or a table generator reading it would see an empty run)."""
         self.run.finish()
+        self._wandb.teardown()
 
 
 def log_results_run(
