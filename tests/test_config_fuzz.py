@@ -41,7 +41,7 @@ def test_the_fuzzer_sees_a_missing_check():
     assert try_case("train", base, "algo.max_grad_norm", "nan")[0] == "refused"
     assert try_case("train", base, "algo.max_grad_norm", "-1")[0] == "refused"
     assert try_case("train", base, "algo.max_grad_norm", "0.3") == ("accepted", "0.3")
-    assert try_case("train", base, "train.phases", "7")[0] == "refused"  # was a traceback
+    assert try_case("train", base, "train.stages", "7")[0] == "refused"  # was a traceback
 
 
 @pytest.mark.slow

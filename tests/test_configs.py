@@ -204,8 +204,9 @@ def test_python_defaults_are_the_config_defaults(group):
         ("stage=rma", "use python fit_rma.py base_checkpoint=<policy> to fit an RMA adapter"),
         ("train.total_steps=1000", "use train.total_frames (the same number: frames"),
         ("curriculum.fixed_ref_steps=0", "use curriculum.fixed_ref_frames (the same number: frames)"),
+        ("train.phases=null", "use train.stages (the same list: a training schedule in stages)"),
     ],
-    ids=["env.num_envs", "train.threads", "stage", "train.total_steps", "curriculum.fixed_ref_steps"],
+    ids=["env.num_envs", "train.threads", "stage", "train.total_steps", "curriculum.fixed_ref_steps", "train.phases"],
 )
 def test_a_retired_key_on_the_command_line_is_one_line_naming_its_replacement(override, replacement):
     from datt.cli import preflight
@@ -234,13 +235,14 @@ def test_a_saved_config_with_retired_keys_is_read_in_todays_keys():
     # a training config saved when train.py also fitted RMA adapters (stage=, base_checkpoint=, rma:)
     fitted = {"train": {"progress": True}, "stage": "ppo", "base_checkpoint": None, "rma": {"num_envs": 1024}}
     assert OmegaConf.to_container(upgrade_saved_config(OmegaConf.create(fitted))) == {"train": {"progress": True}}
-    # frames once named steps: the run's total, the curriculum's fixed stage, each phase's length
+    # frames once named steps: the run's total, the curriculum's fixed reference, each stage's length
+    # (and the stages once named phases)
     counted = {
         "train": {"total_steps": 2048, "phases": [{"name": "a", "steps": 2048, "set": {}}]},
         "curriculum": {"fixed_ref_steps": 1024},
     }
     assert OmegaConf.to_container(upgrade_saved_config(OmegaConf.create(counted))) == {
-        "train": {"phases": [{"name": "a", "set": {}, "frames": 2048}], "total_frames": 2048},
+        "train": {"stages": [{"name": "a", "set": {}, "frames": 2048}], "total_frames": 2048},
         "curriculum": {"fixed_ref_frames": 1024},
     }
     rma_run = {"rma": {"num_envs": 1024}, "base_checkpoint": "p.pt"}  # an RMA fit's own config keeps them

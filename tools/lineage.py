@@ -3,7 +3,7 @@
     python tools/lineage.py outputs/train/<run>/last.pt
 
 Every checkpoint records the checkpoints it was fine-tuned from (``train.init_from``, and the
-earlier phases of a ``train.phases`` schedule) with their whole configs (``lineage``, see
+earlier stages of a ``train.stages`` schedule) with their whole configs (``lineage``, see
 ``datt.checkpoint``). This prints one step per run, oldest first: the frames it trained and the
 config values it changed from the step before (the first step: its seed and the values it sets
 away from today's ``python train.py`` defaults). A checkpoint written before lineage was recorded
@@ -23,7 +23,7 @@ from datt.configuration import compose, flat_leaves
 # keys that name where a run came from or how it was carried on, not what it trained
 IGNORED = (
     "train.init_from",
-    "train.phases",
+    "train.stages",
     "train.progress",
     "train.checkpoint_every",
     "train.threads",  # its spelling before it moved to the top level

@@ -2,7 +2,7 @@
 ``torch.load(..., weights_only=True)`` so a file can never execute code.
 
 Layout (``FORMAT``): actor/critic/optimizer ``state_dict``s, ``frames``, ``iteration``, the
-composed config as YAML text, RNG states, curriculum phase, best metric, and ``lineage``: the
+composed config as YAML text, RNG states, curriculum reference, best metric, and ``lineage``: the
 checkpoints the weights were fine-tuned from (``train.init_from``, oldest first), each as
 ``{checkpoint, frames, config_yaml}``, so a chain of commands can be rerun from the last file alone.
 """

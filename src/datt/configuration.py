@@ -317,6 +317,7 @@ RETIRED_KEYS: dict[str, str] = {
     "train.threads": "threads",
     "train.total_steps": "train.total_frames (the same number: frames, env steps summed over the drones)",
     "curriculum.fixed_ref_steps": "curriculum.fixed_ref_frames (the same number: frames)",
+    "train.phases": "train.stages (the same list: a training schedule in stages)",
     "stage": "python fit_rma.py base_checkpoint=<policy> to fit an RMA adapter (stage=rma); python train.py trains",
 }
 # the retired keys whose value moves
@@ -324,6 +325,7 @@ RENAMED_KEYS: dict[str, str] = {
     "train.threads": "threads",
     "train.total_steps": "train.total_frames",
     "curriculum.fixed_ref_steps": "curriculum.fixed_ref_frames",
+    "train.phases": "train.stages",
 }
 # keys a saved training config may still hold from when train.py also fitted RMA adapters: dropped
 FIT_RMA_KEYS_IN_SAVED_TRAIN_CONFIGS = ("base_checkpoint", "rma")
@@ -357,9 +359,9 @@ def upgrade_saved_config(cfg: DictConfig) -> DictConfig:
         if "train" in cfg:  # a training run's config
             for key in FIT_RMA_KEYS_IN_SAVED_TRAIN_CONFIGS:
                 cfg.pop(key, None)
-            for phase in OmegaConf.select(cfg, "train.phases", default=None) or []:
-                if isinstance(phase, DictConfig) and "steps" in phase and "frames" not in phase:
-                    phase["frames"] = phase.pop("steps")  # a phase's length: frames, once named steps
+            for stage in OmegaConf.select(cfg, "train.stages", default=None) or []:
+                if isinstance(stage, DictConfig) and "steps" in stage and "frames" not in stage:
+                    stage["frames"] = stage.pop("steps")  # a stage's length: frames, once named steps
     return cfg
 
 

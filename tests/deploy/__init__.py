@@ -28,10 +28,11 @@ SHORT_FLIGHT = [
 # A simulated vehicle whose physics loop fell this far behind its clock was stalled by the test
 # machine (its threads share the host's process and CPUs; a real Crazyflie's stabilizer runs on
 # its own MCU): that flight is not the vehicle's and is flown again, at most STALL_ATTEMPTS times.
-# Shorter stalls are flown through (SHORT_FLIGHT's state and mocap limits allow 0.4 s and more);
-# the host freezes the collector's heap while airborne, which took the stalls seen in the default
-# suite from 0.5-1.1 s (full collections of a test worker's heap) to below 0.15 s.
-STALL_LIMIT_S = 0.2
+# 2.5 physics steps: a fresh-clone CI run saw a flight whose host ran 7 ticks late (p99 57 ms)
+# track with 0.27 m instead of ~0.06 m. The host freezes the collector's heap while airborne,
+# which took the stalls seen in the default suite from 0.5-1.1 s (full collections of a test
+# worker's heap) to at most 0.15 s; in 3 of 23 flights of one suite run they passed 0.05 s.
+STALL_LIMIT_S = 0.05
 STALL_ATTEMPTS = 3
 
 
@@ -60,9 +61,10 @@ def fly_sim(tmp_path, port: int, overrides=(), hook=None, estop=None) -> tuple[d
 
         summary = run_deploy(cfg, run_dir=tmp_path, estop=estop, server_hook=server_hook)
         lags.append(seen["server"].physics_lag_max_s)
+        print(f"flight {attempt + 1}: the simulated vehicle's physics fell {lags[-1] * 1e3:.0f} ms behind at most")
         if lags[-1] <= STALL_LIMIT_S:
             return summary, seen["server"], seen["runner"]
-        print(f"flight {attempt + 1} re-flown: the machine stalled the simulated vehicle {lags[-1] * 1e3:.0f} ms")
+        print(f"flight {attempt + 1} is flown again: the machine stalled the simulated vehicle")
         for path in set(tmp_path.iterdir()) - before:
             if path.is_dir():
                 shutil.rmtree(path)

@@ -54,13 +54,18 @@ def motors_stopped(server):
     return server.emergency_stopped or server.cmd[3] == 0
 
 
-def test_nominal_flight_tracks_and_lands(tmp_path):
-    frozen = {}
-    summary, server = fly(tmp_path, hook=lambda s, r: after(0.1, lambda: frozen.update(n=gc.get_freeze_count()), r))
+def test_nominal_flight_tracks_and_lands(tmp_path, monkeypatch):
+    calls = []  # (what, the flight's phase then); gc.get_freeze_count() itself walks the frozen heap
+
+    def watch(server, runner):
+        for name in ("freeze", "unfreeze"):
+            monkeypatch.setattr(gc, name, lambda f=getattr(gc, name), n=name: (calls.append((n, runner.phase)), f())[1])
+
+    summary, server = fly(tmp_path, hook=watch)
     assert summary["outcome"] == "landed"
     # airborne, the collector skips the heap the host had before arming (a full collection of it
     # pauses every thread for several ticks); it is handed back after the flight
-    assert frozen["n"] > 100_000 and gc.get_freeze_count() == 0
+    assert calls == [("freeze", "PREFLIGHT"), ("unfreeze", "LAND")] and gc.get_freeze_count() == 0
     assert summary["track_steps"] == 150 and summary["track_error_m"] < 0.15
     assert motors_stopped(server) and server.true_state()["pos_m"][2] < 0.1
     phases = [e["text"] for e in summary["events"] if e["kind"] == "phase"]

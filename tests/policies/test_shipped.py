@@ -51,24 +51,24 @@ def drop_added_keys(trained: dict, expected: dict) -> None:
 
 def test_deploy_grade_checkpoint_is_the_output_of_experiment_deploy():
     """``checkpoints/datt_h10_deploy.pt`` came from ``python train.py experiment=deploy`` as it is
-    configured now: its last phase's whole config (env, policy, algo, references, disturbance,
+    configured now: its last stage's whole config (env, policy, algo, references, disturbance,
     adaptation) is the one the experiment composes, and it starts from ``datt_h10_train_mix.pt``."""
     from omegaconf import OmegaConf
 
     from datt.checkpoint import load_checkpoint
-    from datt.tasks.phases import phase_config, phase_plan
+    from datt.tasks.stages import stage_config, stage_plan
 
     cfg = compose("train", ["experiment=deploy"])
     assert cfg.train.init_from == "checkpoints/datt_h10_train_mix.pt"
-    plan = phase_plan(cfg)
-    expected = OmegaConf.to_container(phase_config(cfg, len(plan) - 1, plan, "previous/last.pt"), resolve=True)
+    plan = stage_plan(cfg)
+    expected = OmegaConf.to_container(stage_config(cfg, len(plan) - 1, plan, "previous/last.pt"), resolve=True)
     data = load_checkpoint(resolve_path("checkpoints/datt_h10_deploy.pt"))
     trained = OmegaConf.to_container(upgrade_saved_config(OmegaConf.create(data["config_yaml"])), resolve=True)
     drop_added_keys(trained, expected)  # keys added after the checkpoint was trained
     for key in ("env", "policy", "algo", "traj", "disturbance", "adaptation", "horizon", "seed"):
         assert trained[key] == expected[key], key
     batch = cfg.algo.num_envs * cfg.algo.rollout_steps
-    assert data["frames"] == -(-plan[-1][1] // batch) * batch  # the last phase's steps, in whole batches
+    assert data["frames"] == -(-plan[-1][1] // batch) * batch  # the last stage's steps, in whole batches
 
 
 @pytest.mark.parametrize(

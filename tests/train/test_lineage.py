@@ -1,5 +1,5 @@
 """A checkpoint records the runs its weights descend from (``lineage``): through
-``train.init_from``, through the phases of a schedule, and across a resume; ``tools/lineage.py``
+``train.init_from``, through the stages of a schedule, and across a resume; ``tools/lineage.py``
 reads the chain back as the config changes of each step."""
 
 import subprocess
@@ -11,7 +11,7 @@ from datt.checkpoint import load_checkpoint
 from datt.tasks.train import run_train
 from tools import lineage
 
-from .test_phases import TWO_PHASES
+from .test_stages import TWO_STAGES
 from .test_training import ROOT, tiny_cfg
 
 BATCH = 64 * 16  # TINY: 64 envs x 16 steps
@@ -32,23 +32,23 @@ def test_a_fresh_run_has_no_lineage(tmp_path):
     assert load_checkpoint(tmp_path / "last.pt")["lineage"] == []
 
 
-def test_a_chain_of_fine_tunes_and_phases_records_every_parent(tmp_path):
+def test_a_chain_of_fine_tunes_and_stages_records_every_parent(tmp_path):
     first, second, third = tmp_path / "first", tmp_path / "second", tmp_path / "third"
     run_train(small("seed=3"), run_dir=first)
     run_train(small("seed=3", "algo.lr=2.0e-4", f"train.init_from={first / 'last.pt'}"), run_dir=second)
     cfg = small("seed=3", f"train.init_from={second / 'last.pt'}")
-    OmegaConf.update(cfg, "train.phases", TWO_PHASES, merge=False)
+    OmegaConf.update(cfg, "train.stages", TWO_STAGES, merge=False)
     run_train(cfg, run_dir=third)
 
     chain = load_checkpoint(third / "last.pt")["lineage"]
     assert [entry["checkpoint"] for entry in chain] == [
         str(first / "last.pt"),
         str(second / "last.pt"),
-        str(third / "phase1_a" / "last.pt"),
+        str(third / "stage1_a" / "last.pt"),
     ]
     assert [entry["frames"] for entry in chain] == [2 * BATCH, 2 * BATCH, BATCH]
     configs = [OmegaConf.create(entry["config_yaml"]) for entry in chain]
-    assert [c.algo.lr for c in configs] == [1e-3, 2e-4, 2e-3]  # default, the fine-tune's, phase a's
+    assert [c.algo.lr for c in configs] == [1e-3, 2e-4, 2e-3]  # default, the fine-tune's, stage a's
     assert configs[1].train.init_from == str(first / "last.pt")
     # each entry is the parent's own config, byte for byte
     assert chain[0]["config_yaml"] == load_checkpoint(first / "last.pt")["config_yaml"]

@@ -393,7 +393,7 @@ def test_the_entropy_bonus_is_on_exactly_when_its_coefficient_is_positive(tmp_pa
 def test_the_smallest_budgets_are_accepted(tmp_path):
     """One step of training and one step of the fixed reference are valid settings."""
     trainer = Trainer(tiny_cfg("train.total_frames=1", "curriculum.fixed_ref_frames=1"), tmp_path, CsvLogger(tmp_path))
-    assert trainer.total_frames == 1 and trainer.fixed_traj is not None and trainer.curriculum_stage == "fixed"
+    assert trainer.total_frames == 1 and trainer.fixed_traj is not None and trainer.curriculum_ref == "fixed"
 
 
 def test_crash_rate_is_the_share_of_ended_episodes_that_crashed():

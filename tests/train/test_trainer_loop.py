@@ -84,7 +84,7 @@ def test_a_complete_run_trains_nothing_and_writes_nothing(tmp_path):
 
 def test_each_row_describes_its_batch(tmp_path):
     """Tracking error, reward and crash rate of the batch as collected; the return estimate is
-    the mean reward per step × the episode's steps; the curriculum stage is the one the batch was trained in."""
+    the mean reward per step × the episode's steps; the curriculum reference is the one the batch flew."""
     trainer = _trainer(
         tmp_path,
         f"train.total_frames={3 * BATCH}",
@@ -95,7 +95,7 @@ def test_each_row_describes_its_batch(tmp_path):
         cls=SpyTrainer,
     )
     history = trainer.train()
-    assert [row["curriculum_stage"] for row in history] == ["fixed", "main", "main"]
+    assert [row["curriculum_ref"] for row in history] == ["fixed", "main", "main"]
     for row, batch in zip(history, trainer.batches, strict=True):
         reward = batch["next", "reward"].mean().item()  # unscaled: before update() scaled it
         done = batch["next", "done"].sum().item()
@@ -115,7 +115,7 @@ def test_each_row_describes_its_batch(tmp_path):
 
 def test_checkpoints_every_n_iterations_and_the_best_of_the_main_stage(tmp_path):
     """``last.pt`` every ``checkpoint_every`` iterations and at the end; ``best.pt`` whenever the
-    training error of a main-stage batch beats the best so far (never in the fixed stage)."""
+    training error of a batch on the main references beats the best so far (never on the fixed one)."""
     logger = CheckpointSpy(tmp_path)
     trainer = _trainer(
         tmp_path,
@@ -128,14 +128,14 @@ def test_checkpoints_every_n_iterations_and_the_best_of_the_main_stage(tmp_path)
     # the row of iteration k is logged before k's checkpoints are written
     assert [last for _, last, _ in logger.seen] == [None, None, 2, 2, 4]
     assert load_checkpoint(tmp_path / "last.pt")["iteration"] == 5
-    main = [row for row in history if row["curriculum_stage"] == "main"]
+    main = [row for row in history if row["curriculum_ref"] == "main"]
     best_row = min(main, key=lambda row: row["tracking_error_m"])
     best = load_checkpoint(tmp_path / "best.pt")
     assert best["iteration"] == best_row["iteration"] and best["frames"] == best_row["frames"]
     assert best["best_error_m"] == pytest.approx(best_row["tracking_error_m"])
     improved, best_so_far, expect = [], float("inf"), []
     for row in history:
-        if row["curriculum_stage"] == "main" and row["tracking_error_m"] < best_so_far:
+        if row["curriculum_ref"] == "main" and row["tracking_error_m"] < best_so_far:
             best_so_far = row["tracking_error_m"]
             improved.append(row["iteration"])
         expect.append(improved[-1] if improved else None)
@@ -146,9 +146,9 @@ def test_checkpoints_every_n_iterations_and_the_best_of_the_main_stage(tmp_path)
 def test_a_run_that_never_leaves_the_fixed_stage_still_has_a_best(tmp_path):
     trainer = _trainer(tmp_path, f"train.total_frames={2 * BATCH}", f"curriculum.fixed_ref_frames={10 * BATCH}")
     history = trainer.train()
-    assert [row["curriculum_stage"] for row in history] == ["fixed", "fixed"]
+    assert [row["curriculum_ref"] for row in history] == ["fixed", "fixed"]
     best = load_checkpoint(tmp_path / "best.pt")
-    assert best["iteration"] == 2 and best["curriculum_stage"] == "fixed"
+    assert best["iteration"] == 2 and best["curriculum_ref"] == "fixed"
 
 
 @pytest.mark.parametrize("fixed_ref_frames, stages", [(BATCH, ["fixed"] * 3), (0, ["main"] * 3)])
@@ -161,7 +161,7 @@ def test_the_whole_run_curriculum_flies_the_fixed_reference_to_the_end_unless_sk
         f"curriculum.fixed_ref_frames={fixed_ref_frames}",
         "curriculum.fixed_ref=whole_run",
     )
-    assert [row["curriculum_stage"] for row in trainer.train()] == stages
+    assert [row["curriculum_ref"] for row in trainer.train()] == stages
 
 
 def test_progress_bar_shows_frames_rate_error_and_return(tmp_path):
@@ -228,14 +228,14 @@ def test_budget_scales_the_total_and_the_fixed_stage(tmp_path):
 
 def test_the_env_flies_the_main_family_once_the_fixed_stage_is_over(tmp_path):
     trainer = _trainer(tmp_path, f"train.total_frames={2 * BATCH}", f"curriculum.fixed_ref_frames={BATCH}")
-    assert trainer.curriculum_stage == "fixed" and trainer.env.traj is trainer.fixed_traj
+    assert trainer.curriculum_ref == "fixed" and trainer.env.traj is trainer.fixed_traj
     trainer.train()
-    assert trainer.curriculum_stage == "main" and trainer.env.traj is trainer.main_traj
+    assert trainer.curriculum_ref == "main" and trainer.env.traj is trainer.main_traj
     trainer.frames = 0  # e.g. a checkpoint from before the switch: back to the fixed reference
-    trainer._update_curriculum_stage()
-    assert trainer.curriculum_stage == "fixed" and trainer.env.traj is trainer.fixed_traj
+    trainer._update_curriculum_ref()
+    assert trainer.curriculum_ref == "fixed" and trainer.env.traj is trainer.fixed_traj
     no_curriculum = _trainer(tmp_path, "curriculum.fixed_ref_frames=0")
-    assert no_curriculum.curriculum_stage == "main" and no_curriculum.fixed_traj is None
+    assert no_curriculum.curriculum_ref == "main" and no_curriculum.fixed_traj is None
 
 
 @pytest.mark.parametrize("stagger", [True, False])
@@ -332,12 +332,12 @@ def test_divergence_names_what_went_non_finite(tmp_path, what):
 
 def test_a_resumed_main_stage_at_the_fixed_stage_end_stays_main(tmp_path):
     trainer = _trainer(tmp_path, f"train.total_frames={4 * BATCH}", f"curriculum.fixed_ref_frames={BATCH}")
-    trainer.curriculum_stage, trainer.frames = "main", BATCH
-    trainer._update_curriculum_stage()
-    assert trainer.curriculum_stage == "main"
+    trainer.curriculum_ref, trainer.frames = "main", BATCH
+    trainer._update_curriculum_ref()
+    assert trainer.curriculum_ref == "main"
     trainer.frames = BATCH - 1  # below it: back to the fixed reference
-    trainer._update_curriculum_stage()
-    assert trainer.curriculum_stage == "fixed"
+    trainer._update_curriculum_ref()
+    assert trainer.curriculum_ref == "fixed"
 
 
 def test_a_main_stage_that_never_beat_its_best_still_writes_one(tmp_path):
@@ -357,7 +357,7 @@ def test_checkpoints_hold_the_resolved_config(tmp_path):
 
 
 def test_the_logger_gets_numbers_only(tmp_path):
-    """Each row's curriculum stage (a word) stays in the history; the logger (CSV, wandb) gets the numbers."""
+    """Each row's curriculum reference (a word) stays in the history; the logger (CSV, wandb) gets the numbers."""
 
     class KeySpy(CsvLogger):
         def __init__(self, run_dir):
@@ -370,6 +370,6 @@ def test_the_logger_gets_numbers_only(tmp_path):
 
     logger = KeySpy(tmp_path)
     history = _trainer(tmp_path, f"train.total_frames={2 * BATCH}", logger=logger).train()
-    assert logger.keys and all("curriculum_stage" not in keys for keys in logger.keys)
+    assert logger.keys and all("curriculum_ref" not in keys for keys in logger.keys)
     assert all("tracking_error_m" in keys for keys in logger.keys)
-    assert all(row["curriculum_stage"] in ("fixed", "main") for row in history)
+    assert all(row["curriculum_ref"] in ("fixed", "main") for row in history)

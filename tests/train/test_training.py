@@ -110,7 +110,7 @@ def test_interrupted_run_resumes_to_the_same_total(tmp_path):
     with pytest.raises(Kill):
         trainer.train()
     ckpt = load_checkpoint(tmp_path / "last.pt")
-    assert ckpt["frames"] == 1024 and ckpt["curriculum_stage"] == "fixed"  # killed before iteration 2's save
+    assert ckpt["frames"] == 1024 and ckpt["curriculum_ref"] == "fixed"  # killed before iteration 2's save
     cfg_resume = tiny_cfg(
         f"train.total_frames={total}",
         "curriculum.fixed_ref_frames=2048",
@@ -121,7 +121,7 @@ def test_interrupted_run_resumes_to_the_same_total(tmp_path):
     metrics = run_train(cfg_resume, run_dir=tmp_path)
     assert metrics["frames"] == total
     final = load_checkpoint(tmp_path / "last.pt")
-    assert final["frames"] == total and final["iteration"] == 4 and final["curriculum_stage"] == "main"
+    assert final["frames"] == total and final["iteration"] == 4 and final["curriculum_ref"] == "main"
     rows = (tmp_path / "metrics.csv").read_text().splitlines()
     # header + one row per iteration: iteration 2 (logged, then killed before its checkpoint) is
     # dropped on resume and trained again, never listed twice

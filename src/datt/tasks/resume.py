@@ -18,7 +18,7 @@ from datt.configuration import check_targets, command_overrides, flat_leaves, up
 from datt.errors import ConfigError
 from datt.paths import original_cwd, resolve_path
 from datt.runs import is_locked
-from datt.tasks.phases import is_phased, phased_parent
+from datt.tasks.stages import holds_run_in_stages, stages_parent
 
 # Dotted keys (or prefixes ending in ".") an override may change on resume.
 RESUMABLE = (
@@ -36,32 +36,28 @@ RESUMABLE_GROUPS = ("logger", "bank@eval.bank")
 
 def resume_dir(resume) -> Path | None:
     """The run dir ``resume=`` names: ``true`` = the newest run with a ``last.pt`` under outputs/
-    that no other process holds. A phase of a phased run (:mod:`datt.tasks.phases`) stands for its
+    that no other process holds. A stage of a run in stages (:mod:`datt.tasks.stages`) stands for its
     whole run."""
     if resume in (False, None, "false", "False"):
         return None
     if resume in (True, "true", "True"):
         candidates = sorted((original_cwd() / "outputs").glob("**/last.pt"), key=lambda p: p.stat().st_mtime)
-        runs = [phased_parent(c.parent) or c.parent for c in candidates]
+        runs = [stages_parent(c.parent) or c.parent for c in candidates]
         free = [r for r in runs if not is_locked(r)]
         if not free:
             held = " (the newest is in use by another process)" if candidates else ""
             raise ConfigError(f"resume: no run with a last.pt under outputs/{held}; pass resume=<run dir>")
         return free[-1]
     path = resolve_path(resume)
-    path = phased_parent(path) or path
+    path = stages_parent(path) or path
     if not holds_a_run(path):
         raise ConfigError(f"resume: {str(path)!r} has no last.pt")
     return path
 
 
 def holds_a_run(path: Path) -> bool:
-    """Whether ``path`` holds a run to carry on: a ``last.pt``, or a phased run's config."""
-    return (path / "last.pt").is_file() or _phased_run(path)
-
-
-def _phased_run(path: Path) -> bool:
-    return (path / "config.yaml").is_file() and is_phased(OmegaConf.load(path / "config.yaml"))
+    """Whether ``path`` holds a run to carry on: a ``last.pt``, or the config of a run in stages."""
+    return (path / "last.pt").is_file() or holds_run_in_stages(path)
 
 
 # Config keys added after runs may have been written, with the value that keeps what the code did
@@ -139,9 +135,9 @@ def resume_config(cfg: DictConfig, run_dir: Path, groups: set[str]) -> DictConfi
 
 
 def finished_frames(run_dir: Path, total_frames: int) -> int | None:
-    """The frames of ``run_dir``'s last checkpoint if they already reach ``total_frames`` (a phased
-    run: the frames of all its phases once its last phase is done)."""
-    if _phased_run(run_dir):
+    """The frames of ``run_dir``'s last checkpoint if they already reach ``total_frames`` (a staged
+    run: the frames of all its stages once its last stage is done)."""
+    if holds_run_in_stages(run_dir):
         metrics = run_dir / "metrics.json"
         if not metrics.is_file() or not (run_dir / "last.pt").is_file():
             return None

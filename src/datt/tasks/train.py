@@ -16,8 +16,8 @@ from datt.eval.plots import plot_learning_curve
 from datt.eval.schema import EndOfRunEvalParams
 from datt.runs import RunLock, finite_json, record_failure, scheduler_signal, write_json
 from datt.tasks.common import console, hydra_run_dir, set_threads, wandb_run_id
-from datt.tasks.phases import is_phased, phase_plan, run_phases
 from datt.tasks.resume import finished_frames, holds_a_run, resume_config, resume_dir
+from datt.tasks.stages import in_stages, run_stages, stage_plan
 from datt.tasks.validation import validate_config
 from datt.train.loggers import RESULT_COLUMNS, CsvLogger, MultiLogger, WandbLogger, eval_summary, result_rows
 from datt.train.ppo import Trainer
@@ -50,8 +50,8 @@ def run_train(cfg: DictConfig, run_dir: Path | None = None) -> dict:
     run = run_params(cfg)
     structured(TrainParams, cfg.train, "train")  # checked before anything is written
     check_ablation(cfg)
-    if is_phased(cfg):
-        phase_plan(cfg)  # a bad schedule is refused before anything is written
+    if in_stages(cfg):
+        stage_plan(cfg)  # a bad schedule is refused before anything is written
     set_threads(run.threads)
     resumed = resume_dir(run.resume) or _requeued_attempt(run_dir)
     if resumed is not None:
@@ -70,8 +70,8 @@ def run_train(cfg: DictConfig, run_dir: Path | None = None) -> dict:
         run_dir = resumed
     run_dir = run_dir or hydra_run_dir()
     with RunLock(run_dir):
-        if is_phased(cfg):
-            return run_phases(cfg, run_dir, _train_locked)
+        if in_stages(cfg):
+            return run_stages(cfg, run_dir, _train_locked)
         return _train_locked(cfg, run_dir, resumed is not None)
 
 

@@ -81,11 +81,11 @@ def _run_level(config_name: str, cfg: DictConfig) -> None:
         check_export_options(cfg)
 
 
-def _phases(cfg: DictConfig) -> None:
-    if OmegaConf.select(cfg, "train.phases", default=None) is not None:
-        from datt.tasks.phases import phase_plan
+def _stages(cfg: DictConfig) -> None:
+    if OmegaConf.select(cfg, "train.stages", default=None) is not None:
+        from datt.tasks.stages import stage_plan
 
-        phase_plan(cfg)  # names, steps and the keys each phase sets
+        stage_plan(cfg)  # names, steps and the keys each stage sets
 
 
 def _fixed_estimator(cfg: DictConfig) -> None:
@@ -110,7 +110,7 @@ def checks(config_name: str) -> dict[str, list[Check]]:
     for key, schema in NODE_SCHEMAS.get(config_name, {}).items():
         out[key] = [lambda cfg, key=key, schema=schema: structured(schema, cfg[key], key)]
     if config_name == "train":
-        out["train"] = [lambda cfg: structured(TrainParams, cfg.train, "train"), _phases]
+        out["train"] = [lambda cfg: structured(TrainParams, cfg.train, "train"), _stages]
         out["train"].append(lambda cfg: _check_file(cfg, "train.init_from"))
     out["env"] = [lambda cfg: env_params_from_cfg(cfg.env)]
     for key in TARGET_NODES:

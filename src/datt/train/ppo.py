@@ -172,7 +172,7 @@ class Trainer:
         seed = int(cfg.seed)
         torch.manual_seed(seed)
         self.env = make_env(cfg, num_envs=self.algo.num_envs, seed=seed, traj=self.fixed_traj or self.main_traj)
-        self.curriculum_stage = "fixed" if self.fixed_traj is not None else "main"
+        self.curriculum_ref = "fixed" if self.fixed_traj is not None else "main"
         if train_params.stagger_episodes:
             self.env.stagger_episodes()
         self.actor = make_actor(
@@ -221,7 +221,7 @@ class Trainer:
             "frames": self.frames,
             "iteration": self.iteration,
             "best_error_m": self.best_error,
-            "curriculum_stage": self.curriculum_stage,
+            "curriculum_ref": self.curriculum_ref,
             "horizon": self.env.horizon,
             "config_yaml": OmegaConf.to_yaml(self.cfg, resolve=True),
             "rng_torch": torch.get_rng_state(),
@@ -285,7 +285,7 @@ class Trainer:
         self.lineage = [dict(entry) for entry in data.get("lineage", [])]
         self.train_wall_s = float(data.get("train_wall_s", 0.0))
         self.adaptive_lr = float(data.get("adaptive_lr", self.algo.lr))
-        self._update_curriculum_stage()
+        self._update_curriculum_ref()
 
     # -- loop -------------------------------------------------------------------------------
     def _interrupted(self, signal_name: str) -> TrainingInterrupted:
@@ -295,13 +295,13 @@ class Trainer:
             signal=signal_name,
         )
 
-    def _update_curriculum_stage(self) -> None:
+    def _update_curriculum_ref(self) -> None:
         # Drones pick up the new family as their episodes end (within one episode).
-        if self.curriculum_stage == "fixed" and self.frames >= self.fixed_ref_frames:
-            self.curriculum_stage = "main"
+        if self.curriculum_ref == "fixed" and self.frames >= self.fixed_ref_frames:
+            self.curriculum_ref = "main"
             self.env.traj = self.main_traj
-        elif self.curriculum_stage == "main" and self.fixed_traj is not None and self.frames < self.fixed_ref_frames:
-            self.curriculum_stage = "fixed"
+        elif self.curriculum_ref == "main" and self.fixed_traj is not None and self.frames < self.fixed_ref_frames:
+            self.curriculum_ref = "fixed"
             self.env.traj = self.fixed_traj
 
     def _lr(self) -> float:
@@ -396,7 +396,7 @@ class Trainer:
             "episode_return_est": ret_per_step * self.env.params.episode_steps,
             "crash_rate": crash_rate(batch["next", "terminated"], batch["next", "done"]),
             "steps_per_s": batch.numel() / iter_s,
-            "curriculum_stage": self.curriculum_stage,
+            "curriculum_ref": self.curriculum_ref,
             **policy_std(batch["scale"]),
             **stats,
         }
@@ -434,7 +434,7 @@ class Trainer:
                 err = row["tracking_error_m"]
                 t_iter = now
                 self.history.append(row)
-                self.logger.log({k: v for k, v in row.items() if k != "curriculum_stage"}, step=self.frames)
+                self.logger.log({k: v for k, v in row.items() if k != "curriculum_ref"}, step=self.frames)
                 progress.update(
                     task,
                     completed=self.frames,
@@ -442,10 +442,10 @@ class Trainer:
                     err=err,
                     ret=row["episode_return_est"],
                 )
-                if self.curriculum_stage == "main" and err < self.best_error:
+                if self.curriculum_ref == "main" and err < self.best_error:
                     self.best_error = err
                     self.save("best.pt")
-                self._update_curriculum_stage()
+                self._update_curriculum_ref()
                 self.train_wall_s += now - t_last
                 t_last = now
                 if self.iteration % every == 0 or stop.signal:
@@ -455,6 +455,6 @@ class Trainer:
                     raise self._interrupted(stop.signal)
         collector.shutdown()
         self.save("last.pt")
-        if self.curriculum_stage != "main" or not (self.run_dir / "best.pt").exists():
+        if self.curriculum_ref != "main" or not (self.run_dir / "best.pt").exists():
             self.save("best.pt")
         return self.history

@@ -73,7 +73,7 @@ class TrainParams:
     eval_at_end: bool = MISSING
     stagger_episodes: bool = MISSING
     progress: bool = MISSING
-    phases: Any = MISSING  # null | [{name, steps, set: {dotted key: value}}] (datt.tasks.phases)
+    stages: Any = MISSING  # null | [{name, frames, set: {dotted key: value}}] (datt.tasks.stages)
 
     def validate(self) -> None:
         pass  # every rule is a field's own range

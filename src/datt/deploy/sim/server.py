@@ -265,9 +265,9 @@ class SimCrazyflie:
         self._lock = threading.Lock()
         self._running = threading.Event()
         self._threads: list[threading.Thread] = []
-        # How far the physics loop fell behind its real-time schedule (s): the host machine's
-        # stall (a real vehicle's stabilizer runs on its own MCU and never falls behind), after
-        # which the vehicle catches up flying the last setpoint, as one would after a host stall.
+        # How far the physics loop fell behind its real-time schedule while armed (s): the host
+        # machine's stall (a real vehicle's stabilizer runs on its own MCU and never falls behind),
+        # after which the vehicle catches up flying the last setpoint, as one would after a host stall.
         self.physics_lag_max_s = 0.0
 
     def _boot_params(self) -> None:
@@ -397,7 +397,8 @@ class SimCrazyflie:
     def _physics_loop(self) -> None:
         next_t = time.monotonic()
         while self._running.is_set():
-            self.physics_lag_max_s = max(self.physics_lag_max_s, time.monotonic() - next_t)
+            if self.armed:
+                self.physics_lag_max_s = max(self.physics_lag_max_s, time.monotonic() - next_t)
             with self._lock:
                 self._physics_step()
                 self._send_logs()
