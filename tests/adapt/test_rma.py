@@ -169,3 +169,38 @@ def test_fit_rma_takes_the_env_from_the_policy_and_refuses_env_overrides(tmp_pat
     )
     assert out.returncode == 2 and out.stderr.startswith("error: env.safety_box_m"), out.stderr[-1000:]
     assert len(out.stderr.strip().splitlines()) == 1
+
+
+def test_fit_rma_flies_the_frozen_policy_under_its_own_disturbance_and_references(tiny_policy_checkpoint):
+    """The adapter is fitted on the policy's env with the fit's disturbance and references (not
+    the training run's), the policy's weights frozen, the env eager, the drones seeded by ``seed``."""
+    from datt.configuration import structured
+    from datt.refs import Polygon
+    from datt.sim import ConstantForce
+    from datt.train.rma import RmaParams, _setup
+
+    def setup(seed, *extra):
+        cfg = tiny_rma_cfg(tiny_policy_checkpoint, "disturbance=constant", "traj=star", f"seed={seed}", *extra)
+        return _setup(cfg, structured(RmaParams, cfg.rma, "rma"))
+
+    env, adapter, controller, base = setup(3, "rma.history_len=40")
+    assert adapter.net.history_len == 40 and adapter.net.accel_dt_s == env.dt_s  # rma.accel_input: true
+    assert setup(3, "rma.accel_input=false")[1].net.accel_dt_s is None
+    assert type(env.disturbance) is ConstantForce and isinstance(env.traj, Polygon)  # Brownian is a ConstantForce
+    assert env.n == 8 and env.adaptation is adapter and "actor" in base
+    assert not env.params.compile
+    assert not any(p.requires_grad for p in controller.actor.parameters())
+    assert env.generator.initial_seed() == 3 and setup(4)[0].generator.initial_seed() == 4
+
+
+@pytest.mark.parametrize(
+    "value, message",
+    [
+        ("''", r"^base_checkpoint: fit_rma.py needs the policy checkpoint to adapt \(base_checkpoint=\.\.\.\)$"),
+        ("/nonexistent/policy.pt", r"^base_checkpoint: "),
+    ],
+)
+def test_fit_rma_without_a_policy_is_one_line_naming_base_checkpoint(tmp_path, value, message):
+    cfg = compose("fit_rma", [f"base_checkpoint={value}", "rma.iterations=1", "rma.num_envs=8"])
+    with pytest.raises(ConfigError, match=message):
+        train_rma(cfg, tmp_path)
