@@ -1,5 +1,6 @@
 import pytest
 import torch
+from omegaconf import OmegaConf
 from tensordict import TensorDict
 
 from datt.adapt.rma import ACCEL_SCALE, FEATURES, RmaAdaptation, RmaNet, load_rma
@@ -204,3 +205,21 @@ def test_fit_rma_without_a_policy_is_one_line_naming_base_checkpoint(tmp_path, v
     cfg = compose("fit_rma", [f"base_checkpoint={value}", "rma.iterations=1", "rma.num_envs=8"])
     with pytest.raises(ConfigError, match=message):
         train_rma(cfg, tmp_path)
+
+
+def test_the_fit_s_loss_is_the_squared_error_summed_over_axes_and_averaged_over_drones():
+    from datt.train.rma import adapter_loss
+
+    pred = torch.tensor([[1.0, 2.0, 0.0], [0.0, 1.0, 0.0]])
+    true = torch.tensor([[0.0, 0.0, 0.0], [0.0, 3.0, 1.0]])
+    assert adapter_loss(pred, true).item() == pytest.approx(((1 + 4) + (4 + 1)) / 2)
+
+
+def test_the_fit_runs_its_iterations_once_each_with_the_lr_decayed_linearly(tmp_path, tiny_policy_checkpoint):
+    """``rma.iterations`` steps, numbered from 1, each logged at ``log_every=1``; after step k the
+    lr is ``lr * (1 - (1 - lr_final_frac) * k / iterations)``, ending at ``lr * lr_final_frac``."""
+    cfg = tiny_rma_cfg(tiny_policy_checkpoint, "rma.iterations=4", "rma.log_every=1", "rma.lr=1e-3")
+    OmegaConf.update(cfg, "rma.lr_final_frac", 0.1)
+    rows = train_rma(cfg, tmp_path)["history"]
+    assert [r["iteration"] for r in rows] == [1, 2, 3, 4]
+    assert [r["lr"] for r in rows] == pytest.approx([1e-3 * (1 - 0.9 * k / 4) for k in (1, 2, 3, 4)])

@@ -47,6 +47,12 @@ def _setup(cfg: DictConfig, rma: RmaParams) -> tuple:
     return env, adapter, DattController(actor), base
 
 
+def adapter_loss(pred_mps2: torch.Tensor, true_mps2: torch.Tensor) -> torch.Tensor:
+    """The fit's loss: the squared error of the predicted disturbance (``[N, 3]``, world frame),
+    summed over the axes and averaged over the drones, in (m/s²)²."""
+    return (pred_mps2 - true_mps2).pow(2).sum(-1).mean()
+
+
 def train_rma(cfg: DictConfig, run_dir: Path, console=None) -> dict:
     """``fit_rma.py base_checkpoint=<policy>``: fit an adapter for a frozen policy."""
     rma = structured(RmaParams, cfg.rma, "rma")
@@ -66,7 +72,7 @@ def train_rma(cfg: DictConfig, run_dir: Path, console=None) -> dict:
         step, td = env.step_and_maybe_reset(td)
         net.train()
         pred = net(adapter.history.float())
-        loss = (pred - env.disturbance.current_mps2.float()).pow(2).sum(-1).mean()
+        loss = adapter_loss(pred, env.disturbance.current_mps2.float())
         optim.zero_grad(set_to_none=True)
         loss.backward()
         optim.step()
@@ -76,6 +82,7 @@ def train_rma(cfg: DictConfig, run_dir: Path, console=None) -> dict:
             row = {
                 "iteration": it,
                 "loss": loss.item(),
+                "lr": optim.param_groups[0]["lr"],  # for the next step
                 "tracking_error_m": step["next", "tracking_error_m"].mean().item(),
             }
             history.append(row)
