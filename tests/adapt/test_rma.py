@@ -1,3 +1,5 @@
+import csv
+
 import pytest
 import torch
 from omegaconf import OmegaConf
@@ -220,6 +222,16 @@ def test_the_fit_runs_its_iterations_once_each_with_the_lr_decayed_linearly(tmp_
     lr is ``lr * (1 - (1 - lr_final_frac) * k / iterations)``, ending at ``lr * lr_final_frac``."""
     cfg = tiny_rma_cfg(tiny_policy_checkpoint, "rma.iterations=4", "rma.log_every=1", "rma.lr=1e-3")
     OmegaConf.update(cfg, "rma.lr_final_frac", 0.1)
-    rows = train_rma(cfg, tmp_path)["history"]
+    printed = []
+    console = type("Console", (), {"print": lambda self, text: printed.append(text)})()
+    rows = train_rma(cfg, tmp_path, console)["history"]
     assert [r["iteration"] for r in rows] == [1, 2, 3, 4]
     assert [r["lr"] for r in rows] == pytest.approx([1e-3 * (1 - 0.9 * k / 4) for k in (1, 2, 3, 4)])
+    with open(tmp_path / "rma_metrics.csv", newline="") as f:
+        assert [int(r["step"]) for r in csv.DictReader(f)] == [1, 2, 3, 4]  # the iteration
+    assert printed == [
+        f"rma {r['iteration']}/4: loss {r['loss']:.4f} (m/s²)², error {r['tracking_error_m']:.3f} m" for r in rows
+    ]
+    saved = torch.load(tmp_path / "rma.pt", weights_only=True)
+    policy = torch.load(tiny_policy_checkpoint, weights_only=True)
+    assert saved["base_checkpoint"] == str(tiny_policy_checkpoint) and saved["frames"] == policy["frames"]
