@@ -125,3 +125,33 @@ def test_datt_frozen_path_equals_observation_plus_network(
     expected = plain.act(env, td)
     torch.testing.assert_close(frozen.act(env, td), expected, rtol=1e-4, atol=1e-4)
     assert (expected - expected[:1]).abs().max() > 1e-2  # the drones' states really differ
+
+
+def test_one_frozen_controller_serves_envs_of_other_sizes_and_observation_settings():
+    """The traced graph is kept per input shape and observation setting: the same frozen
+    controller, flown on 3 drones, then 5, then 5 in the world frame, acts as the plain path on each."""
+    from datt.control import DattController
+    from datt.envs.tracking import action_bounds
+    from datt.policies.networks import PolicyParams, make_actor
+    from datt.sim.frames import quat_from_euler
+
+    def env_of(n, body_frame):
+        env = make_env(compose("eval", ["horizon=7", f"env.obs.body_frame={body_frame}"]), num_envs=n, seed=n)
+        env.reset()
+        g = torch.Generator().manual_seed(n)
+        env.sim.state.quat.copy_(quat_from_euler(*(0.6 * torch.randn(3, n, generator=g))))
+        env.sim.state.vel_mps.copy_(torch.randn(n, 3, generator=g))
+        return env
+
+    first = env_of(3, True)
+    actor = make_actor(7, *action_bounds(first.params), PolicyParams(), first.state_dim)
+    gen = torch.Generator().manual_seed(1)
+    with torch.no_grad():
+        for param in actor.parameters():
+            param.copy_(0.2 * torch.randn(param.shape, generator=gen))
+    frozen = DattController(actor, frozen=True)
+    for env in (first, env_of(5, True), env_of(5, False)):
+        plain = DattController(actor, frozen=False)
+        plain.reset(env), frozen.reset(env)
+        td = env.observe()
+        torch.testing.assert_close(frozen.act(env, td), plain.act(env, td), rtol=1e-4, atol=1e-4)
