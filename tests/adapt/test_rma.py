@@ -1,4 +1,5 @@
 import csv
+import time
 
 import pytest
 import torch
@@ -224,7 +225,10 @@ def test_the_fit_runs_its_iterations_once_each_with_the_lr_decayed_linearly(tmp_
     OmegaConf.update(cfg, "rma.lr_final_frac", 0.1)
     printed = []
     console = type("Console", (), {"print": lambda self, text: printed.append(text)})()
-    rows = train_rma(cfg, tmp_path, console)["history"]
+    start = time.perf_counter()
+    result = train_rma(cfg, tmp_path, console)
+    rows = result["history"]
+    assert 0 < result["wall_s"] <= time.perf_counter() - start
     assert [r["iteration"] for r in rows] == [1, 2, 3, 4]
     assert [r["lr"] for r in rows] == pytest.approx([1e-3 * (1 - 0.9 * k / 4) for k in (1, 2, 3, 4)])
     with open(tmp_path / "rma_metrics.csv", newline="") as f:
@@ -235,3 +239,4 @@ def test_the_fit_runs_its_iterations_once_each_with_the_lr_decayed_linearly(tmp_
     saved = torch.load(tmp_path / "rma.pt", weights_only=True)
     policy = torch.load(tiny_policy_checkpoint, weights_only=True)
     assert saved["base_checkpoint"] == str(tiny_policy_checkpoint) and saved["frames"] == policy["frames"]
+    assert OmegaConf.to_container(OmegaConf.create(saved["config_yaml"])) == OmegaConf.to_container(cfg, resolve=True)
