@@ -58,8 +58,17 @@ def test_nominal_flight_tracks_and_lands(tmp_path, monkeypatch):
     calls = []  # (what, the flight's phase then); gc.get_freeze_count() itself walks the frozen heap
 
     def watch(server, runner):
+        def recorded(name):
+            real = getattr(gc, name)
+
+            def call():
+                calls.append((name, runner.phase))
+                real()
+
+            return call
+
         for name in ("freeze", "unfreeze"):
-            monkeypatch.setattr(gc, name, lambda f=getattr(gc, name), n=name: (calls.append((n, runner.phase)), f())[1])
+            monkeypatch.setattr(gc, name, recorded(name))
 
     summary, server = fly(tmp_path, hook=watch)
     assert summary["outcome"] == "landed"

@@ -40,57 +40,59 @@ def records(path: Path):
             pending = b""
 
 
+def run_records(run_dir: Path, *kinds: str):
+    """The Records of the given kinds (``run``, ``summary``, ``history``, ...) in every ``.wandb``
+    file under ``run_dir/wandb``, in order (a resumed run appends a second file)."""
+    for path in sorted(Path(run_dir).glob("wandb/*run-*/run-*.wandb")):
+        for rec in records(path):
+            if rec.WhichOneof("record_type") in kinds:
+                yield rec
+
+
+def _key(item) -> str:
+    return item.key or "/".join(item.nested_key)
+
+
 def summary_and_history(run_dir: Path) -> tuple[dict, set[str], list[str]]:
     """(the run's final summary, the keys ever logged to its history, its run ids) over every
-    ``.wandb`` file under ``run_dir/wandb`` (a resumed run appends a second file)."""
+    ``.wandb`` file under ``run_dir/wandb``."""
     summary: dict = {}
     history: set[str] = set()
     ids: list[str] = []
-    for path in sorted(Path(run_dir).glob("wandb/*run-*/run-*.wandb")):
-        for rec in records(path):
-            kind = rec.WhichOneof("record_type")
-            if kind == "run":
-                ids.append(rec.run.run_id)
-            elif kind == "summary":
-                for item in rec.summary.update:
-                    summary[item.key or "/".join(item.nested_key)] = json.loads(item.value_json)
-            elif kind == "history":
-                for item in rec.history.item:
-                    history.add(item.key or "/".join(item.nested_key))
+    for rec in run_records(run_dir, "run", "summary", "history"):
+        kind = rec.WhichOneof("record_type")
+        if kind == "run":
+            ids.append(rec.run.run_id)
+        elif kind == "summary":
+            summary.update({_key(item): json.loads(item.value_json) for item in rec.summary.update})
+        else:
+            history.update(_key(item) for item in rec.history.item)
     return summary, history, ids
 
 
 def run_info(run_dir: Path) -> list[dict]:
-    """Each wandb run record under ``run_dir/wandb``: its id, group, job type and config."""
-    out = []
-    for path in sorted(Path(run_dir).glob("wandb/*run-*/run-*.wandb")):
-        for rec in records(path):
-            if rec.WhichOneof("record_type") == "run":
-                config = {item.key: json.loads(item.value_json) for item in rec.run.config.update}
-                out.append(
-                    {
-                        "id": rec.run.run_id,
-                        "group": rec.run.run_group,
-                        "job_type": rec.run.job_type,
-                        "project": rec.run.project,
-                        "name": rec.run.display_name,
-                        "tags": list(rec.run.tags),
-                        "config": config,
-                    }
-                )
-    return out
+    """Each wandb run record under ``run_dir/wandb``: its id, group, job type, project, name, tags
+    and config."""
+    return [
+        {
+            "id": rec.run.run_id,
+            "group": rec.run.run_group,
+            "job_type": rec.run.job_type,
+            "project": rec.run.project,
+            "name": rec.run.display_name,
+            "tags": list(rec.run.tags),
+            "config": {item.key: json.loads(item.value_json) for item in rec.run.config.update},
+        }
+        for rec in run_records(run_dir, "run")
+    ]
 
 
 def history_rows(run_dir: Path) -> list[dict]:
     """Every history row (``_step`` and the logged values) of the runs under ``run_dir/wandb``."""
     rows = []
-    for path in sorted(Path(run_dir).glob("wandb/*run-*/run-*.wandb")):
-        for rec in records(path):
-            if rec.WhichOneof("record_type") == "history":
-                row = {
-                    (item.key or "/".join(item.nested_key)): json.loads(item.value_json) for item in rec.history.item
-                }
-                if rec.history.HasField("step"):
-                    row.setdefault("_step", rec.history.step.num)
-                rows.append(row)
+    for rec in run_records(run_dir, "history"):
+        row = {_key(item): json.loads(item.value_json) for item in rec.history.item}
+        if rec.history.HasField("step"):
+            row.setdefault("_step", rec.history.step.num)
+        rows.append(row)
     return rows

@@ -82,10 +82,10 @@ def _run_level(config_name: str, cfg: DictConfig) -> None:
 
 
 def _stages(cfg: DictConfig) -> None:
-    if OmegaConf.select(cfg, "train.stages", default=None) is not None:
-        from datt.tasks.stages import stage_plan
+    from datt.tasks.stages import in_stages, stage_plan
 
-        stage_plan(cfg)  # names, steps and the keys each stage sets
+    if in_stages(cfg):
+        stage_plan(cfg)  # names, frames and the keys each stage sets
 
 
 def _fixed_estimator(cfg: DictConfig) -> None:
