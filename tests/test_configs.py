@@ -5,7 +5,7 @@ library's dataclass defaults agree with the YAML (the only place a default lives
 from __future__ import annotations
 
 import re
-from dataclasses import asdict
+from dataclasses import asdict, fields
 
 import pytest
 from hydra.utils import instantiate
@@ -18,7 +18,7 @@ from datt.envs.factory import env_params_from_cfg
 from datt.envs.params import EnvParams
 from datt.eval import tables
 from datt.eval.rollout import build_bank
-from datt.eval.schema import AdapterEvalParams, EndOfRunEvalParams, EvalParams
+from datt.eval.schema import AdapterEvalParams, EndOfRunEvalParams, EvalParams, SharedEvalParams
 from datt.policies.networks import PolicyParams
 from datt.tasks.tables import TablesParams
 from datt.train.ppo import AlgoParams
@@ -41,6 +41,8 @@ def _compose(group: str, option: str, tmp_path):
     overrides = [f"{group}={option}"]
     if group == "bank":
         overrides = [f"bank@eval.bank={option}"]
+    if group == "evaluation":
+        overrides = [f"evaluation@eval={option}"]
     if (group, option) == ("traj", "csv"):
         csv = tmp_path / "ref.csv"
         csv.write_text("t,x,y,z\n0,0,0,0\n1,1,0,0\n")
@@ -72,6 +74,8 @@ def test_every_option_composes_and_instantiates(group, option, tmp_path):
         node = (
             cfg.eval.bank
             if group == "bank"
+            else cfg.eval
+            if group == "evaluation"
             else cfg
             if group in ("sweep", "ablation", "experiment", "randomization")
             else cfg[group]
@@ -96,7 +100,7 @@ def test_every_option_composes_and_instantiates(group, option, tmp_path):
         structured(AdapterEvalParams, cfg.eval, "eval")
     if "deploy" in cfg:
         deploy_params(cfg.deploy)
-    if "eval" in cfg and "seeds" in cfg.eval:
+    if "eval" in cfg and "timing" in cfg.eval:  # eval.py's node
         structured(EvalParams, cfg.eval, "eval")
     if group == "bank":
         names, counts, _ = build_bank(cfg.eval.bank)
@@ -205,8 +209,17 @@ def test_python_defaults_are_the_config_defaults(group):
         ("train.total_steps=1000", "use train.total_frames (the same number: frames"),
         ("curriculum.fixed_ref_steps=0", "use curriculum.fixed_ref_frames (the same number: frames)"),
         ("train.phases=null", "use train.stages (the same list: a training schedule in stages)"),
+        ("eval.seed=1", "use eval.seeds (a list, as in eval.py: eval.seeds=[0] or [0,1,2])"),
     ],
-    ids=["env.num_envs", "train.threads", "stage", "train.total_steps", "curriculum.fixed_ref_steps", "train.phases"],
+    ids=[
+        "env.num_envs",
+        "train.threads",
+        "stage",
+        "train.total_steps",
+        "curriculum.fixed_ref_steps",
+        "train.phases",
+        "eval.seed",
+    ],
 )
 def test_a_retired_key_on_the_command_line_is_one_line_naming_its_replacement(override, replacement):
     from datt.cli import preflight
@@ -245,5 +258,26 @@ def test_a_saved_config_with_retired_keys_is_read_in_todays_keys():
         "train": {"stages": [{"name": "a", "set": {}, "frames": 2048}], "total_frames": 2048},
         "curriculum": {"fixed_ref_frames": 1024},
     }
+    # the end-of-run evaluation's one seed, now a list as in every job's eval node
+    seeded = {"eval": {"seed": 3, "plots": True}}
+    upgraded = OmegaConf.to_container(upgrade_saved_config(OmegaConf.create(seeded)))
+    assert upgraded == {"eval": {"plots": True, "seeds": [3]}}
     rma_run = {"rma": {"num_envs": 1024}, "base_checkpoint": "p.pt"}  # an RMA fit's own config keeps them
     assert OmegaConf.to_container(upgrade_saved_config(OmegaConf.create(rma_run))) == rma_run
+
+
+SHARED_EVAL_KEYS = ("protocol", "seeds", "plots")
+
+
+@pytest.mark.parametrize("job", ["train", "eval", "fit_rma"])
+def test_the_shared_eval_keys_have_one_home(job):
+    """protocol, seeds and plots come from conf/evaluation/common.yaml in every job: none of the
+    job files sets them, and a job's eval node holds exactly the shared schema's keys plus its own."""
+    own = OmegaConf.load(conf_dir() / f"{job}.yaml").get("eval") or {}
+    assert not set(own) & set(SHARED_EVAL_KEYS), f"{job}.yaml sets a shared eval key"
+    home = OmegaConf.load(conf_dir() / "evaluation" / "common.yaml")
+    cfg = compose(job)
+    assert {k: cfg.eval[k] for k in SHARED_EVAL_KEYS} == {k: home[k] for k in SHARED_EVAL_KEYS}
+    cls = {"train": EndOfRunEvalParams, "eval": EvalParams, "fit_rma": AdapterEvalParams}[job]
+    assert set(cfg.eval) == {f.name for f in fields(cls)}
+    assert {f.name for f in fields(SharedEvalParams)} == {*SHARED_EVAL_KEYS, "bank"}

@@ -4,7 +4,7 @@
 
 Loads the policy and its training config from the checkpoint, replaces the bank with today's
 ``conf/bank/default.yaml``, flies the run's ``eval.conditions`` and the hovering reference
-exactly as ``python train.py`` does at the end of a run (seed ``eval.seed``), and writes them
+exactly as ``python train.py`` does at the end of a run (the seeds ``eval.seeds``), and writes them
 into the metrics file: its training facts (frames, wall time, steps/s, horizon, seed) are kept,
 ``conditions`` and ``hover_reference`` replaced. For a checkpoint whose recorded numbers came
 from an older bank.
@@ -40,7 +40,7 @@ def main() -> None:
             OmegaConf.update(cfg, key, value, force_add=True)
     metrics = json.loads(args.metrics.read_text()) if args.metrics.exists() else {}
     with tempfile.TemporaryDirectory() as tmp:
-        metrics["conditions"], hover = evaluate_end_of_run(cfg, actor, Path(tmp), False, "", int(cfg.eval.seed))
+        metrics["conditions"], hover = evaluate_end_of_run(cfg, actor, Path(tmp), False, "", list(cfg.eval.seeds))
     metrics["hover_reference"] = hover
     write_json(args.metrics, metrics)
     for name, cond in {**metrics["conditions"], "hover": hover}.items():

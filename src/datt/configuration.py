@@ -13,7 +13,7 @@ import math
 import re
 import secrets
 import typing
-from collections.abc import Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field, fields, is_dataclass
 from importlib import resources
 from pathlib import Path
@@ -319,6 +319,7 @@ RETIRED_KEYS: dict[str, str] = {
     "curriculum.fixed_ref_steps": "curriculum.fixed_ref_frames (the same number: frames)",
     "train.phases": "train.stages (the same list: a training schedule in stages)",
     "stage": "python fit_rma.py base_checkpoint=<policy> to fit an RMA adapter (stage=rma); python train.py trains",
+    "eval.seed": "eval.seeds (a list, as in eval.py: eval.seeds=[0] or [0,1,2])",
 }
 # the retired keys whose value moves
 RENAMED_KEYS: dict[str, str] = {
@@ -326,7 +327,10 @@ RENAMED_KEYS: dict[str, str] = {
     "train.total_steps": "train.total_frames",
     "curriculum.fixed_ref_steps": "curriculum.fixed_ref_frames",
     "train.phases": "train.stages",
+    "eval.seed": "eval.seeds",
 }
+# a renamed key whose value changes shape as it moves
+RENAMED_VALUES: dict[str, Callable[[Any], Any]] = {"eval.seed": lambda seed: [seed]}
 # keys a saved training config may still hold from when train.py also fitted RMA adapters: dropped
 FIT_RMA_KEYS_IN_SAVED_TRAIN_CONFIGS = ("base_checkpoint", "rma")
 
@@ -355,7 +359,7 @@ def upgrade_saved_config(cfg: DictConfig) -> DictConfig:
             del parent[leaf]
             new = RENAMED_KEYS.get(key)
             if new is not None and OmegaConf.select(cfg, new, default="absent") == "absent":
-                OmegaConf.update(cfg, new, value, force_add=True)
+                OmegaConf.update(cfg, new, RENAMED_VALUES.get(key, lambda v: v)(value), force_add=True)
         if "train" in cfg:  # a training run's config
             for key in FIT_RMA_KEYS_IN_SAVED_TRAIN_CONFIGS:
                 cfg.pop(key, None)

@@ -4,6 +4,7 @@ results as a table, CSV and the per-step inference time."""
 from __future__ import annotations
 
 import csv
+from collections.abc import Sequence
 from pathlib import Path
 
 import torch
@@ -16,6 +17,7 @@ from datt.envs.factory import make_env
 from datt.eval.metrics import format_error
 from datt.eval.plots import plot_group_axes, plot_tracks
 from datt.eval.rollout import evaluate
+from datt.eval.schema import per_seed_name
 from datt.eval.timing import step_times_ms, summarize_ms
 
 
@@ -71,12 +73,18 @@ def evaluate_conditions(
     return results
 
 
-def evaluate_end_of_run(cfg: DictConfig, policy, run_dir: Path, plots: bool, tag: str, seed: int) -> tuple[dict, dict]:
-    """A training run's own evaluation: ``cfg.eval.conditions`` with ``policy``, and a hovering
-    drone on the same bank as the reference point. Returns ``(conditions, hover)``."""
-    conditions = evaluate_conditions(cfg, policy, cfg.eval.conditions, run_dir, plots, tag=tag, seed=seed)
+def evaluate_end_of_run(
+    cfg: DictConfig, policy, run_dir: Path, plots: bool, tag: str, seeds: Sequence[int]
+) -> tuple[dict, dict]:
+    """A training run's own evaluation: ``cfg.eval.conditions`` with ``policy`` at each of
+    ``seeds`` (names per :func:`~datt.eval.schema.per_seed_name`), and a hovering drone on the
+    first seed's bank as the reference point. Returns ``(conditions, hover)``."""
+    conditions = {}
+    for seed in seeds:
+        named = {per_seed_name(name, seed, seeds): cond for name, cond in cfg.eval.conditions.items()}
+        conditions.update(evaluate_conditions(cfg, policy, named, run_dir, plots, tag=tag, seed=int(seed)))
     clean = {"disturbance": "none", "adaptation": "none"}
-    hover = evaluate_conditions(cfg, None, {"hover": clean}, run_dir, False, "hover", seed=seed)["hover"]
+    hover = evaluate_conditions(cfg, None, {"hover": clean}, run_dir, False, "hover", seed=int(seeds[0]))["hover"]
     return conditions, hover
 
 

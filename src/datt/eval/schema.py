@@ -1,5 +1,6 @@
-"""Typed schemas of the evaluation config nodes (``eval`` in ``conf/eval.yaml`` and the end-of-run
-``eval`` of ``conf/train.yaml``). No defaults: the YAML is the only place a default lives."""
+"""Typed schemas of the evaluation config nodes: the ``eval`` node of ``eval.py``, ``train.py``'s
+end-of-run evaluation and ``fit_rma.py``, whose shared keys have one home
+(``conf/evaluation/common.yaml``). No defaults: the YAML is the only place a default lives."""
 
 from __future__ import annotations
 
@@ -65,46 +66,51 @@ class TimingParams:
 
 
 @dataclass
-class EvalParams:
-    """``eval`` of ``eval.py``: one controller over the seeded bank, per seed."""
+class SharedEvalParams:
+    """The ``eval`` keys every job shares (``conf/evaluation/common.yaml``): ``train.py``'s
+    end-of-run evaluation, ``eval.py`` and ``fit_rma.py`` fly the same bank the same way."""
 
     protocol: str = ranged(MISSING, Range(choices=tuple(PROTOCOLS)))
-    seeds: list[int] = ranged(MISSING, SEED)
+    seeds: list[int] = ranged(MISSING, SEED)  # the bank at each seed; one seed = condition names without a suffix
     plots: bool = MISSING
+    bank: Any = MISSING
+
+    def validate(self) -> None:
+        check_bank(self.bank, "eval.bank")
+
+
+@dataclass
+class EvalParams(SharedEvalParams):
+    """``eval`` of ``eval.py``: one controller over the seeded bank, per seed."""
+
     save_trace: bool = MISSING
     timing: TimingParams = field(default_factory=TimingParams)
-    bank: Any = MISSING
     traj_count: int = ranged(
         MISSING, Range(1, 100_000, integer=True)
     )  # references drawn when the command gives traj= (a bank of one group)
 
     def validate(self) -> None:
+        super().validate()
         self.timing.validate()
-        check_bank(self.bank, "eval.bank")
 
 
 @dataclass
-class AdapterEvalParams:
+class AdapterEvalParams(SharedEvalParams):
     """``eval`` of ``fit_rma.py``: the evaluation after the fit (its four d̂ sources are fixed)."""
 
-    protocol: str = ranged(MISSING, Range(choices=tuple(PROTOCOLS)))
-    seed: int = ranged(MISSING, SEED)
-    bank: Any = MISSING
-
-    def validate(self) -> None:
-        check_bank(self.bank, "eval.bank")
-
 
 @dataclass
-class EndOfRunEvalParams:
+class EndOfRunEvalParams(SharedEvalParams):
     """``eval`` of ``train.py``: conditions evaluated at the end of training."""
 
-    protocol: str = ranged(MISSING, Range(choices=tuple(PROTOCOLS)))
     conditions: Any = MISSING  # name -> {disturbance, adaptation} (null drops a condition)
-    seed: int = ranged(MISSING, SEED)
-    plots: bool = MISSING
-    bank: Any = MISSING
 
     def validate(self) -> None:
+        super().validate()
         check_conditions(self.conditions, "eval.conditions")
-        check_bank(self.bank, "eval.bank")
+
+
+def per_seed_name(name: str, seed: int, seeds: Sequence[int]) -> str:
+    """A condition's name in a job evaluated at ``seeds``: ``name`` alone for one seed (the
+    names tables.py and the wandb summary read), ``"<name> seed <k>"`` for several."""
+    return name if len(seeds) == 1 else f"{name} seed {seed}"

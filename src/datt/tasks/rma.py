@@ -9,10 +9,8 @@ from pathlib import Path
 from omegaconf import DictConfig, OmegaConf
 
 from datt.configuration import structured
-from datt.control.datt import DattController
-from datt.eval.conditions import print_metrics
-from datt.eval.rollout import evaluate
-from datt.eval.schema import AdapterEvalParams
+from datt.eval.conditions import evaluate_conditions, print_metrics
+from datt.eval.schema import AdapterEvalParams, per_seed_name
 from datt.policies.loading import load_actor
 from datt.tasks.common import console, hydra_run_dir, set_threads
 from datt.tasks.validation import validate_config
@@ -36,10 +34,14 @@ def run_rma(cfg: DictConfig, run_dir: Path) -> dict:
     actor, train_cfg, _ = load_actor(cfg.base_checkpoint, key="base_checkpoint")
     eval_cfg = OmegaConf.merge(train_cfg, {"eval": cfg.eval, "env": {"compile": False}})
     conditions = {}
-    rma = {"_target_": "datt.adapt.RmaAdaptation", "checkpoint": str(run_dir / "rma.pt")}
-    for name, adaptation in (("d_hat=0", "none"), ("l1", "l1"), ("rma", rma), ("privileged", "privileged")):
-        res = evaluate(eval_cfg, lambda env: DattController(actor), "brownian", adaptation, seed=end_eval.seed)
-        conditions[name] = {"disturbance": "brownian", "adaptation": name, "groups": res["groups"]}
+    rma = OmegaConf.create({"_target_": "datt.adapt.RmaAdaptation", "checkpoint": str(run_dir / "rma.pt")})
+    sources = {"d_hat=0": "none", "l1": "l1", "rma": rma, "privileged": "privileged"}
+    for seed in end_eval.seeds:
+        for source, adaptation in sources.items():
+            name = per_seed_name(source, seed, end_eval.seeds)
+            cond = {name: {"disturbance": "brownian", "adaptation": adaptation}}
+            res = evaluate_conditions(eval_cfg, actor, cond, run_dir, end_eval.plots, "rma", int(seed))
+            conditions[name] = {**res[name], "adaptation": source}
     print_metrics(console, "DATT under Brownian disturbance by adaptation", conditions)
     metrics = {"rma_train_wall_s": result["wall_s"], "rma_history": result["history"], "conditions": conditions}
     (run_dir / "metrics.json").write_text(json.dumps(metrics, indent=2) + "\n")

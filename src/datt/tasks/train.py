@@ -160,7 +160,7 @@ def _train_and_evaluate(cfg, run_dir: Path, trainer, run, train, end_eval) -> di
         plot_learning_curve(trainer.history, run_dir / "learning_curve.png")
     if train.eval_at_end:
         metrics["conditions"], hover = evaluate_end_of_run(
-            cfg, trainer.actor, run_dir, end_eval.plots, run_dir.name, end_eval.seed
+            cfg, trainer.actor, run_dir, end_eval.plots, run_dir.name, end_eval.seeds
         )
         metrics["hover_reference"] = hover
         print_metrics(console, f"evaluation ({run_dir.name})", {**metrics["conditions"], "hover (reference)": hover})
