@@ -191,3 +191,51 @@ def test_online_without_a_login_is_refused_in_one_line_before_wandb_starts(tmp_p
         WandbLogger(tmp_path, {}, mode="online")
     assert str(refused.value) == message
     assert not (tmp_path / "wandb").exists()  # refused before wandb made anything
+
+
+def test_a_wandb_run_records_the_project_group_tags_name_and_job_it_was_given(tmp_path):
+    pytest.importorskip("wandb")
+    from .wandb_record import run_info
+
+    run = WandbLogger(tmp_path, {"seed": 1}, project="proj-x", group="g/1", tags=["a", "b"], name="n1", job_type="eval")
+    run.close()
+    (info,) = run_info(tmp_path)
+    assert {k: info[k] for k in ("project", "group", "tags", "name", "job_type")} == {
+        "project": "proj-x",
+        "group": "g/1",
+        "tags": ["a", "b"],
+        "name": "n1",
+        "job_type": "eval",
+    }
+
+
+@pytest.mark.parametrize("run_id, resume", [("run-7", "allow"), (None, None)], ids=["with_id", "without_id"])
+def test_a_wandb_run_resumes_its_id_and_keeps_wandb_off_the_console_and_the_cpu(tmp_path, run_id, resume):
+    """A resumed training run logs into the run of its id (``resume="allow"``: the same id online
+    continues that run instead of failing as a duplicate); wandb's console capture (it would
+    interleave with the progress bar) and its system-metrics sampler (a thread per run) are off."""
+    pytest.importorskip("wandb")
+    run = WandbLogger(tmp_path, {}, run_id=run_id)
+    try:
+        settings = run.run.settings
+        assert settings.resume == resume and (run_id is None or run.run.id == run_id)
+        assert settings.console == "off" and settings.x_disable_stats is True
+    finally:
+        run.close()
+
+
+def test_online_with_an_api_key_and_no_netrc_login_goes_on_to_start_wandb(tmp_path, monkeypatch):
+    """``WANDB_API_KEY`` alone is a login: the run is not refused, wandb is asked to start (here it
+    cannot: no network in a test, which is the other one-line error)."""
+    wandb = pytest.importorskip("wandb")
+    monkeypatch.setenv("HOME", str(tmp_path))  # no ~/.netrc
+    monkeypatch.setenv("WANDB_API_KEY", "k" * 40)
+    monkeypatch.delenv("WANDB_BASE_URL", raising=False)
+
+    def offline_here(**kwargs):
+        raise wandb.errors.UsageError("no network in this test")
+
+    monkeypatch.setattr(wandb, "init", offline_here)
+    with pytest.raises(ConfigError) as failed:
+        WandbLogger(tmp_path, {}, mode="online")
+    assert str(failed.value) == "logger: wandb could not start the run (logger.mode=online: no network in this test)"

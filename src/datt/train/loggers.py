@@ -151,7 +151,7 @@ class WandbLogger(Logger):
                 settings=wandb.Settings(console="off", x_disable_stats=True),
             )
         except (wandb.errors.UsageError, wandb.errors.CommError) as exc:
-            raise ConfigError(f"logger: wandb could not start a {mode} run ({one_line(exc)})") from None
+            raise ConfigError(f"logger: wandb could not start the run (logger.mode={mode}: {one_line(exc)})") from None
 
     def log(self, metrics: Mapping[str, float], step: int) -> None:
         self.run.log({k: _plain(v) for k, v in metrics.items()}, step=step)
