@@ -37,6 +37,15 @@ def test_the_simulated_firmware_models_the_same_firmware():
         FACTS["setpoint_watchdog_level_ms"].value,
         FACTS["setpoint_watchdog_off_ms"].value,
     )
+    from datt.deploy.sim import stabilizer as st
+
+    assert st.ATTITUDE_RATE_HZ == FACTS["attitude_rate_hz"].value
+    assert (st.ARM_LENGTH_M, st.THRUST2TORQUE_M) == (FACTS["arm_length_m"].value, FACTS["thrust2torque_m"].value)
+    assert st.INERTIA_KGM2 == tuple(FACTS[f"inertia_{a}_kgm2"].value for a in "xyz")
+    terms = ("kp", "ki", "kd", "integration_limit")
+    assert st.RATE_PID_CF2 == tuple(
+        tuple(FACTS[f"pid_{axis}_rate_{t}"].value for t in terms) for axis in ("roll", "pitch", "yaw")
+    )
 
 
 CONTROLLER_H = """

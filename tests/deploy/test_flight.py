@@ -317,3 +317,12 @@ def test_calibration_measures_the_radio_latency(tmp_path):
 
     near, far = calibrate(0.005, tmp_path / "near"), calibrate(0.035, tmp_path / "far")
     assert 30.0 <= far - near <= 90.0, (near, far)
+
+
+def test_the_pid_flies_the_star_through_the_firmwares_rate_loop_and_motors(tmp_path):
+    """``deploy.server.rate_loop=firmware``: the vehicle's rate PIDs, mixing with the cap,
+    per-motor forces and rigid body carry a whole flight (takeoff, track, land) of the host's PID."""
+    summary, server = fly(tmp_path, ["deploy.server.rate_loop=firmware", "controller=pid"])
+    assert summary["outcome"] == "landed" and summary["track_steps"] == 150
+    assert summary["track_error_m"] < 0.4
+    assert server.stabilizer.motor_cmds == [0.0] * 4 and server.true_state()["pos_m"][2] < 0.1

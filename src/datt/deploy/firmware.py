@@ -38,6 +38,8 @@ _ESTIMATOR_H = "src/modules/interface/estimator/estimator.h"
 _SUPERVISOR_H = "src/modules/interface/crtp_supervisor.h"
 _SUPERVISOR_C = "src/modules/src/supervisor.c"
 _RPYT_C = "src/modules/src/crtp_commander_rpyt.c"
+_CF2_H = "src/platform/interface/platform_defaults_cf2.h"
+_LEE_C = "src/modules/src/controller/controller_lee.c"
 
 
 def _bit(condition: str) -> str:
@@ -96,6 +98,25 @@ FACTS: dict[str, Fact] = {
     "thrust_min_n": Fact(
         0.012817578393224994, "src/platform/interface/platform_defaults_cf2.h", "define", "THRUST_MIN"
     ),
+    # below the commander (the simulated vehicle's rate loop and body, datt.deploy.sim.stabilizer)
+    "attitude_rate_hz": Fact(
+        500, "src/modules/interface/stabilizer_types.h", "regex", r"#define ATTITUDE_RATE RATE_(\d+)_HZ"
+    ),
+    "arm_length_m": Fact(0.046, _CF2_H, "define", "ARM_LENGTH"),
+    "thrust2torque_m": Fact(0.0069928948992470565, _CF2_H, "define", "THRUST2TORQUE"),
+    **{
+        f"pid_{axis.lower()}_rate_{term.lower()}": Fact(value, _CF2_H, "define", f"PID_{axis}_RATE_{term}")
+        for axis, gains in (
+            ("ROLL", (250.0, 500.0, 2.5, 33.3)),
+            ("PITCH", (250.0, 500.0, 2.5, 33.3)),
+            ("YAW", (120.0, 16.7, 0.0, 166.7)),
+        )
+        for term, value in zip(("KP", "KI", "KD", "INTEGRATION_LIMIT"), gains)
+    },
+    **{
+        f"inertia_{axis}_kgm2": Fact(value, _LEE_C, "regex", r"\.J = \{" + r"[-+.\de]+, " * i + r"([-+.\de]+)")
+        for i, (axis, value) in enumerate(zip("xyz", (16.571710e-6, 16.655602e-6, 29.261652e-6)))
+    },
 }
 
 

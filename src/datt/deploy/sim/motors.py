@@ -58,6 +58,12 @@ class FirmwareMotors:
         available = self.fit_force_n(battery_v)  # PWM ratio capped at 1
         return self.p.thrust_gain * min(asked, available)
 
+    def command_for_mps2(self, thrust_mps2: float) -> int:
+        """The command that asks the firmware's map for ``thrust_mps2`` from all four motors on this
+        vehicle's mass (what a height controller on the vehicle would send)."""
+        per_motor_n = max(0.0, thrust_mps2) * self.p.mass_kg / 4.0
+        return int(min(UINT16_MAX, per_motor_n / self.p.thrust_max_n * UINT16_MAX))
+
     def thrust_mps2(self, command: int, battery_v: float) -> float:
         """Collective mass-normalised thrust with all four motors at ``command``."""
         return 4.0 * self.motor_force_n(command, battery_v) / self.p.mass_kg

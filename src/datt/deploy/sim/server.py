@@ -22,7 +22,11 @@ Firmware behaviour that matters for safety is emulated:
   motors (:mod:`datt.deploy.sim.motors`), never the controller's map;
 * **yaw**: the legacy commander's yaw rate is integrated into a yaw-angle setpoint and the
   attitude PID (``controller_pid.c``: kp 6, ki 1 per second) turns the error into the yaw rate
-  flown, so yaw lags the command (roll and pitch rates are flown as sent);
+  flown, so yaw lags the command;
+* **below the commander** (``rate_loop``): ``training_model`` flies the rate setpoint through the
+  training simulator's rate model (:mod:`datt.sim`); ``firmware`` through the firmware's rate PIDs,
+  motor mixing with its cap, per-motor forces and a rigid body (:mod:`datt.deploy.sim.stabilizer`),
+  where a hard rate demand near full thrust takes its torque from the collective;
 * **radio**: every packet is delayed by ``radio_latency_s`` each way, and setpoints, mocap and
   log data are lost with probability ``radio_loss`` (the radio's own retries make other losses
   rare; cflib resends requests that expect a reply);
@@ -67,6 +71,7 @@ from datt.deploy import crtp
 from datt.deploy.onboard import READ_ONLY as APP_READ_ONLY
 from datt.deploy.sim.motors import FirmwareMotors, MotorParams
 from datt.deploy.sim.onboard_app import OnboardApp
+from datt.deploy.sim.stabilizer import Stabilizer
 from datt.deploy.thrust import ThrustMap
 from datt.errors import ConfigError
 from datt.sim.frames import quat_body_z, quat_exp_rotvec, quat_mul
@@ -111,6 +116,7 @@ COMPLEMENTARY, KALMAN = 1, 2
 # the host's table: a host that types an id this firmware does not mean flies the wrong controller
 # here too. OutOfTree exists only in a build with CONFIG_CONTROLLER_OOT (the DATT app's).
 CONTROLLERS = ("AutoSelect", "PID", "Mellinger", "INDI", "Brescianini", "Lee", "OutOfTree")
+RATE_LOOPS = ("firmware", "training_model")
 RATE_CONTROLLERS = ("PID", "INDI", "OutOfTree")  # fly roll/pitch-rate setpoints (OutOfTree: the PID)
 ATTITUDE_KP = 8.0  # the attitude-holding controllers' levelling gain (rad/s per rad), as the watchdog's
 APP_CHANNEL_QUEUE = 10  # app_channel.c: xQueueCreate(10, sizeof(CRTPPacket)); a full queue drops
@@ -135,6 +141,31 @@ def _yaw_rotated(q: list[float], angle_rad: float) -> list[float]:
     c, s = math.cos(angle_rad / 2), math.sin(angle_rad / 2)
     w, x, y, z = q
     return [c * w - s * z, c * x - s * y, c * y + s * x, c * z + s * w]
+
+
+def _quat_turned(q: list[float], rate_radps: list[float], dt_s: float) -> list[float]:
+    """``q`` (w, x, y, z, body to world) after turning at the body rates for ``dt_s``: q ⊗ exp(w dt / 2)."""
+    wx, wy, wz = (r * dt_s for r in rate_radps)
+    angle = math.sqrt(wx * wx + wy * wy + wz * wz)
+    if angle < 1e-12:
+        return q
+    c, k = math.cos(angle / 2), math.sin(angle / 2) / angle
+    x, y, z = wx * k, wy * k, wz * k
+    w0, x0, y0, z0 = q
+    out = [
+        w0 * c - x0 * x - y0 * y - z0 * z,
+        w0 * x + x0 * c + y0 * z - z0 * y,
+        w0 * y - x0 * z + y0 * c + z0 * x,
+        w0 * z + x0 * y - y0 * x + z0 * c,
+    ]
+    n = math.sqrt(sum(v * v for v in out))
+    return [v / n for v in out]
+
+
+def _body_z(q: list[float]) -> list[float]:
+    """The body z axis in the world frame for ``q`` (w, x, y, z)."""
+    w, x, y, z = q
+    return [2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y)]
 
 
 def _wrap(angle_rad: float) -> float:
@@ -192,6 +223,10 @@ class SimCrazyflieParams:
     )  # the estimate's roll/pitch/yaw error (first-order, 0.2 s correlation)
     boot_params: dict = field(default_factory=dict)  # parameter values at power-on ("group.name": value),
     # e.g. what an earlier flight left: parameters persist until a reboot
+    rate_loop: str = ranged(
+        "training_model", Range(choices=RATE_LOOPS)
+    )  # firmware: rate PIDs, mixing, motors, rigid body (datt.deploy.sim.stabilizer); training_model: datt.sim's
+    motor_time_constant_s: float = ranged(0.03, Range(0.0, 1.0))  # each motor's spin-up (an estimate; 0: instant)
 
 
 def check_server_settings(node: dict, key: str = "deploy.server") -> None:
@@ -220,6 +255,7 @@ class SimCrazyflie:
     def __init__(self, params: SimCrazyflieParams | None = None, disturbance=None, quad: QuadrotorParams | None = None):
         self.p = params or SimCrazyflieParams()
         self.motors = FirmwareMotors(self.p.motors)
+        self.stabilizer = Stabilizer(self.motors, self.p.motor_time_constant_s)
         self.quad = Quadrotor(1, quad or QuadrotorParams(), dt_s=self.p.dt_s)
         self.quad.reset(pos_m=torch.tensor([list(self.p.start_pos_m)]))
         self.quad.state.thrust_mps2.zero_()
@@ -434,16 +470,20 @@ class SimCrazyflie:
             wx, wy, wz = self._level_rates()
         else:
             wz = self._yaw_rate(wz, command)
-        thrust = self.motors.thrust_mps2(command, self.battery_v) if self.armed else 0.0
+        command = command if self.armed else 0
         if command and self._holds_position():
             # althold / poshold / posSet: the legacy commander turns the setpoint into velocity
             # commands around the hover; the vehicle holds level where it is
             wx, wy, wz = self._level_rates()
-            thrust = 9.81 - 2.0 * float(self.quad.state.vel_mps[0, 2]) if self.armed else 0.0
+            command = self.motors.command_for_mps2(9.81 - 2.0 * float(self.quad.state.vel_mps[0, 2]))
         d = torch.zeros(1, 3)
         if self.disturbance is not None and self.motors_on:
             d = self.disturbance.current_mps2
-        self.quad.step(torch.tensor([[thrust, wx, wy, wz]]), d)
+        if self.p.rate_loop == "firmware":
+            self._fly_stabilizer(command, (wx, wy, wz), d[0].tolist())
+        else:
+            thrust = self.motors.thrust_mps2(command, self.battery_v)
+            self.quad.step(torch.tensor([[thrust, wx, wy, wz]]), d)
         if self.disturbance is not None:
             self.disturbance.update(self.quad.state)
         s = self.quad.state
@@ -463,6 +503,30 @@ class SimCrazyflie:
         else:  # dead reckoning until the next external measurement
             self.pos_error_m[0] += self.p.dead_reckoning_drift_mps * self.p.dt_s
         self.sim_time_s += self.p.dt_s
+
+    def _fly_stabilizer(self, command: int, rate_sp_radps: tuple, d_mps2: list[float]) -> None:
+        """One physics step of the vehicle below its commander (:mod:`datt.deploy.sim.stabilizer`):
+        its 2 ms ticks of rate loop, motors and rotation, each with a translational step."""
+        s = self.quad.state
+        pos, vel, q = s.pos_m[0].tolist(), s.vel_mps[0].tolist(), s.quat[0].tolist()
+        self.stabilizer.rate_radps = s.rate_radps[0].tolist()  # the ground (or a test) may have set it
+        mass = self.p.motors.mass_kg
+        force_n = 0.0
+        ticks = max(1, round(self.p.dt_s / self.stabilizer.tick_s))
+        h = self.p.dt_s / ticks
+        for _ in range(ticks):
+            force_n = self.stabilizer.tick(rate_sp_radps, command, self.battery_v)
+            q = _quat_turned(q, self.stabilizer.rate_radps, h)
+            z = _body_z(q)
+            acc = [z[i] * force_n / mass + d_mps2[i] for i in range(3)]
+            acc[2] -= 9.81
+            vel = [v + a * h for v, a in zip(vel, acc)]
+            pos = [p + v * h for p, v in zip(pos, vel)]
+        s.pos_m[0] = torch.tensor(pos)
+        s.vel_mps[0] = torch.tensor(vel)
+        s.quat[0] = torch.tensor(q)
+        s.rate_radps[0] = torch.tensor(self.stabilizer.rate_radps)
+        s.thrust_mps2[0] = force_n / mass
 
     def _apply_arming(self, wanted: bool) -> None:
         """The supervisor's arming transition: refused while locked, or always with
