@@ -95,12 +95,15 @@ def test_load_checks_and_restores_the_bookkeeping(tmp_path):
     fresh.load(tmp_path / "last.pt")
     assert fresh.history == [{"iteration": 1, "frames": 1024}] and fresh.train_wall_s == 12.5
     assert (fresh.frames, fresh.iteration) == (1024, 1)
-    # a checkpoint from before the history was kept: empty history, no wall time
+    # a checkpoint from before the history, lineage and adaptive lr were kept: empty history and
+    # lineage, no wall time, the configured lr
     old = load_checkpoint(tmp_path / "last.pt")
-    del old["history"], old["train_wall_s"]
+    del old["history"], old["train_wall_s"], old["lineage"], old["adaptive_lr"]
     save_checkpoint(tmp_path / "old.pt", {k: v for k, v in old.items() if k != "format"})
+    fresh.lineage, fresh.adaptive_lr = [{"run": "another"}], 123.0
     fresh.load(tmp_path / "old.pt")
     assert fresh.history == [] and fresh.train_wall_s == 0.0
+    assert fresh.lineage == [] and fresh.adaptive_lr == fresh.algo.lr
     with pytest.raises(ConfigError, match=r"^resume: file '.*nope.pt' not found$"):
         fresh.load(tmp_path / "nope.pt")
     other = Trainer(tiny_cfg("horizon=5"), tmp_path / "h5", CsvLogger(tmp_path))
