@@ -450,32 +450,7 @@ class SimCrazyflie:
             self.arm_request = None
         if self.app is not None:
             self._app_tick()
-        now = self.sim_time_s
-        wx, wy, wz, command = self.cmd
-        age = now - self.last_setpoint_t
-        if self.estop_watchdog_t is not None and now - self.estop_watchdog_t >= ESTOP_WATCHDOG_S and not self.locked:
-            self.emergency_stopped = True
-            self._event("emergency stop: no e-stop watchdog notification for 1 s")
-        if not self.locked and age > WATCHDOG_OFF_S and command:
-            self.watchdog_locked = True  # in flight: the supervisor locks
-            self._event("watchdog: no setpoint for 2 s, motors off, locked")
-        if self.locked or age > WATCHDOG_OFF_S:
-            command, wx, wy, wz = 0, 0.0, 0.0, 0.0
-            self.cmd = (0.0, 0.0, 0.0, 0)
-        elif age > WATCHDOG_LEVEL_S:
-            wx, wy, wz = self._level_rates()  # level the attitude at the last thrust, as the firmware's watchdog
-        elif self.controller not in RATE_CONTROLLERS:
-            # Mellinger, Brescianini, Lee: they fly the setpoint's attitude (level: the legacy
-            # commander's rate-mode packet carries none) and ignore the rates
-            wx, wy, wz = self._level_rates()
-        else:
-            wz = self._yaw_rate(wz, command)
-        command = command if self.armed else 0
-        if command and self._holds_position():
-            # althold / poshold / posSet: the legacy commander turns the setpoint into velocity
-            # commands around the hover; the vehicle holds level where it is
-            wx, wy, wz = self._level_rates()
-            command = self.motors.command_for_mps2(9.81 - 2.0 * float(self.quad.state.vel_mps[0, 2]))
+        command, (wx, wy, wz) = self._flown_setpoint()
         d = torch.zeros(1, 3)
         if self.disturbance is not None and self.motors_on:
             d = self.disturbance.current_mps2
@@ -503,6 +478,38 @@ class SimCrazyflie:
         else:  # dead reckoning until the next external measurement
             self.pos_error_m[0] += self.p.dead_reckoning_drift_mps * self.p.dt_s
         self.sim_time_s += self.p.dt_s
+
+    def _flown_setpoint(self) -> tuple[int, tuple[float, float, float]]:
+        """The thrust command and body rates the firmware flies this step: the watchdogs, the
+        e-stop watchdog, controllers that hold an attitude, yaw through the attitude PID, the
+        position-hold modes; nothing unless armed."""
+        now = self.sim_time_s
+        wx, wy, wz, command = self.cmd
+        age = now - self.last_setpoint_t
+        if self.estop_watchdog_t is not None and now - self.estop_watchdog_t >= ESTOP_WATCHDOG_S and not self.locked:
+            self.emergency_stopped = True
+            self._event("emergency stop: no e-stop watchdog notification for 1 s")
+        if not self.locked and age > WATCHDOG_OFF_S and command:
+            self.watchdog_locked = True  # in flight: the supervisor locks
+            self._event("watchdog: no setpoint for 2 s, motors off, locked")
+        if self.locked or age > WATCHDOG_OFF_S:
+            command, wx, wy, wz = 0, 0.0, 0.0, 0.0
+            self.cmd = (0.0, 0.0, 0.0, 0)
+        elif age > WATCHDOG_LEVEL_S:
+            wx, wy, wz = self._level_rates()  # level the attitude at the last thrust, as the firmware's watchdog
+        elif self.controller not in RATE_CONTROLLERS:
+            # Mellinger, Brescianini, Lee: they fly the setpoint's attitude (level: the legacy
+            # commander's rate-mode packet carries none) and ignore the rates
+            wx, wy, wz = self._level_rates()
+        else:
+            wz = self._yaw_rate(wz, command)
+        command = command if self.armed else 0
+        if command and self._holds_position():
+            # althold / poshold / posSet: the legacy commander turns the setpoint into velocity
+            # commands around the hover; the vehicle holds level where it is
+            wx, wy, wz = self._level_rates()
+            command = self.motors.command_for_mps2(9.81 - 2.0 * float(self.quad.state.vel_mps[0, 2]))
+        return command, (wx, wy, wz)
 
     def _fly_stabilizer(self, command: int, rate_sp_radps: tuple, d_mps2: list[float]) -> None:
         """One physics step of the vehicle below its commander (:mod:`datt.deploy.sim.stabilizer`):
