@@ -206,18 +206,19 @@ def test_bad_export_settings_are_one_line(overrides, message, tmp_path):
 
 def test_every_layout_branch_of_the_fixed_c_matches_torch(tmp_path_factory):
     """The other side of every layout switch of the fixed C (``c/datt_policy.c``): world frame,
-    no feedback, no command history, no d-hat input, H = 5 with a kernel of 5, the authors' L1 (raw
+    no feedback, no command history, no d-hat input, H = 5 with one conv layer of kernel 5, the authors' L1 (raw
     command: no latency queue, raw predictor feedback) and another prefix; actions against torch on
     random states, the L1 against the project's over a flight, and the embedded self-test."""
     from tests.conftest import train_tiny_policy
 
     run = tmp_path_factory.mktemp("variant")
-    overrides = ["horizon=5", "policy.kernel_size=5", "env.obs.body_frame=false", "env.obs.feedback=false"]
+    overrides = ["horizon=5", "policy.kernel_size=5", "policy.conv_layers=1"]
+    overrides += ["env.obs.body_frame=false", "env.obs.feedback=false"]
     checkpoint = train_tiny_policy(run, *overrides, "env.obs.action_history=0", "policy.use_d_hat=false")
     cfg = compose("export", [f"checkpoint={checkpoint}", "controller=datt_l1_paper"])
     spec, controller, merged = export_spec(cfg)
     assert (spec.body_frame, spec.feedback, spec.action_history, spec.use_d_hat) == (False, False, 0, False)
-    assert (spec.horizon, spec.convs[0][0].shape[2], spec.l1.latency_steps) == (5, 5, 0)
+    assert (spec.horizon, len(spec.convs), spec.convs[0][0].shape[2], spec.l1.latency_steps) == (5, 1, 5, 0)
     out = run / "c"
     write_c(spec, out, prefix="cf")
     assert "datt_" not in (out / "cf_policy.c").read_text().replace("datt.", "")

@@ -25,11 +25,6 @@ from datt.configuration import (
 )
 from datt.errors import ConfigError
 
-
-def _is_int(x: Any) -> bool:
-    return isinstance(x, int) and not isinstance(x, bool)
-
-
 FIXED_REF_MODES = ("steps", "whole_run")
 BUDGET = Range(0.0, 1000.0, low_open=True)  # a fraction (or multiple) of the configured steps
 
