@@ -5,12 +5,14 @@ Every fault must end with the motors stopped (or a controlled landing where safe
 the reason in the log and the flight log written.
 """
 
+import csv
 import gc
 import json
 import math
 import re
 import threading
 import time
+from collections import Counter
 
 import pytest
 
@@ -77,6 +79,10 @@ def test_nominal_flight_tracks_and_lands(tmp_path, monkeypatch):
     assert calls == [("freeze", "PREFLIGHT"), ("unfreeze", "LAND")] and gc.get_freeze_count() == 0
     assert summary["track_steps"] == 150 and summary["track_error_m"] < 0.15
     assert motors_stopped(server) and server.true_state()["pos_m"][2] < 0.1
+    with open(tmp_path / "flight.csv", newline="") as f:
+        phases = Counter(row["phase"] for row in csv.DictReader(f))
+    # takeoff_s + hover_s and land_s + 0.5 s at 50 Hz: the landing is flown, not a drop
+    assert (phases["TAKEOFF"], phases["TRACK"], phases["LAND"]) == (100, 150, 100)
     phases = [e["text"] for e in summary["events"] if e["kind"] == "phase"]
     assert phases == ["CONNECT", "PREFLIGHT", "ARM", "TAKEOFF", "TRACK", "LAND", "DISARM"]
     assert (tmp_path / "tracks_flight.png").is_file()
@@ -326,3 +332,25 @@ def test_the_pid_flies_the_star_through_the_firmwares_rate_loop_and_motors(tmp_p
     assert summary["outcome"] == "landed" and summary["track_steps"] == 150
     assert summary["track_error_m"] < 0.4
     assert server.stabilizer.motor_cmds == [0.0] * 4 and server.true_state()["pos_m"][2] < 0.1
+
+
+def test_the_preflight_checks_the_reference_up_to_the_last_tick_flown_and_no_further(tmp_path):
+    """A reference that leaves the fence exactly at t = 3.00 s: refused when the track lasts 3.00 s
+    (its last tick is that point), flown when it lasts 2.98 s."""
+    ref = tmp_path / "jump.csv"
+    ref.write_text("t,x,y,z\n0,0,0,0\n2.98,0,0,0\n3.0,3.0,0,0\n10,3.0,0,0\n")
+    traj = ["traj=csv", f"traj.path={ref}"]
+    (tmp_path / "a").mkdir()
+    (tmp_path / "b").mkdir()
+    refused, _ = fly(tmp_path / "a", [*traj, "deploy.flight.track_s=3.0"])
+    assert refused["outcome"] == (
+        "preflight failed: deploy.safety.geofence_max_m: the reference leaves the geofence at t=3.00 s "
+        "(x=3.00 m; fence -2.00..2.00 m)"
+    )
+    flown, _ = fly(tmp_path / "b", [*traj, "deploy.flight.track_s=2.98"])
+    assert flown["outcome"] == "landed" and flown["track_steps"] == 149
+
+
+def test_a_track_without_a_duration_flies_the_references_whole_episode(tmp_path):
+    summary, _ = fly(tmp_path, ["deploy.flight.track_s=null", "env.episode_steps=60"])
+    assert summary["outcome"] == "landed" and summary["track_steps"] == 60
