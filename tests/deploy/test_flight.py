@@ -241,14 +241,14 @@ def test_preflight_refuses_an_estimate_that_ignores_mocap(tmp_path):
     mocap: refused before arming, with the figure."""
 
     def deaf_filter(server, runner):
-        server.pos_error_m = [0.3, 0.0, 0.0]  # where it initialised
         server._measure = lambda pos, quat: None
 
-    summary, server = fly(tmp_path, hook=deaf_filter)
+    # the reset puts the estimate at the origin, 1 m from the vehicle; without drift it stays there
+    drift_free = ["deploy.server.dead_reckoning_drift_mps=0", "deploy.server.start_pos_m=[1.0,0.0,0.0]"]
+    summary, server = fly(tmp_path, drift_free, hook=deaf_filter)
     outcome = summary["outcome"]
     assert outcome.startswith("preflight failed: Kalman filter not settled after 3 s"), outcome
-    far = re.search(r"; onboard estimate (\d+) cm from mocap \(> 5 cm", outcome)
-    assert far and int(far.group(1)) >= 5 and not server.armed
+    assert "; onboard estimate 100 cm from mocap (> 5 cm;" in outcome and not server.armed
 
 
 def test_preflight_refuses_a_flat_battery(tmp_path):
