@@ -81,6 +81,8 @@ def test_nominal_flight_tracks_and_lands(tmp_path, monkeypatch):
     assert motors_stopped(server) and server.true_state()["pos_m"][2] < 0.1
     with open(tmp_path / "flight.csv", newline="") as f:
         phases = Counter(row["phase"] for row in csv.DictReader(f))
+    preflight = [(e["phase"], e["text"]) for e in summary["events"] if e["kind"] == "preflight ok"]
+    assert preflight == [("PREFLIGHT", "battery 4.10 V")]
     # takeoff_s + hover_s and land_s + 0.5 s at 50 Hz: the landing is flown, not a drop
     assert (phases["TAKEOFF"], phases["TRACK"], phases["LAND"]) == (100, 150, 100)
     phases = [e["text"] for e in summary["events"] if e["kind"] == "phase"]
@@ -355,3 +357,9 @@ def test_the_preflight_checks_the_reference_up_to_the_last_tick_flown_and_no_fur
 def test_a_track_without_a_duration_flies_the_references_whole_episode(tmp_path):
     summary, _ = fly(tmp_path, ["deploy.flight.track_s=null", "env.episode_steps=60"])
     assert summary["outcome"] == "landed" and summary["track_steps"] == 60
+
+
+def test_a_vehicle_outside_the_geofence_is_refused_before_arming(tmp_path):
+    summary, server = fly(tmp_path, ["deploy.server.start_pos_m=[2.5,0.0,0.0]"])
+    assert summary["outcome"].startswith("preflight failed: ") and not server.armed
+    assert "start position outside the geofence" in summary["outcome"].split("; ")
