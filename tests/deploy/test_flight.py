@@ -125,6 +125,9 @@ def test_reference_outside_the_geofence_is_refused_before_arming(tmp_path):
     # the star reaches 0.7 m from the hover point: a fence at x, y <= 0.3 m refuses the flight on the ground
     summary, server = fly(tmp_path, ["deploy.safety.geofence_max_m=[0.3,0.3,2.5]"])
     assert summary["outcome"].startswith("preflight failed: deploy.safety.geofence_max_m: the reference leaves")
+    # nothing tracked: no error figure (null in events.json, not NaN)
+    assert summary["track_steps"] == 0 and summary["track_error_m"] is None
+    assert json.loads((tmp_path / "events.json").read_text())["track_error_m"] is None
     phases = [e["text"] for e in summary["events"] if e["kind"] == "phase"]
     assert "ARM" not in phases and not server.armed
     assert motors_stopped(server) and server.true_state()["pos_m"][2] < 0.05
