@@ -154,3 +154,21 @@ def test_the_rate_loop_setting_is_checked():
         check_server_settings({"rate_loop": "pid"})
     with pytest.raises(ConfigError, match=r"^deploy\.server\.motor_time_constant_s: "):
         check_server_settings({"motor_time_constant_s": -0.1})
+
+
+@pytest.mark.parametrize("rate_loop", ["training_model", "firmware"])
+def test_a_position_hold_mode_holds_the_height_of_a_vehicle_with_weak_motors(rate_loop):
+    """``flightmode.althold`` (as an earlier flight may leave it): the vehicle's own height loop
+    stops a climb and holds, whatever its motors' gain against the firmware's map."""
+    motors = MotorParams(mass_kg=MASS_KG, thrust_gain=0.9)
+    server = SimCrazyflie(SimCrazyflieParams(rate_loop=rate_loop, motors=motors))
+    server.params["flightmode.althold"] = 1
+    server.armed = True
+    server.quad.state.pos_m[0, 2] = 1.0
+    server.quad.state.vel_mps[0, 2] = 0.5
+    for _ in range(150):  # 3 s
+        server.cmd = (0.0, 0.0, 0.0, 40000)
+        server.last_setpoint_t = server.sim_time_s
+        server._physics_step()
+    s = server.quad.state
+    assert float(s.vel_mps[0, 2]) == pytest.approx(0.0, abs=0.01) and 0.9 < float(s.pos_m[0, 2]) < 1.3

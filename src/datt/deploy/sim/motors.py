@@ -59,9 +59,10 @@ class FirmwareMotors:
         return self.p.thrust_gain * min(asked, available)
 
     def command_for_mps2(self, thrust_mps2: float) -> int:
-        """The command that asks the firmware's map for ``thrust_mps2`` from all four motors on this
-        vehicle's mass (what a height controller on the vehicle would send)."""
-        per_motor_n = max(0.0, thrust_mps2) * self.p.mass_kg / 4.0
+        """The command at which all four of this vehicle's motors give ``thrust_mps2`` on its mass:
+        what a height controller on the vehicle settles to (its integral finds the motors' true
+        gain, which the firmware's map does not know)."""
+        per_motor_n = max(0.0, thrust_mps2) * self.p.mass_kg / 4.0 / self.p.thrust_gain
         return int(min(UINT16_MAX, per_motor_n / self.p.thrust_max_n * UINT16_MAX))
 
     def thrust_mps2(self, command: int, battery_v: float) -> float:

@@ -103,14 +103,17 @@ class Stabilizer:
     def reset(self, rate_radps: list[float] | None = None) -> None:
         self.rate_radps = list(rate_radps or [0.0, 0.0, 0.0])
         self.forces_n = [0.0] * 4
+        self._reset_pids()
+
+    def _reset_pids(self) -> None:
+        """``controllerPidReinitialize``: integrals cleared, derivatives from the current rates."""
         for pid, w in zip(self.pids, self.rate_radps):
             pid.reset(math.degrees(w))
 
     def tick(self, rate_sp_radps: tuple[float, float, float], thrust_cmd: float, battery_v: float) -> float:
         """One 2 ms stabilizer tick; returns the collective rotor force (N) over it."""
         if thrust_cmd <= 0:  # controller_pid.c: thrust 0 zeroes the outputs and resets the loop
-            for pid, w in zip(self.pids, self.rate_radps):
-                pid.reset(math.degrees(w))
+            self._reset_pids()
             self.motor_cmds = [0.0] * 4
         else:
             roll, pitch, yaw = (
