@@ -9,7 +9,10 @@ call), next to the bare dynamics kernel, eager and ``torch.compile``-d, for two 
 
     python benchmarks/sim_throughput.py [--sizes 1024 4096 16384] [--steps 200] [--no-compile]
 
-Writes benchmarks/results/sim_throughput.json.
+    python benchmarks/sim_throughput.py --out sim_throughput_firmware traj=zigzag disturbance=brownian \
+        env.quad.rate_model=firmware
+
+Writes benchmarks/results/sim_throughput.json (``--out``).
 """
 
 from __future__ import annotations
@@ -86,6 +89,7 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=200)
     parser.add_argument("--no-compile", action="store_true")
     parser.add_argument("--actions", nargs="+", default=["hover", "random"], choices=["hover", "random"])
+    parser.add_argument("--out", default="sim_throughput", help="result name: benchmarks/results/<out>.json")
     parser.add_argument("overrides", nargs="*", default=["traj=zigzag", "disturbance=brownian"])
     args = parser.parse_args()
     rows = []
@@ -108,7 +112,7 @@ def main() -> None:
             f"{r['kernel_ms_per_batched_step']:.2f}",
         )
     Console().print(table)
-    path = write_result("sim_throughput", {"overrides": args.overrides, "steps": args.steps, "rows": rows})
+    path = write_result(args.out, {"overrides": args.overrides, "steps": args.steps, "rows": rows})
     print(f"wrote {path}")
 
 

@@ -8,9 +8,10 @@ flights of ``deploy.py`` (takeoff, the star, land; DATT + L1 as deployed) under 
 conditions: 40 ms radio round trip, motors 10 % weaker than the firmware's fit, the
 vehicle 10 % heavier than ``deploy.thrust.mass_kg``, 2 % of setpoint, mocap and log packets
 lost; in each mode of ``datt.tasks.transfer.MODES`` (off-board / onboard on the nominal map /
-onboard after a calibration flight under the same conditions). Reports per flight the outcome,
+onboard after a calibration flight under the same conditions); ``--rate-loop firmware`` flies
+the firmware's rate loop below the commander instead of the training model. Reports per flight the outcome,
 star error, its ratio to the eval error, tick jitter and per-tick compute, and writes
-``benchmarks/results/transfer.json``. Real time: ~20 s per flight; run it alone.
+``benchmarks/results/transfer.json`` (``--out``). Real time: ~20 s per flight; run it alone.
 """
 
 from __future__ import annotations
@@ -22,15 +23,26 @@ from pathlib import Path
 from _common import write_result
 
 from datt.paths import resolve_path
-from datt.tasks.transfer import CHECKPOINTS, CONDITIONS, MODES, calibrate, eval_star_error, fly
+from datt.tasks.transfer import CHECKPOINTS, CONDITIONS, EVAL_RATE_MODEL, MODES, calibrate, eval_star_error, fly
 
 
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--flights", type=int, default=3)
+    ap.add_argument("--out", default="transfer", help="result name: benchmarks/results/<out>.json")
     ap.add_argument("--checkpoints", nargs="+", default=CHECKPOINTS)
     ap.add_argument("--modes", nargs="+", default=list(MODES), choices=list(MODES))
+    ap.add_argument(
+        "--rate-loop",
+        default="training_model",
+        choices=list(EVAL_RATE_MODEL),
+        help="the simulated vehicle below its commander (deploy.server.rate_loop); firmware also "
+        "evaluates on the simulator's firmware rate model",
+    )
     args = ap.parse_args()
+    conditions = dict(CONDITIONS)
+    if args.rate_loop != "training_model":
+        conditions["deploy.server.rate_loop"] = args.rate_loop
     results = {}
     missing = [c for c in args.checkpoints if not resolve_path(c).exists()]
     for ckpt in missing:
@@ -38,18 +50,18 @@ def main() -> None:
     calibration = None
     with tempfile.TemporaryDirectory() as tmp:
         if any(MODES[m][1] for m in args.modes):  # one calibration flight serves every policy
-            calibration = calibrate(CONDITIONS, Path(tmp) / "calibration")
+            calibration = calibrate(conditions, Path(tmp) / "calibration")
             print(f"calibration flight: {' '.join(calibration)}")
         for k, ckpt in enumerate(c for c in args.checkpoints if c not in missing):
             base = Path(tmp) / f"policy{k}"
-            eval_err = eval_star_error(ckpt, base / "eval")
+            eval_err = eval_star_error(ckpt, base / "eval", args.rate_loop)
             results[ckpt] = {"eval_star_error_m": eval_err, "modes": {}}
             print(f"{ckpt}: eval.py star {eval_err:.3f} m")
             for mode in args.modes:
                 extra, calibrated = MODES[mode]
                 extra = extra + (calibration if calibrated else ())
                 flights = [
-                    fly(ckpt, CONDITIONS, base / f"{mode}{i}".replace(" ", "_"), seed=i, extra=extra)
+                    fly(ckpt, conditions, base / f"{mode}{i}".replace(" ", "_"), seed=i, extra=extra)
                     for i in range(args.flights)
                 ]
                 for f in flights:
@@ -65,7 +77,7 @@ def main() -> None:
                         f"    {f['outcome']}: star {shown}; jitter median {f['jitter_ms']['median']:.2f} ms, "
                         f"p99 {f['jitter_ms']['p99']:.2f} ms; compute median {f['compute_ms']['median']:.2f} ms"
                     )
-    path = write_result("transfer", {"conditions": CONDITIONS, "calibration": calibration, "policies": results})
+    path = write_result(args.out, {"conditions": conditions, "calibration": calibration, "policies": results})
     print(f"wrote {path}")
 
 

@@ -48,6 +48,20 @@ def test_the_simulated_firmware_models_the_same_firmware():
     )
 
 
+def test_the_training_sides_firmware_rate_model_is_the_same_firmware():
+    """``env.quad.rate_model: firmware`` keeps its own copy too (it is not the simulated vehicle's)."""
+    from datt.sim import firmware_rates as fr
+
+    assert fr.ATTITUDE_RATE_HZ == FACTS["attitude_rate_hz"].value
+    assert (fr.ARM_LENGTH_M, fr.THRUST2TORQUE_M) == (FACTS["arm_length_m"].value, FACTS["thrust2torque_m"].value)
+    assert (fr.THRUST_MAX_N, fr.THRUST_MIN_N) == (FACTS["thrust_max_n"].value, FACTS["thrust_min_n"].value)
+    assert fr.INERTIA_KGM2 == tuple(FACTS[f"inertia_{a}_kgm2"].value for a in "xyz")
+    terms = ("kp", "ki", "kd", "integration_limit")
+    assert fr.RATE_PID_GAINS == tuple(
+        tuple(FACTS[f"pid_{axis}_rate_{t}"].value for t in terms) for axis in ("roll", "pitch", "yaw")
+    )
+
+
 CONTROLLER_H = """
 typedef enum {
   ControllerTypeAutoSelect,

@@ -121,6 +121,23 @@ def test_geofence_breach(tmp_path):
     assert motors_stopped(server)
 
 
+def test_a_vehicle_that_sinks_to_the_floor_while_tracking_is_killed_not_landed(tmp_path):
+    """Half its motors' force gone 0.3 s into TRACK: it sinks to the floor, which the geofence's
+    floor (-0.1 m) never sees; the track floor KILLs it there instead of a "landed" flight."""
+
+    def weaken(server, runner):
+        def halve():
+            with server._lock:
+                server.motors.p.thrust_gain = 0.5
+
+        after(0.3, halve, runner)
+
+    summary, server = fly(tmp_path, ["controller=pid"], hook=weaken)
+    assert summary["outcome"].startswith("killed: on the floor while tracking (z "), summary["outcome"]
+    assert summary["outcome"].endswith(" m < track_floor_m 0.05 m)")
+    assert motors_stopped(server) and server.true_state()["pos_m"][2] < 0.05
+
+
 def test_reference_outside_the_geofence_is_refused_before_arming(tmp_path):
     # the star reaches 0.7 m from the hover point: a fence at x, y <= 0.3 m refuses the flight on the ground
     summary, server = fly(tmp_path, ["deploy.safety.geofence_max_m=[0.3,0.3,2.5]"])

@@ -143,6 +143,15 @@ def decide(**kw):
         ({"state": _state(vel=(5.0, 0.0, 0.0)), "mocap_age_s": 0.3}, ("LAND", "speed 5.0 m/s > 4.0 m/s")),
         ({"mocap_age_s": 0.3, "command": [50.0, 0.0, 0.0, 0.0]}, ("LAND", "mocap stale (300 ms > 100 ms)")),
         ({"command": [50.0, 0.0, 0.0, 0.0], "state": _state(vbat=3.1)}, ("LAND", "command out of range")),
+        # the floor: only while tracking (takeoff and landing start and end on it), KILL (it sank)
+        ({"state": _state(pos=(0.0, 0.0, 0.02)), "tracking": True},
+         ("KILL", "on the floor while tracking (z 0.02 m < track_floor_m 0.05 m)")),  # fmt: skip
+        ({"state": _state(pos=(0.0, 0.0, 0.05)), "tracking": True}, ("OK", "")),  # at the floor: still flying
+        ({"state": _state(pos=(0.0, 0.0, 0.02))}, ("OK", "")),  # not tracking
+        ({"state": _state(pos=(0.0, 0.0, 0.02)), "tracking": True, "params": safety.SafetyParams(track_floor_m=None)},
+         ("OK", "")),  # fmt: skip
+        ({"state": _state(pos=(0.0, 0.0, 0.02), vbat=2.9), "tracking": True},
+         ("KILL", "on the floor while tracking (z 0.02 m < track_floor_m 0.05 m)")),  # fmt: skip
     ],
 )
 def test_safety_decision_table(case, expect):
@@ -175,6 +184,8 @@ def test_safety_params_are_the_deploy_config_defaults():
         ({"battery_filter_s": 0.0}, None),  # 0 = no filter
         ({"battery_filter_s": 0.5}, None),
         ({"max_state_age_s": 0.0}, "deploy.safety.max_state_age_s: must be a finite number > 0, got 0.0"),
+        ({"track_floor_m": None}, None),
+        ({"track_floor_m": 0.0}, "deploy.safety.track_floor_m: must be a finite number > 0 or null, got 0.0"),
         # values that would disable a check (NaN compares false, inf never breached): refused
         ({"max_tilt_deg": math.nan}, "deploy.safety.max_tilt_deg: must be a finite number in (0, 180], got nan"),
         ({"max_tilt_deg": 181.0}, "deploy.safety.max_tilt_deg: must be a finite number in (0, 180], got 181.0"),

@@ -31,7 +31,13 @@ def test_shipped_policy_evaluates_to_its_recorded_numbers(tmp_path, monkeypatch)
 
 # Config keys added after the shipped checkpoints were trained -> the values that reproduce what
 # the code did before they existed.
-ADDED_SINCE: dict[str, tuple] = {"env.obs.timing": ("project",), "curriculum.fixed_ref": ("steps",)}
+ADDED_SINCE: dict[str, tuple] = {
+    "env.obs.timing": ("project",),
+    "curriculum.fixed_ref": ("steps",),
+    # the firmware rate model's vehicle: read only under env.quad.rate_model=firmware
+    "env.quad.vehicle_mass_kg": (0.034,),
+    "env.quad.motor_time_constant_s": (0.03,),
+}
 
 
 def drop_added_keys(trained: dict, expected: dict) -> None:
@@ -49,20 +55,30 @@ def drop_added_keys(trained: dict, expected: dict) -> None:
                 assert want.pop(name) in values, path
 
 
-def test_deploy_grade_checkpoint_is_the_output_of_experiment_deploy():
-    """``checkpoints/datt_h10_deploy.pt`` came from ``python train.py experiment=deploy`` as it is
+@pytest.mark.parametrize(
+    "experiment, checkpoint, parent",
+    [
+        ("deploy", "checkpoints/datt_h10_deploy.pt", "checkpoints/datt_h10_train_mix.pt"),
+        ("deploy_firmware", "checkpoints/datt_h10_firmware.pt", "checkpoints/datt_h10_deploy.pt"),
+    ],
+)
+def test_deploy_grade_checkpoint_is_the_output_of_its_experiment(experiment, checkpoint, parent):
+    """Each deploy-grade checkpoint came from ``python train.py experiment=<experiment>`` as it is
     configured now: its last stage's whole config (env, policy, algo, references, disturbance,
-    adaptation) is the one the experiment composes, and it starts from ``datt_h10_train_mix.pt``."""
+    adaptation) is the one the experiment composes, and it starts from ``parent``."""
     from omegaconf import OmegaConf
 
     from datt.checkpoint import load_checkpoint
     from datt.tasks.stages import stage_config, stage_plan
 
-    cfg = compose("train", ["experiment=deploy"])
-    assert cfg.train.init_from == "checkpoints/datt_h10_train_mix.pt"
-    plan = stage_plan(cfg)
-    expected = OmegaConf.to_container(stage_config(cfg, len(plan) - 1, plan, "previous/last.pt"), resolve=True)
-    data = load_checkpoint(resolve_path("checkpoints/datt_h10_deploy.pt"))
+    cfg = compose("train", [f"experiment={experiment}"])
+    assert cfg.train.init_from == parent
+    if cfg.train.stages is None:  # one run: its own config, its whole budget
+        plan, expected = [("", cfg.train.total_frames, {})], OmegaConf.to_container(cfg, resolve=True)
+    else:
+        plan = stage_plan(cfg)
+        expected = OmegaConf.to_container(stage_config(cfg, len(plan) - 1, plan, "previous/last.pt"), resolve=True)
+    data = load_checkpoint(resolve_path(checkpoint))
     trained = OmegaConf.to_container(upgrade_saved_config(OmegaConf.create(data["config_yaml"])), resolve=True)
     drop_added_keys(trained, expected)  # keys added after the checkpoint was trained
     for key in ("env", "policy", "algo", "traj", "disturbance", "adaptation", "horizon", "seed"):

@@ -204,7 +204,7 @@ REFUSED_PARAMS = [
     ({"latency_steps_max": True}, f"latency_steps_max: {LATENCY_RANGE} True"),
     (
         {"rate_model": "third_order"},
-        "rate_model: unknown value 'third_order'; allowed: first_order, second_order, mixed",
+        "rate_model: unknown value 'third_order'; allowed: first_order, second_order, mixed, firmware",
     ),
     ({"kw_rate": 0.0}, f"kw_rate: {IN_0_1} 0.0"),
     ({"kw_rate": 1.2}, f"kw_rate: {IN_0_1} 1.2"),

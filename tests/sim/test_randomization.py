@@ -136,7 +136,7 @@ def test_bad_randomisation_values_name_the_key(kwargs, key):
         Quadrotor(1, QuadrotorParams(**kwargs))
     assert "\n" not in str(info.value)
     if key == "rate_model":
-        assert "first_order, second_order, mixed" in str(info.value)
+        assert "first_order, second_order, mixed, firmware" in str(info.value)
 
 
 def test_a_wider_ring_without_drawn_delays_keeps_the_nominal_latency():

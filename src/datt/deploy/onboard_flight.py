@@ -238,6 +238,8 @@ class OnboardFlight(FlightRunner):
         KILL or LAND when the check says so (the app hands the commander back), else None."""
         dt = 1.0 / self.p.rate_hz
         state_for_check = dataclasses.replace(state, vbat_v=self.battery.update(state.vbat_v, dt))
+        last = self._app["last"]
+        phase = last[0] if last is not None else onboard.IDLE
         decision = check(
             self.safety,
             now_s=now,
@@ -246,6 +248,7 @@ class OnboardFlight(FlightRunner):
             estop=self.estop.is_set(),
             link_lost=False,
             mocap_age_s=self._mocap_age(),
+            tracking=phase == onboard.TRACK,
         )
         if decision.action == KILL:
             self._kill(decision.reason)
@@ -254,8 +257,6 @@ class OnboardFlight(FlightRunner):
             self._event("LAND", decision.reason)
             self.link.set_param("datt.run", 0)  # the app hands the commander back
             return LAND
-        last = self._app["last"]
-        phase = last[0] if last is not None else onboard.IDLE
         ref = np.array(last[2]) + origin if last is not None else np.full(3, np.nan)
         self.rows.append(
             {

@@ -553,6 +553,7 @@ class FlightRunner:
                 estop=self.estop.is_set(),
                 link_lost=self.link.link_lost.is_set(),
                 mocap_age_s=mocap_age,
+                tracking=self.phase == "TRACK",
             )
             ended = self._act_on(decision, jitter_ms, allow_land)
             if ended is not None:

@@ -4,7 +4,8 @@ Checked every control tick, in this order (the first KILL wins, then the first L
 
 KILL: operator e-stop; link lost; no state estimate or one older than ``kill_state_age_s``;
       non-finite state; outside the geofence by more than ``geofence_margin_m``; tilt above
-      ``max_tilt_deg``; non-finite command; battery below ``kill_battery_v``.
+      ``max_tilt_deg``; below ``track_floor_m`` while tracking (the vehicle sank to the floor:
+      a crash, not a flight to land); non-finite command; battery below ``kill_battery_v``.
 LAND: a state estimate older than ``max_state_age_s`` (a late log packet: land on the last
       estimate before giving up at ``kill_state_age_s``); outside the geofence box; speed above
       ``max_speed_mps``; external position (mocap) older than ``max_mocap_age_s`` while a mocap
@@ -22,7 +23,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from datt.configuration import FINITE, NON_NEGATIVE, POSITIVE, Range, check_ranges, ranged
+from datt.configuration import FINITE, NON_NEGATIVE, POSITIVE, POSITIVE_OR_NONE, Range, check_ranges, ranged
 
 OK, LAND, KILL = "OK", "LAND", "KILL"
 
@@ -43,6 +44,7 @@ class SafetyParams:
     max_rate_radps: list = ranged([20.0, 20.0, 2.0], POSITIVE)
     battery_filter_s: float = ranged(1.0, NON_NEGATIVE)  # time constant of the battery voltage low-pass
     max_estimate_mocap_m: float = ranged(0.05, POSITIVE)  # preflight: the onboard estimate must agree with mocap
+    track_floor_m: float | None = ranged(0.05, POSITIVE_OR_NONE)  # TRACK below this height: KILL (null: off)
 
     def validate(self) -> None:
         from datt.errors import ConfigError
@@ -75,11 +77,19 @@ def tilt_deg(quat) -> float:
 
 
 def check(
-    p: SafetyParams, *, now_s: float, state, command, estop: bool, link_lost: bool, mocap_age_s: float | None
+    p: SafetyParams,
+    *,
+    now_s: float,
+    state,
+    command,
+    estop: bool,
+    link_lost: bool,
+    mocap_age_s: float | None,
+    tracking: bool = False,
 ) -> Decision:
     """``state``: a :class:`~datt.deploy.link.StateSample` or None; ``command``: the action about
     to be sent ``[thrust_mps2, wx, wy, wz]`` (or None before one exists); ``mocap_age_s``: None
-    when no mocap source is configured."""
+    when no mocap source is configured; ``tracking``: the flight is in TRACK (the floor applies)."""
     if estop:
         return Decision(KILL, "operator e-stop")
     if link_lost:
@@ -99,6 +109,9 @@ def check(
     tilt = tilt_deg(state.quat)
     if tilt > p.max_tilt_deg:
         return Decision(KILL, f"tilt {tilt:.0f} deg > {p.max_tilt_deg:.0f} deg")
+    floor = p.track_floor_m
+    if tracking and floor is not None and state.pos_m[2] < floor:
+        return Decision(KILL, f"on the floor while tracking (z {state.pos_m[2]:.2f} m < track_floor_m {floor} m)")
     if command is not None and not all(math.isfinite(float(c)) for c in command):
         return Decision(KILL, "non-finite command")
     if state.vbat_v < p.kill_battery_v:

@@ -37,10 +37,11 @@ import torch
 from torch import Tensor
 
 from datt.configuration import FRACTION, POSITIVE, Range, check_ranges, ranged
+from datt.sim.firmware_rates import FirmwareRateLoop
 from datt.sim.frames import quat_body_z, quat_exp_rotvec, quat_mul, quat_normalize
 
 _DTYPES = {"float32": torch.float32, "float64": torch.float64}
-RATE_MODELS = ("first_order", "second_order", "mixed")
+RATE_MODELS = ("first_order", "second_order", "mixed", "firmware")
 LATENCY_STEPS = Range(0, 100, integer=True)  # whole control steps of command delay
 SPREAD = Range(0.0, 1.0, high_open=True)  # a relative half-width: U(1 - s, 1 + s) stays positive
 
@@ -68,7 +69,10 @@ class QuadrotorParams:
     ``U(1 − s, 1 + s)`` times nominal, so the thrust produced is ``gain / mass`` times the
     actuator's; ``latency_steps_max``: the latency is uniform on ``latency_steps..latency_steps_max``
     steps; ``rate_model``: ``first_order`` (paper, ``k_rate``), ``second_order`` (the authors'
-    model with ``kw_rate``, ``kt_rate``) or ``mixed`` (each drone draws one of the two).
+    model with ``kw_rate``, ``kt_rate``), ``mixed`` (each drone draws one of the two) or
+    ``firmware`` (a stock Crazyflie's rate PIDs, mixing, motors and rigid body at 500 Hz,
+    :mod:`datt.sim.firmware_rates`: ``vehicle_mass_kg`` and ``motor_time_constant_s`` are its
+    vehicle, and its motors' lag replaces ``k_thrust``, ``k_rate`` and ``max_rate_radps``).
     """
 
     gravity_mps2: float = ranged(9.81, POSITIVE)
@@ -84,6 +88,8 @@ class QuadrotorParams:
     rate_model: str = ranged("first_order", Range(choices=RATE_MODELS))
     kw_rate: float = ranged(0.4, FRACTION)
     kt_rate: float = ranged(0.6, FRACTION)
+    vehicle_mass_kg: float = ranged(0.034, Range(0.005, 5.0))
+    motor_time_constant_s: float = ranged(0.03, Range(0.0, 1.0))
 
     @property
     def max_latency_steps(self) -> int:
@@ -209,7 +215,15 @@ class Quadrotor:
         self.rate_torque: Tensor | None = None  # [N, 3] second-order model's rate increment per step
         if p.mass_spread or p.thrust_gain_spread:
             self.thrust_scale = torch.ones(n, **kw)
-        if p.rate_model != "first_order":
+        self.motor_gain: Tensor | None = None  # [N] firmware rate model: motor force / nominal
+        self.firmware: FirmwareRateLoop | None = None
+        if p.rate_model == "firmware":
+            self.firmware = FirmwareRateLoop(
+                n, self.dt_s, p.vehicle_mass_kg, p.motor_time_constant_s, self.initial_thrust, self.device, self.dtype
+            )
+            if self.thrust_scale is not None:
+                self.motor_gain = torch.ones(n, **kw)
+        elif p.rate_model != "first_order":
             self.second_order = torch.full((n,), p.rate_model == "second_order", device=self.device)
             self.rate_torque = torch.zeros(n, 3, **kw)
 
@@ -224,9 +238,13 @@ class Quadrotor:
         s.rate_radps[idx] = 0.0
         s.thrust_mps2[idx] = self.initial_thrust
         self.latency.reset(idx)
+        # a copy: with no latency the last applied command is the caller's own tensor
+        self.last_applied_cmd = self.last_applied_cmd.clone()
         self.last_applied_cmd[idx] = self.idle_cmd
         if self.rate_torque is not None:
             self.rate_torque[idx] = 0.0
+        if self.firmware is not None:
+            self.firmware.reset(idx, self.initial_thrust)
 
     def randomise(self, idx: Tensor, generator: torch.Generator) -> None:
         """Draw the domain-randomised parameters of drones ``idx`` (see :class:`QuadrotorParams`).
@@ -238,7 +256,10 @@ class Quadrotor:
             return 1.0 + s * (2.0 * torch.rand(k, dtype=self.dtype, **kw) - 1.0)
 
         if self.thrust_scale is not None:
-            self.thrust_scale[idx] = spread(p.thrust_gain_spread) / spread(p.mass_spread)
+            gain = spread(p.thrust_gain_spread)
+            self.thrust_scale[idx] = gain / spread(p.mass_spread)
+            if self.motor_gain is not None:
+                self.motor_gain[idx] = gain
         if p.max_latency_steps != p.latency_steps:
             self.latency.set_delay(idx, torch.randint(p.latency_steps, p.max_latency_steps + 1, (k,), **kw))
         if p.rate_model == "mixed":
@@ -256,6 +277,20 @@ class Quadrotor:
         if disturbance_mps2 is None:
             disturbance_mps2 = torch.zeros_like(self.state.pos_m)
         s = self.state
+        if self.firmware is not None:
+            s.pos_m, s.vel_mps, s.quat, s.rate_radps, s.thrust_mps2 = self.firmware.step(
+                s.pos_m,
+                s.vel_mps,
+                s.quat,
+                s.rate_radps,
+                applied,
+                disturbance_mps2,
+                self.gravity,
+                p.max_thrust_mps2,
+                self.motor_gain,
+                self.thrust_scale,
+            )
+            return s
         s.pos_m, s.vel_mps, s.quat, s.rate_radps, s.thrust_mps2, torque = self._integrate(
             s.pos_m,
             s.vel_mps,
@@ -285,6 +320,8 @@ class Quadrotor:
         from datt.compile import compile_or_eager
 
         self._integrate = compile_or_eager(integrate, **kwargs)
+        if self.firmware is not None:
+            self.firmware.compile(**kwargs)
         return self
 
 

@@ -37,19 +37,24 @@ MODES = {  # name -> (deploy overrides, calibrate first)
 _ports = itertools.count(19950)
 
 
-def eval_star_error(checkpoint: str, out: Path) -> float:
+# the simulated vehicle's rate loop -> the training simulator's rate model that evaluates the same loop
+EVAL_RATE_MODEL = {"training_model": "first_order", "firmware": "firmware"}
+
+
+def eval_star_error(checkpoint: str, out: Path, rate_loop: str = "training_model") -> float:
     """``eval.py``'s star error of the policy with L1 (the bank's star group: the reference
-    ``deploy.py`` flies), no disturbance, nominal simulator."""
-    cfg = compose(
-        "eval",
-        [
-            f"checkpoint={checkpoint}",
-            "controller=datt_l1",
-            "eval.plots=false",
-            "eval.save_trace=false",
-            "eval.timing.steps=0",
-        ],
-    )
+    ``deploy.py`` flies), no disturbance, nominal simulator; with ``rate_loop="firmware"`` on the
+    simulator's firmware rate model (the loop the flights then fly)."""
+    overrides = [
+        f"checkpoint={checkpoint}",
+        "controller=datt_l1",
+        "eval.plots=false",
+        "eval.save_trace=false",
+        "eval.timing.steps=0",
+    ]
+    if rate_loop != "training_model":
+        overrides += [f"env.quad.rate_model={EVAL_RATE_MODEL[rate_loop]}", "env.quad.max_thrust_mps2=12.92"]
+    cfg = compose("eval", overrides)
     metrics = run_eval(cfg, run_dir=out)
     (cond,) = metrics["conditions"].values()
     return float(cond["groups"]["star"]["mean_m"])
