@@ -144,14 +144,24 @@ def decide(**kw):
         ({"mocap_age_s": 0.3, "command": [50.0, 0.0, 0.0, 0.0]}, ("LAND", "mocap stale (300 ms > 100 ms)")),
         ({"command": [50.0, 0.0, 0.0, 0.0], "state": _state(vbat=3.1)}, ("LAND", "command out of range")),
         # the floor: only while tracking (takeoff and landing start and end on it), KILL (it sank)
-        ({"state": _state(pos=(0.0, 0.0, 0.02)), "tracking": True},
-         ("KILL", "on the floor while tracking (z 0.02 m < track_floor_m 0.05 m)")),  # fmt: skip
+        (
+            {"state": _state(pos=(0.0, 0.0, 0.02)), "tracking": True},
+            ("KILL", "on the floor while tracking (z 0.02 m < track_floor_m 0.05 m)"),
+        ),  # fmt: skip
         ({"state": _state(pos=(0.0, 0.0, 0.05)), "tracking": True}, ("OK", "")),  # at the floor: still flying
         ({"state": _state(pos=(0.0, 0.0, 0.02))}, ("OK", "")),  # not tracking
-        ({"state": _state(pos=(0.0, 0.0, 0.02)), "tracking": True, "params": safety.SafetyParams(track_floor_m=None)},
-         ("OK", "")),  # fmt: skip
-        ({"state": _state(pos=(0.0, 0.0, 0.02), vbat=2.9), "tracking": True},
-         ("KILL", "on the floor while tracking (z 0.02 m < track_floor_m 0.05 m)")),  # fmt: skip
+        (
+            {
+                "state": _state(pos=(0.0, 0.0, 0.02)),
+                "tracking": True,
+                "params": safety.SafetyParams(track_floor_m=None),
+            },
+            ("OK", ""),
+        ),  # fmt: skip
+        (
+            {"state": _state(pos=(0.0, 0.0, 0.02), vbat=2.9), "tracking": True},
+            ("KILL", "on the floor while tracking (z 0.02 m < track_floor_m 0.05 m)"),
+        ),  # fmt: skip
     ],
 )
 def test_safety_decision_table(case, expect):
