@@ -109,40 +109,16 @@ class FirmwareRateLoop:
         s.prev_rate_dps[idx] = 0.0
         s.forces_n[idx] = thrust_mps2 * self.mass_kg / 4.0
 
-    def step(
-        self,
-        pos: Tensor,
-        vel: Tensor,
-        quat: Tensor,
-        rate: Tensor,
-        applied: Tensor,
-        d: Tensor,
-        gravity: Tensor,
-        max_thrust: float,
-        motor_gain: Tensor | None,
-        thrust_scale: Tensor | None,
-    ) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor]:
-        """One control step of ``ticks`` stabilizer ticks. ``applied [N, 4]``: the command that
-        acts now (thrust m/s², body rates rad/s). Returns (pos, vel, quat, rate, thrust_mps2), the
-        thrust being the motors' collective force per unit mass, before the drone's gain/mass."""
+    def step(self, *inputs: Tensor | float | None) -> tuple[Tensor, ...]:
+        """One control step: :func:`run_ticks` on ``inputs`` (``pos`` to ``thrust_scale``, in its
+        order) and this loop's state, which it updates. Returns (pos, vel, quat, rate,
+        thrust_mps2), the thrust being the motors' collective force per unit mass before the
+        drone's gain/mass."""
         s = self.state
-        pos, vel, quat, rate, thrust, s.integral_degs, s.prev_rate_dps, s.forces_n = self._ticks(
-            self,
-            pos,
-            vel,
-            quat,
-            rate,
-            applied,
-            d,
-            gravity,
-            max_thrust,
-            motor_gain,
-            thrust_scale,
-            s.integral_degs,
-            s.prev_rate_dps,
-            s.forces_n,
+        *out, s.integral_degs, s.prev_rate_dps, s.forces_n = self._ticks(
+            self, *inputs, s.integral_degs, s.prev_rate_dps, s.forces_n
         )
-        return pos, vel, quat, rate, thrust
+        return tuple(out)
 
     def compile(self, **kwargs) -> None:
         """Use a ``torch.compile``-d tick loop."""
