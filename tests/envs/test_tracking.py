@@ -702,3 +702,38 @@ def test_set_seed_makes_resets_reproducible(make_tracking_env):
     a.reset()
     b.reset()
     assert torch.equal(a.ref_table, b.ref_table)
+
+
+def test_a_partial_reset_restarts_the_adaptation_of_the_reset_drones_only():
+    """L1 mid-episode under a Brownian disturbance: resetting drones 0 and 2 zeroes their estimate
+    and restarts their filter from the state they restart in; the other drones keep theirs."""
+    env = make_env(compose("sim", ["disturbance=brownian", "adaptation=l1"]), num_envs=4, seed=0)
+    td = env.reset()
+    for _ in range(30):
+        td["action"] = env.hover_action
+        _, td = env.step_and_maybe_reset(td)
+    l1 = env.adaptation
+    before = {k: getattr(l1, k).clone() for k in ("d_hat", "sigma_hat", "v_hat")}
+    assert before["d_hat"].abs().sum(-1).min() > 0  # every drone has an estimate to lose
+    td["_reset"] = torch.tensor([[True], [False], [True], [False]])
+    env.reset(td)
+    reset, kept = torch.tensor([0, 2]), torch.tensor([1, 3])
+    assert torch.equal(l1.d_hat[reset], torch.zeros(2, 3)) and torch.equal(l1.sigma_hat[reset], torch.zeros(2, 3))
+    assert torch.equal(l1.v_hat[reset], env.sim.state.vel_mps[reset])
+    for key, value in before.items():
+        assert torch.equal(getattr(l1, key)[kept], value[kept]), key
+
+
+def test_a_reset_starts_the_rma_history_from_the_state_the_drone_restarts_in():
+    """RMA's history after a reset reads as a hover where the drone restarts (unit quaternion,
+    hover thrust), not zeros: the env hands the adaptation the new state."""
+    from datt.adapt.rma import RmaAdaptation, RmaNet
+    from datt.envs import TrackingEnv
+    from datt.refs import Zigzag
+
+    env = TrackingEnv(3, Zigzag(), adaptation=RmaAdaptation(net=RmaNet(50)), seed=0)
+    td = env.reset()
+    td["_reset"] = torch.tensor([[False], [True], [False]])
+    env.reset(td)
+    history = env.adaptation.history[1]  # [L, 14]: vel, quat, rates, thrust - g, rates commanded
+    assert torch.equal(history[:, 3], torch.ones(50)) and history[:, [0, 1, 2, 4, 5, 6]].abs().max() == 0
