@@ -315,7 +315,10 @@ def test_05_eval_of_a_missing_csv_is_one_line(tmp_path, monkeypatch, capsys):
     [
         (["seed=1.5"], "error: seed: Value '1.5' of type 'float' could not be converted to Integer"),
         (["algo.lr_final_frac=-5"], "error: algo.lr_final_frac: must be a finite number in [0, 1], got -5.0"),
-        (["ablation=h5", "horizon=15"], "error: horizon: 15 contradicts ablation=h5 (which sets horizon=5)"),
+        (
+            ["ablation=h5", "horizon=15"],
+            "error: horizon: 15 contradicts ablation=h5 (which sets horizon=5); drop one of the two",
+        ),
         (
             ["ablation=no_body_frame", "env.obs.body_frame=true"],
             "error: env.obs.body_frame: True contradicts ablation=no_body_frame (which sets env.obs.body_frame=False)",
