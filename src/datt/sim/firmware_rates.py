@@ -75,7 +75,7 @@ class FirmwareRateLoop:
         dt_s: float,
         mass_kg: float,
         motor_time_constant_s: float,
-        hover_mps2: float,
+        initial_thrust_mps2: float,
         device: torch.device,
         dtype: torch.dtype,
     ) -> None:
@@ -94,12 +94,12 @@ class FirmwareRateLoop:
         self.mass_kg = float(mass_kg)
         self.command_per_mps2 = mass_kg / 4.0 / THRUST_MAX_N * UINT16_MAX
         self.blend = 1.0 if motor_time_constant_s <= 0 else 1.0 - math.exp(-self.tick_s / motor_time_constant_s)
-        self.hover_force_n = hover_mps2 * mass_kg / 4.0
         self.state = FirmwareLoopState(
             integral_degs=torch.zeros(n, 3, **kw),
             prev_rate_dps=torch.zeros(n, 3, **kw),
-            forces_n=torch.full((n, 4), self.hover_force_n, **kw),
+            forces_n=torch.zeros(n, 4, **kw),
         )
+        self.reset(torch.arange(n, device=device), initial_thrust_mps2)
         self._ticks = run_ticks
 
     def reset(self, idx: Tensor, thrust_mps2: float) -> None:
@@ -150,8 +150,7 @@ def run_ticks(
     command = torch.trunc(applied[:, 0].clamp(0.0, max_thrust) * loop.command_per_mps2)
     flying = (command > 0).unsqueeze(-1)
     setpoint_dps = torch.rad2deg(applied[:, 1:])
-    thrust = forces.sum(-1) / loop.mass_kg
-    for _ in range(loop.ticks):
+    for _ in range(loop.ticks):  # at least one: the thrust below is the last tick's
         rate_dps = torch.rad2deg(rate)
         error = setpoint_dps - rate_dps
         integral = torch.minimum(torch.maximum(integral + error * tick_s, -loop.i_limit), loop.i_limit)

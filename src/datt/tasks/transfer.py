@@ -15,7 +15,7 @@ from __future__ import annotations
 import itertools
 from pathlib import Path
 
-from datt.configuration import compose
+from datt.configuration import compose, load_option
 from datt.tasks.deploy import run_deploy
 from datt.tasks.eval import run_eval
 
@@ -53,7 +53,9 @@ def eval_star_error(checkpoint: str, out: Path, rate_loop: str = "training_model
         "eval.timing.steps=0",
     ]
     if rate_loop != "training_model":
-        overrides += [f"env.quad.rate_model={EVAL_RATE_MODEL[rate_loop]}", "env.quad.max_thrust_mps2=12.92"]
+        # the firmware loop is fed through the vehicle's thrust ceiling, as the policy was trained
+        ceiling = load_option("randomization", "deploy").env.quad.max_thrust_mps2
+        overrides += [f"env.quad.rate_model={EVAL_RATE_MODEL[rate_loop]}", f"env.quad.max_thrust_mps2={ceiling}"]
     cfg = compose("eval", overrides)
     metrics = run_eval(cfg, run_dir=out)
     (cond,) = metrics["conditions"].values()
