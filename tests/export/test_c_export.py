@@ -4,6 +4,7 @@ through ctypes, against the project's torch policy and L1 estimator."""
 import ctypes
 import shutil
 import subprocess
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -12,6 +13,7 @@ import torch
 from datt.configuration import compose, instantiate_option
 from datt.control.datt import DattController
 from datt.export import export_spec, record_rollout, reference_action, replay_l1, write_c
+from datt.export.c_code import GOLDEN_TOL
 from datt.export.harness import COMMON_FLAGS
 
 GCC = shutil.which("gcc")
@@ -150,6 +152,75 @@ def test_self_test_passes_and_fails_on_a_changed_weight(exported, tmp_path):
 
 def _f_shift(literal: str) -> str:
     return f"{float(literal.rstrip('f')) + 0.05:.9g}f"
+
+
+@pytest.mark.parametrize("array", ["golden_action", "golden_l1_d_hat"])
+def test_the_self_test_holds_the_c_to_its_tolerance(exported, tmp_path, array):
+    """The self-test's bound on |C - torch| is GOLDEN_TOL for the action and for d-hat: a golden
+    value moved by three times the bound fails it, by a third of it still passes."""
+    _, _, _, out, _ = exported
+    source = (out / "datt_policy.c").read_text()
+    start = source.index("{", source.index(f"static const float {array}[")) + 1
+    start += len(source[start:]) - len(source[start:].lstrip())
+    first = source[start : source.index(",", start)]
+    results = []
+    for name, shift in (("far", 3 * GOLDEN_TOL), ("near", GOLDEN_TOL / 3)):
+        moved = tmp_path / name
+        moved.mkdir()
+        (moved / "datt_policy.h").write_text((out / "datt_policy.h").read_text())
+        literal = f"{float(first.rstrip('f')) + shift:.9g}f"
+        (moved / "datt_policy.c").write_text(source[:start] + literal + source[start + len(first) :])
+        results.append(build(moved, f"lib{name}.so").datt_self_test(None))
+    assert results == [1, 0]
+
+
+def small_layout(spec, channels: int, hidden: list[int], seed: int = 0):
+    """``spec`` with random weights of another width: ``channels`` conv channels (one layer) and
+    MLP layers of ``hidden`` units."""
+    rng = np.random.default_rng(seed)
+
+    def layer(n_out, n_in, *kernel):
+        return rng.standard_normal((n_out, n_in, *kernel)).astype(np.float32) * 0.3, np.zeros(n_out, np.float32)
+
+    kernel, h, embed = spec.convs[0][0].shape[2], spec.horizon, spec.proj[0].shape[0]
+    sizes = [spec.mlp[0][0].shape[1], *hidden]
+    mlp = [layer(n_out, n_in) for n_in, n_out in zip(sizes, sizes[1:])]
+    convs, proj = [layer(channels, 3, kernel)], layer(embed, channels * h)
+    return replace(spec, convs=convs, proj=proj, mlp=mlp, head=layer(4, hidden[-1]))
+
+
+# the widest buffer the step fills: a conv output [16][H] (shipped), the reference window [3][H],
+# the last MLP layer's output
+LAYOUTS = {"shipped": None, "input_widest": (2, [8, 8, 8]), "last_mlp_widest": (2, [8, 8, 200])}
+
+
+@pytest.mark.parametrize("layout", LAYOUTS)
+def test_the_generated_step_stays_inside_its_buffers(exported, tmp_path, layout):
+    """Built with AddressSanitizer and UBSan, the host harness runs the step on 300 random
+    states and the L1 over a flight without a single out-of-bounds access: the scratch buffers
+    hold the widest layer whichever layer that is."""
+    from datt.export.harness import HARNESS_SOURCES, flags_at, vectors_h, write_harness
+
+    spec = exported[0] if LAYOUTS[layout] is None else small_layout(exported[0], *LAYOUTS[layout])
+    widths = {
+        "input_widest": 3 * spec.horizon,
+        "shipped": spec.convs[0][0].shape[0] * spec.horizon,
+        "last_mlp_widest": spec.mlp[-1][0].shape[0],
+    }
+    assert max(widths, key=widths.get) == layout
+    if layout == "last_mlp_widest":  # and wider than the MLP's input: only out-features size the buffer
+        assert spec.mlp[0][0].shape[1] < widths[layout]
+    write_c(spec, tmp_path)
+    obs = random_observations(300, spec.horizon, spec.action_history, seed=2)
+    g = spec.golden
+    write_harness(tmp_path, vectors_h(obs, g["l1_cmd"], g["l1_vel"], g["l1_quat"]))
+    exe = tmp_path / "harness_asan"
+    sanitize = ["-fsanitize=address,undefined", "-fno-sanitize-recover=all", "-fno-omit-frame-pointer"]
+    sources = [str(tmp_path / name) for name in HARNESS_SOURCES]
+    subprocess.run([GCC, *flags_at("-O1"), *sanitize, "-o", str(exe), *sources], check=True)
+    run = subprocess.run([str(exe)], capture_output=True, text=True)
+    assert run.returncode == 0 and "Sanitizer" not in run.stderr and "runtime error" not in run.stderr, run.stderr
+    assert len(run.stdout.splitlines()) == 300 + len(g["l1_cmd"]) - 1 + 1
 
 
 def test_generated_code_needs_no_heap_and_no_libm(exported, tmp_path):

@@ -23,6 +23,7 @@ import numpy as np
 COMMON_FLAGS = ["-std=c99", "-O2", "-ffp-contract=off", "-fno-math-errno", "-Wall", "-Wextra", "-pedantic"]
 M4_FLAGS = ["-mcpu=cortex-m4", "-mthumb", "-mfloat-abi=hard", "-mfpu=fpv4-sp-d16"]
 M4_GCC, QEMU = "arm-none-eabi-gcc", "qemu-system-arm"
+HARNESS_SOURCES = ("datt_policy.c", "harness.c", "host_main.c")  # the host build's translation units
 
 
 def _floats(name: str, values) -> str:
@@ -195,7 +196,7 @@ def flags_at(opt: str) -> list[str]:
 
 def build_host(out: Path, cc: str = "gcc", opt: str = "-O2") -> Path:
     exe = Path(out) / f"harness_host{opt}"
-    srcs = [str(Path(out) / n) for n in ("datt_policy.c", "harness.c", "host_main.c")]
+    srcs = [str(Path(out) / n) for n in HARNESS_SOURCES]
     subprocess.run([cc, *flags_at(opt), "-o", str(exe), *srcs], check=True, capture_output=True, text=True)
     return exe
 
