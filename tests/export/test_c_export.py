@@ -343,3 +343,22 @@ def test_the_traced_example_is_one_level_drone_at_rest_on_its_reference(exported
     assert quat.tolist() == [[1.0, 0.0, 0.0, 0.0]]
     assert all(not t.any() for t in (pos, vel, ref, d_hat, hist))
     assert module.example_inputs(5)[2].tolist() == [[1.0, 0.0, 0.0, 0.0]] * 5
+
+
+# float32 values whose shortest 9-digit text takes each of _f's branches: an integer ("2" -> "2.0"),
+# an exponent without a point ("1e+10"), a point, the extremes and a subnormal
+TRICKY_FLOATS = [2.0, -3.0, 0.0, -0.0, 1e10, -1e10, 0.1, 16777216.0, 3.4028234663852886e38, 1.401298464324817e-45]
+
+
+def test_every_float_literal_reads_back_as_the_same_float32_in_c(tmp_path):
+    from datt.export.c_code import _f
+
+    source = tmp_path / "floats.c"
+    source.write_text(f"const float values[{len(TRICKY_FLOATS)}] = {{{', '.join(_f(v) for v in TRICKY_FLOATS)}}};\n")
+    lib = tmp_path / "libfloats.so"
+    subprocess.run([GCC, *FLAGS, "-shared", "-fPIC", "-o", str(lib), str(source)], check=True)
+    read = (ctypes.c_float * len(TRICKY_FLOATS)).in_dll(ctypes.CDLL(str(lib)), "values")
+    assert (
+        np.array(read, np.float32).view(np.uint32).tolist()
+        == np.array(TRICKY_FLOATS, np.float32).view(np.uint32).tolist()
+    )
