@@ -362,3 +362,24 @@ def test_every_float_literal_reads_back_as_the_same_float32_in_c(tmp_path):
         np.array(read, np.float32).view(np.uint32).tolist()
         == np.array(TRICKY_FLOATS, np.float32).view(np.uint32).tolist()
     )
+
+
+def test_the_golden_case_is_the_last_step_of_a_recorded_flight(exported):
+    """The golden input is what the controller read at the 40th step of one drone's seed-0 flight
+    on the export's reference, its action torch's for that input; the L1 sequence is that flight's
+    commands and measured states, its d-hat the project's L1 replayed over them; the layout's
+    timing is the env's (dt 0.02 s, reference points 3 steps apart)."""
+    spec, controller, merged, _, _ = exported
+    rec = record_rollout(merged, DattController(controller.actor, frozen=False), num_envs=1, steps=40, seed=0)
+    g = spec.golden
+    one = {name: getattr(rec, name)[39] for name in ("pos_m", "vel_mps", "quat", "ref_m", "d_hat", "cmd_hist")}
+    for key, name in (("pos", "pos_m"), ("vel", "vel_mps"), ("quat", "quat"), ("ref", "ref_m")):
+        assert torch.equal(g[key], one[name][0]), key
+    assert torch.equal(g["d_hat"], one["d_hat"][0]) and torch.equal(g["cmd_hist"], one["cmd_hist"][0])
+    assert torch.equal(g["action"], reference_action(controller, merged.env.obs, one)[0])
+    assert torch.equal(g["l1_cmd"], rec.action[:, 0]) and len(g["l1_cmd"]) == 40
+    assert torch.equal(g["l1_vel"], rec.vel_after[:, 0]) and torch.equal(g["l1_quat"], rec.quat_after[:, 0])
+    l1 = instantiate_option(merged, "adaptation")
+    expect = replay_l1(l1, 0.02, 9.81, rec.action[:, 0], rec.vel_after[:, 0], rec.quat_after[:, 0])[-1]
+    assert torch.equal(g["l1_d_hat"], expect) and expect.abs().max() > 0
+    assert (spec.dt_s, spec.ref_stride, spec.l1.dt_s, spec.l1.gravity_mps2) == (0.02, 3, 0.02, 9.81)
