@@ -383,3 +383,11 @@ def test_the_golden_case_is_the_last_step_of_a_recorded_flight(exported):
     expect = replay_l1(l1, 0.02, 9.81, rec.action[:, 0], rec.vel_after[:, 0], rec.quat_after[:, 0])[-1]
     assert torch.equal(g["l1_d_hat"], expect) and expect.abs().max() > 0
     assert (spec.dt_s, spec.ref_stride, spec.l1.dt_s, spec.l1.gravity_mps2) == (0.02, 3, 0.02, 9.81)
+
+
+def test_the_default_prefix_is_datt(exported):
+    """``generate(spec)`` names the functions as the onboard app calls them (``datt_act``, ...)."""
+    from datt.export.c_code import generate
+
+    header, source = generate(exported[0])
+    assert "datt_act(" in header and '#include "datt_policy.h"' in source
