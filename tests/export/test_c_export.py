@@ -391,3 +391,59 @@ def test_the_default_prefix_is_datt(exported):
 
     header, source = generate(exported[0])
     assert "datt_act(" in header and '#include "datt_policy.h"' in source
+
+
+@pytest.mark.parametrize("cutoff_tau_s", [0.0, 0.1])
+def test_the_l1_spec_holds_the_bound_estimators_constants(cutoff_tau_s):
+    """The C runs the constants the project's L1 runs with (law gain of eq. 7b, the filter's
+    alpha; no filter, alpha 0, when the cutoff is 0)."""
+    import math
+
+    from datt.adapt.l1 import L1Adaptation
+    from datt.export.c_code import l1_spec
+
+    l1 = L1Adaptation(cutoff_tau_s=cutoff_tau_s)
+    l1.bind(1, 0.02, 9.81, "cpu", torch.float32)
+    spec = l1_spec(l1, 0.02, 9.81)
+    assert (spec.law_gain, spec.alpha) == (l1.law_gain, l1.alpha)
+    assert spec.alpha == (math.exp(-0.02 / cutoff_tau_s) if cutoff_tau_s else 0.0)
+
+
+def test_the_spec_carries_the_four_action_means_only(exported):
+    """The head the C computes is the policy's mean of the 4 commands (the std rows are dropped)."""
+    spec, controller, _, _, _ = exported
+    hidden = spec.mlp[-1][0].shape[0]
+    assert spec.head[0].shape == (4, hidden) and spec.head[1].shape == (4,)
+    assert np.array_equal(spec.head[0], controller.net.head.weight[:4].detach().numpy())
+
+
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        ({"stride": (2,)}, "export: only stride-1, 'same'-padded convolutions are supported"),
+        ({"dilation": (2,)}, "export: only stride-1, 'same'-padded convolutions are supported"),
+        ({"padding": (0,)}, "export: only stride-1, 'same'-padded convolutions are supported"),
+        ({"kind": "mlp"}, "export: policy.encoder='mlp' is not supported by the C export; allowed: conv"),
+    ],
+    ids=["stride", "dilation", "padding", "encoder"],
+)
+def test_a_policy_the_fixed_c_cannot_run_is_refused_in_one_line(exported, change, message):
+    """Each convolution the C cannot run (stride, dilation, padding other than 'same') and an
+    encoder other than the conv is refused by name instead of exported wrong."""
+    import copy
+
+    from datt.errors import ConfigError
+    from datt.export.c_code import policy_spec
+
+    _, controller, merged, _, _ = exported
+    net = copy.deepcopy(controller.net)
+    if "kind" in change:
+        net.encoder.kind = change["kind"]
+    else:
+        conv = next(m for m in net.encoder.conv if isinstance(m, torch.nn.Conv1d))
+        for name, value in change.items():
+            setattr(conv, name, value)
+    low, high = torch.zeros(4), torch.ones(4)
+    with pytest.raises(ConfigError) as info:
+        policy_spec(net, 10, merged.env.obs, low, high)
+    assert str(info.value) == message
