@@ -201,6 +201,11 @@ def test_the_generated_step_stays_inside_its_buffers(exported, tmp_path, layout)
     hold the widest layer whichever layer that is."""
     from datt.export.harness import HARNESS_SOURCES, flags_at, vectors_h, write_harness
 
+    sanitize = ["-fsanitize=address,undefined", "-fno-sanitize-recover=all", "-fno-omit-frame-pointer"]
+    probe = tmp_path / "probe.c"
+    probe.write_text("int main(void) { return 0; }\n")
+    if subprocess.run([GCC, *sanitize, "-o", str(tmp_path / "probe"), str(probe)], capture_output=True).returncode:
+        pytest.skip("this compiler cannot link AddressSanitizer/UBSan programs")
     spec = exported[0] if LAYOUTS[layout] is None else small_layout(exported[0], *LAYOUTS[layout])
     widths = {
         "input_widest": 3 * spec.horizon,
@@ -215,7 +220,6 @@ def test_the_generated_step_stays_inside_its_buffers(exported, tmp_path, layout)
     g = spec.golden
     write_harness(tmp_path, vectors_h(obs, g["l1_cmd"], g["l1_vel"], g["l1_quat"]))
     exe = tmp_path / "harness_asan"
-    sanitize = ["-fsanitize=address,undefined", "-fno-sanitize-recover=all", "-fno-omit-frame-pointer"]
     sources = [str(tmp_path / name) for name in HARNESS_SOURCES]
     subprocess.run([GCC, *flags_at("-O1"), *sanitize, "-o", str(exe), *sources], check=True)
     run = subprocess.run([str(exe)], capture_output=True, text=True)
@@ -372,16 +376,20 @@ def test_the_golden_case_is_the_last_step_of_a_recorded_flight(exported):
     spec, controller, merged, _, _ = exported
     rec = record_rollout(merged, DattController(controller.actor, frozen=False), num_envs=1, steps=40, seed=0)
     g = spec.golden
+
+    def same(a, b):  # replayed in another state of the process (kernels, threads): float32 rounding apart
+        return torch.allclose(a, b, rtol=1e-4, atol=1e-4)
+
     one = {name: getattr(rec, name)[39] for name in ("pos_m", "vel_mps", "quat", "ref_m", "d_hat", "cmd_hist")}
     for key, name in (("pos", "pos_m"), ("vel", "vel_mps"), ("quat", "quat"), ("ref", "ref_m")):
-        assert torch.equal(g[key], one[name][0]), key
-    assert torch.equal(g["d_hat"], one["d_hat"][0]) and torch.equal(g["cmd_hist"], one["cmd_hist"][0])
-    assert torch.equal(g["action"], reference_action(controller, merged.env.obs, one)[0])
-    assert torch.equal(g["l1_cmd"], rec.action[:, 0]) and len(g["l1_cmd"]) == 40
-    assert torch.equal(g["l1_vel"], rec.vel_after[:, 0]) and torch.equal(g["l1_quat"], rec.quat_after[:, 0])
+        assert same(g[key], one[name][0]), key
+    assert same(g["d_hat"], one["d_hat"][0]) and same(g["cmd_hist"], one["cmd_hist"][0])
+    assert same(g["action"], reference_action(controller, merged.env.obs, one)[0])
+    assert same(g["l1_cmd"], rec.action[:, 0]) and len(g["l1_cmd"]) == 40
+    assert same(g["l1_vel"], rec.vel_after[:, 0]) and same(g["l1_quat"], rec.quat_after[:, 0])
     l1 = instantiate_option(merged, "adaptation")
     expect = replay_l1(l1, 0.02, 9.81, rec.action[:, 0], rec.vel_after[:, 0], rec.quat_after[:, 0])[-1]
-    assert torch.equal(g["l1_d_hat"], expect) and expect.abs().max() > 0
+    assert same(g["l1_d_hat"], expect) and expect.abs().max() > 0
     assert (spec.dt_s, spec.ref_stride, spec.l1.dt_s, spec.l1.gravity_mps2) == (0.02, 3, 0.02, 9.81)
 
 
