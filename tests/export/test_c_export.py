@@ -139,19 +139,22 @@ def test_self_test_passes_and_fails_on_a_changed_weight(exported, tmp_path):
     spec, _, _, out, lib = exported
     err = ctypes.c_float()
     assert lib.datt_self_test(ctypes.byref(err)) == 0 and err.value <= 1e-5
-    source = (out / "datt_policy.c").read_text()
-    marker = "static const float head_b[4] = {\n    "
-    start = source.index(marker) + len(marker)
-    first = source[start : source.index(",", start)]
-    bad = tmp_path / "bad"
-    bad.mkdir()
-    (bad / "datt_policy.h").write_text((out / "datt_policy.h").read_text())
-    (bad / "datt_policy.c").write_text(source[:start] + _f_shift(first) + source[start + len(first) :])
+    bad = with_first_value_moved(out, tmp_path / "bad", "head_b", 0.05)
     assert build(bad, "libbad.so").datt_self_test(ctypes.byref(err)) == 1 and err.value > 1e-3
 
 
-def _f_shift(literal: str) -> str:
-    return f"{float(literal.rstrip('f')) + 0.05:.9g}f"
+def with_first_value_moved(out, to, array: str, shift: float):
+    """A copy of the export in ``out`` written to ``to`` with the first value of the C array
+    ``array`` moved by ``shift``; returns ``to``."""
+    source = (out / "datt_policy.c").read_text()
+    start = source.index("{", source.index(f"static const float {array}[")) + 1
+    start += len(source[start:]) - len(source[start:].lstrip())
+    first = source[start : source.index(",", start)]
+    to.mkdir()
+    (to / "datt_policy.h").write_text((out / "datt_policy.h").read_text())
+    literal = f"{float(first.rstrip('f')) + shift:.9g}f"
+    (to / "datt_policy.c").write_text(source[:start] + literal + source[start + len(first) :])
+    return to
 
 
 @pytest.mark.parametrize("array", ["golden_action", "golden_l1_d_hat"])
@@ -159,17 +162,9 @@ def test_the_self_test_holds_the_c_to_its_tolerance(exported, tmp_path, array):
     """The self-test's bound on |C - torch| is GOLDEN_TOL for the action and for d-hat: a golden
     value moved by three times the bound fails it, by a third of it still passes."""
     _, _, _, out, _ = exported
-    source = (out / "datt_policy.c").read_text()
-    start = source.index("{", source.index(f"static const float {array}[")) + 1
-    start += len(source[start:]) - len(source[start:].lstrip())
-    first = source[start : source.index(",", start)]
     results = []
     for name, shift in (("far", 3 * GOLDEN_TOL), ("near", GOLDEN_TOL / 3)):
-        moved = tmp_path / name
-        moved.mkdir()
-        (moved / "datt_policy.h").write_text((out / "datt_policy.h").read_text())
-        literal = f"{float(first.rstrip('f')) + shift:.9g}f"
-        (moved / "datt_policy.c").write_text(source[:start] + literal + source[start + len(first) :])
+        moved = with_first_value_moved(out, tmp_path / name, array, shift)
         results.append(build(moved, f"lib{name}.so").datt_self_test(None))
     assert results == [1, 0]
 
@@ -194,18 +189,24 @@ def small_layout(spec, channels: int, hidden: list[int], seed: int = 0):
 LAYOUTS = {"shipped": None, "input_widest": (2, [8, 8, 8]), "last_mlp_widest": (2, [8, 8, 200])}
 
 
+@pytest.fixture(scope="module")
+def sanitizer_flags(tmp_path_factory) -> tuple[str, ...]:
+    """AddressSanitizer and UBSan, aborting at the first finding; skips where they cannot link."""
+    flags = ("-fsanitize=address,undefined", "-fno-sanitize-recover=all", "-fno-omit-frame-pointer")
+    probe = tmp_path_factory.mktemp("probe") / "probe.c"
+    probe.write_text("int main(void) { return 0; }\n")
+    if subprocess.run([GCC, *flags, "-o", str(probe.with_suffix("")), str(probe)], capture_output=True).returncode:
+        pytest.skip("this compiler cannot link AddressSanitizer/UBSan programs")
+    return flags
+
+
 @pytest.mark.parametrize("layout", LAYOUTS)
-def test_the_generated_step_stays_inside_its_buffers(exported, tmp_path, layout):
+def test_the_generated_step_stays_inside_its_buffers(exported, tmp_path, layout, sanitizer_flags):
     """Built with AddressSanitizer and UBSan, the host harness runs the step on 300 random
     states and the L1 over a flight without a single out-of-bounds access: the scratch buffers
     hold the widest layer whichever layer that is."""
-    from datt.export.harness import HARNESS_SOURCES, flags_at, vectors_h, write_harness
+    from datt.export.harness import build_host, vectors_h, write_harness
 
-    sanitize = ["-fsanitize=address,undefined", "-fno-sanitize-recover=all", "-fno-omit-frame-pointer"]
-    probe = tmp_path / "probe.c"
-    probe.write_text("int main(void) { return 0; }\n")
-    if subprocess.run([GCC, *sanitize, "-o", str(tmp_path / "probe"), str(probe)], capture_output=True).returncode:
-        pytest.skip("this compiler cannot link AddressSanitizer/UBSan programs")
     spec = exported[0] if LAYOUTS[layout] is None else small_layout(exported[0], *LAYOUTS[layout])
     widths = {
         "input_widest": 3 * spec.horizon,
@@ -219,9 +220,7 @@ def test_the_generated_step_stays_inside_its_buffers(exported, tmp_path, layout)
     obs = random_observations(300, spec.horizon, spec.action_history, seed=2)
     g = spec.golden
     write_harness(tmp_path, vectors_h(obs, g["l1_cmd"], g["l1_vel"], g["l1_quat"]))
-    exe = tmp_path / "harness_asan"
-    sources = [str(tmp_path / name) for name in HARNESS_SOURCES]
-    subprocess.run([GCC, *flags_at("-O1"), *sanitize, "-o", str(exe), *sources], check=True)
+    exe = build_host(tmp_path, cc=GCC, opt="-O1", extra_flags=sanitizer_flags)
     run = subprocess.run([str(exe)], capture_output=True, text=True)
     assert run.returncode == 0 and "Sanitizer" not in run.stderr and "runtime error" not in run.stderr, run.stderr
     assert len(run.stdout.splitlines()) == 300 + len(g["l1_cmd"]) - 1 + 1

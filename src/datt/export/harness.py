@@ -23,7 +23,6 @@ import numpy as np
 COMMON_FLAGS = ["-std=c99", "-O2", "-ffp-contract=off", "-fno-math-errno", "-Wall", "-Wextra", "-pedantic"]
 M4_FLAGS = ["-mcpu=cortex-m4", "-mthumb", "-mfloat-abi=hard", "-mfpu=fpv4-sp-d16"]
 M4_GCC, QEMU = "arm-none-eabi-gcc", "qemu-system-arm"
-HARNESS_SOURCES = ("datt_policy.c", "harness.c", "host_main.c")  # the host build's translation units
 
 
 def _floats(name: str, values) -> str:
@@ -194,10 +193,12 @@ def flags_at(opt: str) -> list[str]:
     return [f for f in COMMON_FLAGS if f != "-O2"] + [opt]
 
 
-def build_host(out: Path, cc: str = "gcc", opt: str = "-O2") -> Path:
+def build_host(out: Path, cc: str = "gcc", opt: str = "-O2", extra_flags: tuple[str, ...] = ()) -> Path:
+    """The harness for this machine; ``extra_flags`` (e.g. sanitizers) after the common ones."""
     exe = Path(out) / f"harness_host{opt}"
-    srcs = [str(Path(out) / n) for n in HARNESS_SOURCES]
-    subprocess.run([cc, *flags_at(opt), "-o", str(exe), *srcs], check=True, capture_output=True, text=True)
+    srcs = [str(Path(out) / n) for n in ("datt_policy.c", "harness.c", "host_main.c")]
+    cmd = [cc, *flags_at(opt), *extra_flags, "-o", str(exe), *srcs]
+    subprocess.run(cmd, check=True, capture_output=True, text=True)
     return exe
 
 
