@@ -129,7 +129,8 @@ def test_a_policy_trained_with_the_authors_timing_evaluates_with_it_and_is_refus
     cfg = compose("eval", [f"checkpoint={tiny_authors_timing_checkpoint}"])
     _, merged, _ = build_controller(cfg)
     assert merged.env.obs.timing == "authors"  # the checkpoint carries the timing it was trained with
-    with pytest.raises(ConfigError, match=r"trained with env.obs.timing=authors .*the exported app"):
+    label = r"trained with env.obs.timing=authors \(the state one step old\); the exported app feeds the newest"
+    with pytest.raises(ConfigError, match=label):
         export_spec(compose("export", [f"checkpoint={tiny_authors_timing_checkpoint}"]))
     proc = run(
         [str(ROOT / "deploy.py"), f"checkpoint={tiny_authors_timing_checkpoint}", f"hydra.run.dir={tmp_path}"], tmp_path

@@ -126,7 +126,8 @@ def main(argv: list[str] | None = None) -> int:
     failed = 0
     with tempfile.TemporaryDirectory(prefix="by_hand_") as tmp:
         work = Path(tmp)
-        for part in ("src", "tests", "pyproject.toml"):
+        # the entry points too: tests of the command line run them from the checkout's root
+        for part in ("src", "tests", "pyproject.toml", *(p.name for p in args.tree.glob("*.py"))):
             src = args.tree / part
             (shutil.copytree if src.is_dir() else shutil.copy)(src, work / part)
         passing: dict[str, bool] = {}

@@ -454,3 +454,19 @@ def test_a_policy_the_fixed_c_cannot_run_is_refused_in_one_line(exported, change
     with pytest.raises(ConfigError) as info:
         policy_spec(net, 10, merged.env.obs, low, high)
     assert str(info.value) == message
+
+
+@pytest.mark.parametrize("horizon", [1, 2], ids=["h1", "h2"])
+def test_the_reference_stride_is_the_spacing_of_the_policys_points_in_steps(tmp_path, horizon):
+    """``DATT_REF_STRIDE`` (the steps between two of the H points the app reads ahead) is
+    ``env.ref_spacing_s / env.dt_s`` for every H > 1 and 1 when the policy reads one point only;
+    it is part of the layout the header records."""
+    from datt.export.c_code import generate
+    from tests.conftest import train_tiny_policy
+
+    checkpoint = train_tiny_policy(tmp_path, f"horizon={horizon}")
+    spec, _, merged = export_spec(compose("export", [f"checkpoint={checkpoint}"]), golden_steps=5)
+    spacing = round(merged.env.ref_spacing_s / merged.env.dt_s)
+    assert spacing > 1  # else a stride of 1 could not tell the two cases apart
+    assert spec.ref_stride == (spacing if horizon > 1 else 1)
+    assert f"#define DATT_REF_STRIDE {spec.ref_stride}\n" in generate(spec)[0]
