@@ -91,8 +91,11 @@ def test_deploy_grade_checkpoint_is_the_output_of_its_experiment(experiment, che
     "checkpoint, overrides",
     [
         ("checkpoints/datt_h10.pt", []),
-        # the deploy-grade policy's parent: the authors' zigzags only, hover-thrust starts
-        ("checkpoints/datt_h10_train_mix.pt", ["traj=train_mix", "env.quad.initial_thrust_mps2=null"]),
+        # the deploy-grade policy's parent: the authors' zigzags only, hover-thrust starts, 30 M steps
+        (
+            "checkpoints/datt_h10_train_mix.pt",
+            ["traj=train_mix", "env.quad.initial_thrust_mps2=null", "train.total_frames=30000000"],
+        ),
     ],
 )
 def test_shipped_checkpoint_is_the_output_of_python_train_py(checkpoint, overrides):
