@@ -533,3 +533,20 @@ def test_adaptive_kl_steers_each_step_by_the_kl_of_the_step_before_it(tmp_path, 
     assert fresh._lr() == 1e-3
     fresh.load(tmp_path / "last.pt")
     assert fresh._lr() == pytest.approx(expect[-1])
+
+
+@pytest.mark.parametrize("value", [0, -1, float("nan"), 1001, "half"], ids=["zero", "negative", "nan", "huge", "word"])
+def test_a_bad_budget_is_refused_naming_its_key_where_a_run_scales_its_steps(value):
+    """``budget_factor`` is what the trainer and the RMA fit multiply their step counts by; a
+    config made in code (not through the schema) still gets its budget checked there, in one line
+    naming the key and the allowed range; a good budget is returned as a float."""
+    from omegaconf import OmegaConf
+
+    from datt.errors import ConfigError
+    from datt.train.schema import budget_factor
+
+    with pytest.raises(ConfigError) as info:
+        budget_factor(OmegaConf.create({"budget": value}))
+    line = str(info.value)
+    assert line.startswith("budget: must be a finite number in (0, 1000], got ") and "\n" not in line
+    assert budget_factor(OmegaConf.create({"budget": 0.25})) == 0.25
