@@ -14,6 +14,7 @@ ports = itertools.count(19900 + 500 * _WORKER)
 SHORT_FLIGHT = [
     "deploy.flight.takeoff_s=1.5",
     "deploy.flight.hover_s=0.5",
+    "deploy.flight.hover_trim_settle_s=0.5",
     "deploy.flight.track_s=3.0",
     "deploy.flight.land_s=1.5",
     # a loaded CI machine stalls the server's threads for up to ~0.5 s (seen: 0.47 s); the

@@ -128,15 +128,15 @@ def test_the_app_refuses_to_start_without_its_hook(tmp_path):
     ``datt.run`` instead of flying a zero state, and the host lands with the PID."""
 
     def lee_after_handover(server, runner):
-        real = runner.link.set_param_checked
+        real = runner.link.set_params_checked
 
-        def switch_then_set(name, value):
-            if name == "datt.run" and value == 1:
+        def switch_then_set(values):
+            if values.get("datt.run") == 1:
                 with server._lock:  # something switches the controller to Lee after the host checked it
                     server.params["stabilizer.controller"] = 5
-            real(name, value)
+            real(values)
 
-        runner.link.set_param_checked = switch_then_set
+        runner.link.set_params_checked = switch_then_set
 
     summary, server = fly(tmp_path, ["deploy.onboard=true"], hook=lee_after_handover)
     assert "the app refused to start" in " ".join(e["text"] for e in summary["events"])
@@ -256,6 +256,33 @@ def test_onboard_upload_fits_the_queue_and_is_timed(tmp_path):
 def test_a_track_duration_that_is_not_positive_and_finite_is_refused(track_s):
     with pytest.raises(ConfigError, match=r"^deploy.flight.track_s: must be a finite number > 0 or null, got"):
         FlightParams(track_s=track_s).validate()
+
+
+@pytest.mark.parametrize(
+    "override, message",
+    [
+        ("deploy.flight.hover_trim_window_s=1.5", r"must be at most deploy.flight.hover_s \(1 s\) while"),
+        ("deploy.flight.hover_trim_window_s=0", r"must be a finite number > 0, got 0"),
+        ("deploy.flight.hover_trim_max=1.0", r"must be a finite number in \(0, 1\), got 1.0"),
+        ("deploy.flight.hover_trim_max=nan", r"must be a finite number in \(0, 1\), got nan"),
+        ("deploy.flight.hover_trim_settle_s=-1", r"must be a finite number >= 0, got -1"),
+        ("deploy.flight.hover_trim_settle_s=0.3", r"must be 0 or at least deploy.flight.hover_trim_window_s \(0.5 s\)"),
+    ],
+)
+def test_hover_trim_settings_are_refused_in_one_line(override, message):
+    from datt.deploy.schema import deploy_params
+
+    key = override.split("=")[0]
+    with pytest.raises(ConfigError, match=f"^{key}: {message}"):
+        deploy_params(compose("deploy", [override]).deploy)
+
+
+def test_a_hover_trim_window_longer_than_the_hover_is_accepted_when_the_trim_is_off():
+    from datt.deploy.schema import deploy_params
+
+    overrides = ["deploy.flight.hover_trim=false", "deploy.flight.hover_trim_window_s=1.5"]
+    _, flight, _, _ = deploy_params(compose("deploy", overrides).deploy)
+    assert flight.hover_trim is False and flight.hover_trim_window_s == 1.5
 
 
 def test_safety_settings_from_the_command_line_are_refused_in_one_line():

@@ -88,10 +88,10 @@ def test_nominal_flight_tracks_and_lands(tmp_path, monkeypatch):
         phases = Counter(row["phase"] for row in csv.DictReader(f))
     preflight = [(e["phase"], e["text"]) for e in summary["events"] if e["kind"] == "preflight ok"]
     assert preflight == [("PREFLIGHT", "battery 4.10 V")]
-    # takeoff_s + hover_s and land_s + 0.5 s at 50 Hz: the landing is flown, not a drop
-    assert (phases["TAKEOFF"], phases["TRACK"], phases["LAND"]) == (100, 150, 100)
+    # takeoff_s + hover_s, hover_trim_settle_s and land_s + 0.5 s at 50 Hz: the landing is flown, not a drop
+    assert (phases["TAKEOFF"], phases["HOVER"], phases["TRACK"], phases["LAND"]) == (100, 25, 150, 100)
     phases = [e["text"] for e in summary["events"] if e["kind"] == "phase"]
-    assert phases == ["CONNECT", "PREFLIGHT", "ARM", "TAKEOFF", "TRACK", "LAND", "DISARM"]
+    assert phases == ["CONNECT", "PREFLIGHT", "ARM", "TAKEOFF", "HOVER", "TRACK", "LAND", "DISARM"]
     assert (tmp_path / "tracks_flight.png").is_file()
     # the firmware was put in rate mode, its Kalman filter reset before the flight, and it streams
     # the state in two log blocks within its 26-byte limit plus the filter's variances
@@ -325,6 +325,59 @@ def test_hover_calibration_finds_the_true_hover_command_and_slope(tmp_path):
     fit = summary["calibration"]
     assert abs(fit["hover_command"] - true_hover) / true_hover < 0.01
     assert abs(fit["slope_mps2_per_command"] - true_slope) / true_slope < 0.15
+
+
+HEAVY_WEAK = ["deploy.server.mass_kg=0.0374", "deploy.server.thrust_gain=0.9"]  # the transfer test's vehicle
+
+
+def _true_hover_command(mass_kg: float, thrust_gain: float) -> float:
+    from datt.deploy.sim.motors import FirmwareMotors, MotorParams
+
+    vehicle = FirmwareMotors(MotorParams(mass_kg=mass_kg, thrust_gain=thrust_gain))
+    return 9.81 / (vehicle.thrust_mps2(40000, 4.1) / 40000)
+
+
+def test_the_hover_trim_finds_a_heavy_weak_vehicles_hover_command_and_tracks_on_it(tmp_path):
+    """The vehicle is 10 % heavier and its motors 10 % weaker than the map assumes: it needs 22 %
+    more command to hover. The trim after the takeoff's hover finds that within 2 %, the HOVER
+    and TRACK commands follow the rescaled map (the commands sent in HOVER hold the vehicle near
+    its true hover command), and the flight lands."""
+    from datt.deploy.thrust import ThrustMap
+
+    true_hover = _true_hover_command(0.0374, 0.9)
+    nominal = ThrustMap().hover_command
+    assert true_hover / nominal > 1.2
+    summary, server = fly(tmp_path, [*HEAVY_WEAK, "deploy.flight.hover_s=1.0", "deploy.flight.hover_trim_settle_s=1.0"])
+    assert summary["outcome"] == "landed", summary["outcome"]
+    trims = [e for e in summary["events"] if e["kind"] == "trim"]
+    assert [e["phase"] for e in trims] == ["TAKEOFF", "HOVER"]  # the takeoff's hover, refined in HOVER
+    trim = trims[-1]
+    assert abs(trim["hover_command"] - true_hover) / true_hover < 0.02, (trim, true_hover)
+    rows = list(csv.DictReader((tmp_path / "flight.csv").open()))
+    phases = [r["phase"] for r in rows]
+    assert phases.index("HOVER") > phases.index("TAKEOFF") and phases.index("TRACK") > phases.index("HOVER")
+    hover_cmds = [float(r["thrust_cmd"]) for r in rows if r["phase"] == "HOVER"][-15:]
+    assert abs(sum(hover_cmds) / len(hover_cmds) - true_hover) / true_hover < 0.03
+    assert summary["track_error_m"] < 0.1
+
+
+def test_a_hover_trim_beyond_its_limit_lands_without_tracking(tmp_path):
+    """A vehicle that needs 22 % more command than the map, with ``hover_trim_max`` 10 %: the
+    flight lands after the takeoff's hover, saying what it measured and the key; nothing tracks."""
+    summary, _ = fly(tmp_path, [*HEAVY_WEAK, "deploy.flight.hover_trim_max=0.1"])
+    assert summary["outcome"].startswith("landed early: the hover needed command"), summary["outcome"]
+    assert "beyond deploy.flight.hover_trim_max (10 %)" in summary["outcome"]
+    phases = {r["phase"] for r in csv.DictReader((tmp_path / "flight.csv").open())}
+    assert phases == {"TAKEOFF", "LAND"}
+
+
+def test_without_the_hover_trim_the_map_stays_the_configured_one(tmp_path):
+    """``deploy.flight.hover_trim=false``: no trim, no HOVER phase, TRACK straight after the
+    takeoff with the nominal map's commands."""
+    summary, _ = fly(tmp_path, [*HEAVY_WEAK, "deploy.flight.hover_trim=false", "controller=pid"])
+    assert not [e for e in summary["events"] if e["kind"] == "trim"]
+    phases = [r["phase"] for r in csv.DictReader((tmp_path / "flight.csv").open())]
+    assert "HOVER" not in phases and phases.index("TRACK") > phases.index("TAKEOFF")
 
 
 @pytest.mark.slow  # two calibration flights, ~22 s of real time

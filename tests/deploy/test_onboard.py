@@ -341,6 +341,51 @@ def test_link_loss_mid_track_the_app_finishes_and_lands(tmp_path):
     assert server.estop_watchdog_t is None
 
 
+@pytest.mark.flight
+def test_the_app_flies_on_the_hover_trims_map(tmp_path):
+    """A vehicle 10 % heavier with motors 10 % weaker than the map: the host's trim after the
+    takeoff's hover goes to the app with the start (``datt.hoverCmd``, ``datt.slope``, then
+    ``datt.run``), so the app flies the rescaled map: while it tracks its parameters are the
+    trim's (float32), ~22 % above the nominal map's hover command; after the flight the host
+    restores what the vehicle held."""
+    import time
+
+    pytest.importorskip("cflib")
+    from datt.deploy.thrust import ThrustMap
+    from datt.tasks.deploy import run_deploy
+
+    from . import SHORT_FLIGHT
+
+    seen = {"tracking": []}
+
+    def watch(server, runner):
+        def sample():
+            while runner.phase != "DISARM":
+                if runner.phase == "TRACK" and server.app is not None and server.app.phase == onboard.TRACK:
+                    seen["tracking"].append((server.app.p.hover_command, server.app.p.slope_mps2_per_command))
+                time.sleep(0.05)
+            seen["server"] = server
+
+        threading.Thread(target=sample, daemon=True).start()
+
+    overrides = ["deploy.onboard=true", "deploy.server.mass_kg=0.0374", "deploy.server.thrust_gain=0.9"]
+    overrides += [f"deploy.uri=udp://127.0.0.1:{next(ports)}", "deploy.flight.hover_s=1.0"]
+    cfg = compose("deploy", [*SHORT_FLIGHT, *overrides])
+    summary = run_deploy(cfg, run_dir=tmp_path, server_hook=watch)
+    assert summary["outcome"] == "landed (onboard)", summary["outcome"]
+    trims = [e for e in summary["events"] if e["kind"] == "trim"]
+    assert [e["phase"] for e in trims] == ["TAKEOFF", "HOVER"]  # the takeoff's hover, refined in HOVER
+    f32 = lambda v: struct.unpack("<f", struct.pack("<f", v))[0]  # noqa: E731
+    nominal = ThrustMap()
+    assert len(seen["tracking"]) > 10
+    for hover, slope in seen["tracking"]:
+        assert hover == pytest.approx(f32(trims[-1]["hover_command"]), rel=1e-6)
+        assert hover / nominal.hover_command > 1.18
+        assert slope * hover == pytest.approx(nominal.slope * nominal.hover_command, rel=1e-5)  # through zero
+    app = seen["server"].app
+    assert app.p.hover_command == pytest.approx(f32(nominal.hover_command), rel=1e-6)  # restored at close
+
+
 @pytest.mark.slow
 def test_onboard_star_tracks_within_ten_percent_of_off_board(tmp_path):
     """The full star both ways on the same simulated vehicle (deploy=sim defaults)."""

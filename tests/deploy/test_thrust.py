@@ -10,7 +10,7 @@ import pytest
 from datt.configuration import compose
 from datt.deploy.schema import deploy_params
 from datt.deploy.sim.motors import VMOTOR2THRUST_21_PLUS, FirmwareMotors, MotorParams
-from datt.deploy.thrust import ThrustMap, ThrustParams, fit_hover
+from datt.deploy.thrust import ThrustMap, ThrustParams, fit_hover, hover_command_from_hover
 from datt.errors import ConfigError
 
 P = ThrustParams()
@@ -279,3 +279,71 @@ def test_response_lag_of_an_instant_response_and_of_a_ramp_by_hand():
     ramp = [max(0.0, float(t - (k - 1))) for t in range(len(exc))]
     assert response_lag_ticks(exc, ramp) == 4.0
     assert response_lag_ticks(exc, ramp, window=12) == 5.0  # jump 12, half 6
+
+
+def test_hover_command_from_a_steady_hover_is_the_mean_command():
+    """Velocity unchanged over the stretch: the vehicle held its height on average, whatever the
+    commands did around it."""
+    t = [0.02 * k for k in range(25)]
+    commands = [50000 + (300 if k % 2 else -300) + 7 * k for k in range(25)]
+    got = hover_command_from_hover(t, [-0.1] * 25, commands)
+    assert got == pytest.approx(sum(commands) / 25, abs=1e-6)
+
+
+@pytest.mark.parametrize("acc_mps2", [0.5, -0.8])
+@pytest.mark.parametrize("mass_kg, thrust_gain", [(0.034, 1.0), (0.0374, 0.9)])
+def test_hover_command_from_hover_is_the_simulated_vehicles_own(acc_mps2, mass_kg, thrust_gain):
+    """The simulated vehicle (its own motors, mass and gain) flown at the constant command that
+    accelerates it by ``acc``: the stretch's velocities give back its true hover command, for a
+    vehicle the map is right about and for one 10 % heavier with motors 10 % weaker."""
+    vehicle = FirmwareMotors(MotorParams(mass_kg=mass_kg, thrust_gain=thrust_gain))
+    k = vehicle.thrust_mps2(40000, 4.1) / 40000
+    command = (9.81 + acc_mps2) / k
+    acc = vehicle.thrust_mps2(round(command), 4.1) - 9.81
+    t = [1.0 + 0.02 * i for i in range(26)]  # 0.5 s
+    vel = [0.3 + acc * (tk - 1.0) for tk in t]
+    got = hover_command_from_hover(t, vel, [round(command)] * 26)
+    assert got == pytest.approx(9.81 / k, rel=1e-9)
+    # only the ends of the velocity count: a bump in between changes nothing
+    bumped = vel[:10] + [v + 0.5 for v in vel[10:20]] + vel[20:]
+    assert hover_command_from_hover(t, bumped, [round(command)] * 26) == pytest.approx(9.81 / k, rel=1e-9)
+    # on another planet the same stretch says another hover command
+    assert hover_command_from_hover(t, vel, [round(command)] * 26, g_mps2=3.71) != pytest.approx(9.81 / k, rel=1e-3)
+
+
+def test_hover_command_from_a_vehicle_falling_at_g_is_not_a_number():
+    t = [0.0, 0.5]
+    assert math.isnan(hover_command_from_hover(t, [0.0, -0.5 * 9.81], [40000, 40000]))
+    assert math.isnan(hover_command_from_hover(t, [0.0, -0.5 * 12.0], [40000, 40000]))
+
+
+@pytest.mark.parametrize(
+    "t, vel, cmds",
+    [([0.0], [0.0], [1.0]), ([0.0, 0.0], [0.0, 0.0], [1.0, 1.0]), ([0.0, 0.1], [0.0], [1.0, 1.0]), ([], [], [])],
+)
+def test_hover_command_from_hover_needs_two_samples_over_a_positive_time(t, vel, cmds):
+    with pytest.raises(ValueError, match="hover trim: needs at least two samples"):
+        hover_command_from_hover(t, vel, cmds)
+
+
+@pytest.mark.parametrize("scale", [1.23, 0.9])
+def test_rescaling_the_map_scales_every_command_and_keeps_zero_at_zero(scale):
+    """A vehicle that needs ``scale`` times the commands: every thrust's command is ``scale``
+    times the old one (the line through zero stays through zero), the ceiling drops by ``scale``."""
+    m = ThrustMap()
+    before = {a: m.hover_command + (a - 9.81) / m.slope for a in (2.0, 9.81, 12.0)}
+    ceiling = m.ceiling_mps2
+    m.rescale(scale)
+    for a, c in before.items():
+        assert m.hover_command + (a - 9.81) / m.slope == pytest.approx(scale * c, rel=1e-12)
+    assert m.hover_command == pytest.approx(scale * 9.81 / K, rel=1e-12)
+    assert m.command(9.81) == round(scale * 9.81 / K)
+    assert m.ceiling_mps2 == pytest.approx(ceiling / scale, rel=1e-12)
+
+
+@pytest.mark.parametrize("scale", [0.0, -1.0, math.nan, math.inf])
+def test_rescaling_the_map_refuses_a_scale_that_is_not_finite_and_positive(scale):
+    m = ThrustMap()
+    with pytest.raises(ValueError, match="must be finite and positive"):
+        m.rescale(scale)
+    assert m.hover_command == pytest.approx(9.81 / K)

@@ -46,13 +46,12 @@ class OnboardFlight(FlightRunner):
             track = self._model(self.track_controller, self.track_family)
             self._check_reference_in_geofence(track, self.p.track_s)
             self._onboard_prepare(track)
-            return self._takeoff(start_rel)
+            return self._takeoff(start_rel), self._hover_after_trim()
 
-        def airborne(origin, takeoff):
-            name, model, duration = takeoff
-            self._set_phase(name)
-            if self._fly_phase(model, duration, origin) != OK:
-                return
+        def airborne(origin, built):
+            takeoff, hover = built
+            if self._climb(origin, takeoff, hover, []) != OK:
+                return  # killed, or already landed
             self._set_phase("TRACK")
             result = self._onboard_track(origin)
             if result == LAND:
@@ -164,7 +163,10 @@ class OnboardFlight(FlightRunner):
     def _onboard_track(self, origin: np.ndarray) -> str:
         """Hand the flight to the app and watch until it has landed (or the time it needs has
         passed). Returns OK (the app landed), LAND (stopped: the host lands) or KILL."""
-        self.link.set_param_checked("datt.run", 1)
+        # the hover trim's map goes with the start (in order: the app reads it when it starts)
+        self.link.set_params_checked(
+            {"datt.hoverCmd": self.thrust.hover_command, "datt.slope": self.thrust.slope, "datt.run": 1}
+        )
         dt = 1.0 / self.p.rate_hz
         budget_s = self._onboard_steps * dt + self.p.land_s + 0.5 + 2.0
         deadline = time.monotonic() + budget_s

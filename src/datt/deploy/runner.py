@@ -30,12 +30,12 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from datt.configuration import FINITE, NON_NEGATIVE, POSITIVE, POSITIVE_OR_NONE, check_ranges, ranged
+from datt.configuration import FINITE, NON_NEGATIVE, POSITIVE, POSITIVE_OR_NONE, Range, check_ranges, ranged
 from datt.deploy import firmware
 from datt.deploy.flight_log import FlightLog
 from datt.deploy.outcome import Kind, Outcome
 from datt.deploy.safety import KILL, LAND, OK, BatteryFilter, SafetyParams, check, tilt_deg
-from datt.deploy.thrust import ThrustMap
+from datt.deploy.thrust import ThrustMap, hover_command_from_hover
 from datt.errors import LinkError
 from datt.refs.base import RefFamily
 from datt.runs import stop_signals
@@ -106,6 +106,10 @@ class FlightModel:
         self.last_cmd = cmd
         return cmd[0].detach().numpy().astype(float)  # as the env would apply it (NaN stays NaN)
 
+    def set_thrust_ceiling(self, thrust_ceiling_mps2: float) -> None:
+        """The most collective thrust the map will now command (after :meth:`FlightRunner._trim`)."""
+        self.command_high[0] = min(float(self.env.command_high[0]), thrust_ceiling_mps2)
+
     def reference(self) -> np.ndarray:
         return self.env.reference_now_m()[0].numpy().astype(float)
 
@@ -132,6 +136,11 @@ class FlightParams:
     estop_watchdog: bool = True  # send the firmware's e-stop watchdog every tick (motors off 1 s after the last)
     origin_m: list = ranged([0.0, 0.0], FINITE)  # hover point x, y (z = takeoff_height_m)
     onboard_max_pos_std_m: float = ranged(0.1, NON_NEGATIVE)  # deploy.onboard: the app lands above this (0: never)
+    # rescale the thrust map to the command the takeoff's hover needed, before TRACK (FlightRunner._climb)
+    hover_trim: bool = True
+    hover_trim_window_s: float = ranged(0.5, POSITIVE)  # the end of the hover the trim averages over
+    hover_trim_max: float = ranged(0.25, Range(0.0, 1.0, low_open=True, high_open=True))  # larger change: LAND
+    hover_trim_settle_s: float = ranged(1.0, NON_NEGATIVE)  # HOVER on the trim, trimmed again, before TRACK (0: none)
 
     def validate(self) -> None:
         from datt.errors import ConfigError
@@ -139,6 +148,17 @@ class FlightParams:
         check_ranges(self, "deploy.flight")
         if len(self.origin_m) != 2:
             raise ConfigError(f"deploy.flight.origin_m: need 2 values (x, y), got {self.origin_m!r}")
+        if self.hover_trim and self.hover_trim_window_s > self.hover_s:
+            raise ConfigError(
+                f"deploy.flight.hover_trim_window_s: must be at most deploy.flight.hover_s ({self.hover_s:g} s) "
+                f"while deploy.flight.hover_trim is on, got {self.hover_trim_window_s:g}"
+            )
+        if self.hover_trim and 0 < self.hover_trim_settle_s < self.hover_trim_window_s:
+            raise ConfigError(
+                "deploy.flight.hover_trim_settle_s: must be 0 or at least deploy.flight.hover_trim_window_s "
+                f"({self.hover_trim_window_s:g} s) while deploy.flight.hover_trim is on, "
+                f"got {self.hover_trim_settle_s:g}"
+            )
 
 
 class FlightRunner:
@@ -171,6 +191,7 @@ class FlightRunner:
         self.make_env, self.track_controller, self.pid_factory = make_env, track_controller, pid_factory
         self.track_family = track_family
         self.p, self.safety, self.thrust = params, safety, thrust
+        self.configured_hover_command = thrust.hover_command  # before any hover trim
         self.run_dir = Path(run_dir)
         self.estop = estop or threading.Event()
         self.log = FlightLog(self.run_dir, console, params.rate_hz, params.late_tick_ms)
@@ -381,19 +402,53 @@ class FlightRunner:
         model = self._model(self.pid_factory(), Ramp(start_rel, [0.0, 0.0, 0.0], self.p.takeoff_s))
         return ("TAKEOFF", model, self.p.takeoff_s + self.p.hover_s)
 
+    def _hover_after_trim(self) -> tuple | None:
+        """The HOVER phase flown on the trimmed map before TRACK (the PID, a fresh integral), or None."""
+        if not (self.p.hover_trim and self.p.hover_trim_settle_s > 0):
+            return None
+        return ("HOVER", self._model(self.pid_factory(), Ramp([0.0] * 3, [0.0] * 3, 1.0)), self.p.hover_trim_settle_s)
+
+    def _climb(self, origin: np.ndarray, takeoff: tuple, hover: tuple | None, later: list[FlightModel]) -> str:
+        """TAKEOFF, the hover trim (:meth:`_trim`; ``later``: the models still to fly) and HOVER.
+        Returns OK, or how the flight ended (KILL, or LAND: already landed)."""
+        name, model, duration = takeoff
+        self._set_phase(name)
+        result = self._fly_phase(model, duration, origin)
+        if result != OK:
+            return result
+        if not self.p.hover_trim:
+            return OK
+        # two passes: the takeoff's hover on the configured map (its PID may be saturated, its
+        # integral winding up), then HOVER on that trim, steadier, refines it
+        if self._trim(name, later + ([hover[1]] if hover is not None else [])) != OK:
+            self._land(origin)
+            return LAND
+        if hover is None:
+            return OK
+        self._set_phase(hover[0])
+        result = self._fly_phase(hover[1], hover[2], origin)
+        if result != OK:
+            return result
+        if self._trim(hover[0], later) != OK:
+            self._land(origin)
+            return LAND
+        return OK
+
     def fly(self) -> dict:
         """Takeoff, track the reference with the configured controller, land."""
 
         def build(start_rel):
             track = self._model(self.track_controller, self.track_family)
             self._check_reference_in_geofence(track, self.p.track_s)
-            return [self._takeoff(start_rel), ("TRACK", track, self.p.track_s)]
+            return self._takeoff(start_rel), self._hover_after_trim(), track
 
-        def airborne(origin, phases):
-            for name, model, duration in phases:
-                self._set_phase(name)
-                if self._fly_phase(model, duration, origin) != OK:
-                    return  # killed, or already landed
+        def airborne(origin, built):
+            takeoff, hover, track = built
+            if self._climb(origin, takeoff, hover, [track]) != OK:
+                return  # killed, or already landed
+            self._set_phase("TRACK")
+            if self._fly_phase(track, self.p.track_s, origin) != OK:
+                return
             self._land(origin)
 
         return self._flight(build, airborne)
@@ -528,7 +583,9 @@ class FlightRunner:
         dt = 1.0 / self.p.rate_hz
         next_t = time.monotonic()
         used_t = -math.inf  # arrival of the estimate the last tick used
-        predict = self.predictor is not None and self._excitation is None  # calibration measures the raw loop
+        # the predictor serves the tracking controller; the PID (takeoff, hover and its trim, landing,
+        # the calibration) flies the raw loop it was tuned on
+        predict = self.predictor is not None and self.phase == "TRACK"
         for k in range(steps):
             scheduled = next_t
             jitter_ms = (time.monotonic() - scheduled) * 1e3
@@ -579,6 +636,37 @@ class FlightRunner:
             model.advance()
             next_t += dt
             time.sleep(max(0.0, next_t - time.monotonic()))
+        return OK
+
+    def _trim(self, phase: str, models: list[FlightModel]) -> str:
+        """Hover trim (``deploy.flight.hover_trim``): rescale the thrust map so that it passes
+        through the command the hover just flown in ``phase`` needed
+        (:func:`~datt.deploy.thrust.hover_command_from_hover` over its last
+        ``hover_trim_window_s``); the ``models`` still to fly get the new ceiling. A map more than
+        ``hover_trim_max`` from the configured one (a wrong ``deploy.thrust.mass_kg``, a flat
+        battery) is not flown: LAND. Returns OK or LAND."""
+        n = max(2, int(round(self.p.hover_trim_window_s * self.p.rate_hz)))
+        hover = [r for r in self.rows if r["phase"] == phase][-n:]
+        measured = hover_command_from_hover(
+            [r["t_s"] for r in hover],
+            [r["vel"][2] for r in hover],
+            [r["thrust_cmd"] for r in hover],
+            self.thrust.p.gravity_mps2,
+        )
+        scale = measured / self.thrust.hover_command
+        text = f"the hover needed command {measured:.0f}, the thrust map {self.thrust.hover_command:.0f}"
+        change = measured / self.configured_hover_command - 1.0
+        if not abs(change) <= self.p.hover_trim_max:
+            self._event(
+                "LAND",
+                f"{text} ({100 * change:+.0f} % from deploy.thrust), beyond deploy.flight.hover_trim_max "
+                f"({100 * self.p.hover_trim_max:.0f} %); check deploy.thrust.mass_kg and the battery, or calibrate",
+            )
+            return LAND
+        self.thrust.rescale(scale)
+        for model in models:
+            model.set_thrust_ceiling(self.thrust.ceiling_mps2)
+        self._event("trim", f"{text}: map rescaled by {100 * (scale - 1):+.1f} %", hover_command=measured)
         return OK
 
     def _model(self, controller, family: RefFamily) -> FlightModel:

@@ -76,6 +76,15 @@ class ThrustMap:
         """The most collective thrust the map will command (at ``max_command``)."""
         return self.thrust_mps2(self.p.max_command)
 
+    def rescale(self, scale: float) -> None:
+        """The vehicle needs ``scale`` times the commands the map gives (a heavier vehicle, weaker
+        motors, an emptier battery: thrust is linear in the command, so each of these scales it):
+        hover command times ``scale``, slope divided by it."""
+        if not (math.isfinite(scale) and scale > 0):
+            raise ValueError(f"thrust map: the scale must be finite and positive, got {scale}")
+        self.hover_command *= scale
+        self.slope /= scale
+
     def command(self, thrust_mps2: float) -> int:
         """Firmware thrust command for a mass-normalised collective thrust (clipped)."""
         if not math.isfinite(thrust_mps2) or thrust_mps2 <= 0:
@@ -113,6 +122,22 @@ def fit_hover(commands: list[float], vertical_acc_mps2: list[float]) -> tuple[fl
     if slope <= 0:
         raise ValueError("calibration: acceleration does not increase with the command")
     return mc - ma / slope, slope
+
+
+def hover_command_from_hover(
+    t_s: list[float], vel_z_mps: list[float], commands: list[float], g_mps2: float = 9.81
+) -> float:
+    """The command that holds the vehicle's height, from a stretch of hover: with thrust linear
+    in the command through zero (``a + g = k c``, the firmware's battery-compensated map, whatever
+    the vehicle's mass and motors), the mean command ``c̄`` over the stretch and the mean vertical
+    acceleration ``ā`` (first and last velocity) give ``k = (ā + g) / c̄`` and the hover command
+    ``g / k = c̄ g / (ā + g)`` (NaN for ``ā <= -g``). Needs two samples over a positive time."""
+    if len(t_s) < 2 or not len(t_s) == len(vel_z_mps) == len(commands) or not t_s[-1] > t_s[0]:
+        raise ValueError("hover trim: needs at least two samples over a positive time")
+    acc = (vel_z_mps[-1] - vel_z_mps[0]) / (t_s[-1] - t_s[0])
+    if not acc + g_mps2 > 0:  # falling at g or faster: no command explains it
+        return math.nan
+    return (sum(commands) / len(commands)) * g_mps2 / (acc + g_mps2)
 
 
 def response_lag_ticks(excitation: list[float], vertical_acc_mps2: list[float], window: int = 10) -> float:
