@@ -91,3 +91,75 @@ def test_the_rate_follows_the_command_with_the_trained_lag():
 def test_settings_are_checked(key, value):
     with pytest.raises(ConfigError, match=f"^deploy.predictor.{key}: must be a finite number"):
         PredictorParams(**{key: value}).validate()
+
+
+def _lagged(t_switch_s: float, horizon_end_s: float, before: float, after: float, k: float, dt: float) -> float:
+    """∫ of a first-order lag (``k`` per ``dt``) that holds ``before`` until ``t_switch_s`` (from 0)
+    and then relaxes toward ``after`` until ``horizon_end_s``: the closed form of the
+    predictor's per-step lag ``x += (1 - (1 - k)^(h/dt)) (u - x)``."""
+    rate = -math.log(1.0 - k) / dt
+    span = horizon_end_s - t_switch_s
+    return before * t_switch_s + after * span + (before - after) * (1.0 - math.exp(-rate * span)) / rate
+
+
+def test_thrust_follows_the_command_with_its_lag_from_the_one_acting_when_the_estimate_was_taken():
+    """k_thrust 0.5 per 20 ms: thrust starts at the command acting when the estimate was measured
+    (g + 2, not hover), holds it 10 ms, then relaxes toward the next command (g − 2) for 30 ms;
+    the vertical velocity is the integral of thrust − g (closed form, within the substeps' error)."""
+    params = PredictorParams(enabled=True, latency_s=0.04, policy_delay_s=0.0, substep_s=0.0005)
+    p = StatePredictor(params, G, 1.0, 0.02, k_thrust=0.5)
+    p.record(0.0, [G + 2.0, 0.0, 0.0, 0.0])
+    p.record(0.97, [G - 2.0, 0.0, 0.0, 0.0])  # acts from 0.99
+    # the estimate was measured at 0.98 (up 20 ms); the horizon ends at now + down = 1.02
+    _, vel, _ = p.predict(1.0, 1.0, (0, 0, 0), (0, 0, 0), LEVEL, (0, 0, 0))
+    expected = _lagged(0.01, 0.04, 2.0, -2.0, 0.5, 0.02)
+    assert vel[2] == pytest.approx(expected, abs=1e-3)  # Euler substeps: 3e-4 off
+    # from hover instead of g + 2 the first 10 ms alone would differ by ~3 mm/s
+    assert abs(expected - _lagged(0.01, 0.04, 0.0, -2.0, 0.5, 0.02)) > 0.01
+
+
+def test_the_rate_starts_from_the_command_acting_when_the_estimate_was_taken():
+    """k_rate 0.5: a yaw rate of 2 rad/s acting at the estimate's time, then a command of 0 from
+    10 ms into the 40 ms horizon: the yaw turned is the integral of the lagged rate."""
+    params = PredictorParams(enabled=True, latency_s=0.04, policy_delay_s=0.0, substep_s=0.0005)
+    p = StatePredictor(params, G, 0.5, 0.02)
+    p.record(0.0, [G, 0.0, 0.0, 2.0])
+    p.record(0.97, [G, 0.0, 0.0, 0.0])
+    _, _, q = p.predict(1.0, 1.0, (0, 0, 0), (0, 0, 0), LEVEL, (0, 0, 0))
+    assert 2 * math.atan2(q[3], q[0]) == pytest.approx(_lagged(0.01, 0.04, 2.0, 0.0, 0.5, 0.02), abs=1e-3)
+
+
+def test_a_command_acts_from_the_instant_it_reaches_the_vehicle_inclusive():
+    p = predictor(latency_s=0.5)
+    p.record(0.25, [G + 1.0, 0.0, 0.0, 0.0])
+    assert p._command_at(0.5, 0.25) is not None  # sent at 0.25, acting from 0.25 + 0.25
+    assert p._command_at(0.4999, 0.25) is None
+    p.record(0.3, [G + 3.0, 0.0, 0.0, 0.0])
+    assert float(p._command_at(0.54, 0.25)[0]) == G + 1.0 and float(p._command_at(0.55, 0.25)[0]) == G + 3.0
+
+
+def test_it_keeps_the_last_64_commands_of_four_values_each():
+    p = predictor()
+    for k in range(100):
+        p.record(0.01 * k, [G + k, 0.1, 0.2, 0.3, 99.0])
+    assert len(p.sent) == 64 and p.sent[0][0] == pytest.approx(0.36) and float(p.sent[0][1][0]) == G + 36
+    assert all(tuple(a.shape) == (4,) for _, a in p.sent)
+
+
+def test_an_estimate_from_after_the_horizon_is_returned_as_it_is():
+    """Nothing to roll forward when the estimate is newer than the instant the policy's command
+    acts (a negative horizon): the estimate itself, as tuples."""
+    p = predictor(latency_s=0.04)
+    p.record(0.0, [G + 5.0, 1.0, 1.0, 1.0])
+    assert p.predict(1.0, 1.5, [1, 2, 3], [4, 5, 6], list(LEVEL), [0, 0, 0]) == ((1, 2, 3), (4, 5, 6), LEVEL)
+
+
+def test_it_integrates_in_double_precision():
+    """Positions of 10 km and a large disturbance lose millimetres in single precision; the
+    prediction is exact to 1e-9 (constant hover thrust: z and v change by d only)."""
+    p = predictor(latency_s=0.05)
+    p.record(0.0, [G, 0.0, 0.0, 0.0])
+    pos0, d = (10000.123456789, -10000.987654321, 3.000000001), (0.0, 0.0, 1000.1)
+    pos, vel, _ = p.predict(1.0, 1.0, pos0, (0.0, 0.0, 0.0), LEVEL, d)
+    assert vel[2] == pytest.approx(1000.1 * 0.05, abs=1e-9)
+    assert pos == pytest.approx((pos0[0], pos0[1], pos0[2] + 0.5 * 1000.1 * 0.05**2), abs=1e-9)

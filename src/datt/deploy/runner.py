@@ -1,9 +1,10 @@
-"""Flight state machine: CONNECT -> PREFLIGHT -> ARM -> TAKEOFF -> TRACK -> LAND -> DISARM.
+"""Flight state machine: CONNECT -> PREFLIGHT -> ARM -> TAKEOFF -> HOVER -> TRACK -> LAND -> DISARM.
 
 Every tick (``rate_hz``, 50 by default) the runner reads the onboard estimate from the link,
 forwards the mocap position, asks :mod:`datt.deploy.safety` for OK / LAND / KILL, computes the
 phase's controller output and sends it as a rate setpoint (thrust through
-:mod:`datt.deploy.thrust`). TAKEOFF and LAND fly the PID baseline along a straight ramp; TRACK
+:mod:`datt.deploy.thrust`). TAKEOFF and LAND fly the PID baseline along a straight ramp, HOVER
+holds the hover point with it (the hover trim rescales the thrust map after TAKEOFF and HOVER); TRACK
 flies the configured controller (DATT + L1 by default) along the configured reference, starting
 at the hover point.
 
@@ -162,7 +163,7 @@ class FlightParams:
 
 
 class FlightRunner:
-    """An off-board flight: CONNECT -> PREFLIGHT -> ARM -> TAKEOFF -> TRACK -> LAND -> DISARM, the
+    """An off-board flight: CONNECT -> PREFLIGHT -> ARM -> TAKEOFF -> HOVER -> TRACK -> LAND -> DISARM, the
     configured controller flying over the radio at ``rate_hz``. :class:`~datt.deploy.onboard_flight.OnboardFlight`
     hands TRACK to the vehicle's app, :class:`~datt.deploy.calibration.CalibrationFlight` hovers
     with a thrust excitation instead."""
