@@ -163,3 +163,35 @@ def test_it_integrates_in_double_precision():
     pos, vel, _ = p.predict(1.0, 1.0, pos0, (0.0, 0.0, 0.0), LEVEL, d)
     assert vel[2] == pytest.approx(1000.1 * 0.05, abs=1e-9)
     assert pos == pytest.approx((pos0[0], pos0[1], pos0[2] + 0.5 * 1000.1 * 0.05**2), abs=1e-9)
+
+
+def test_commands_that_reach_the_vehicle_only_within_the_horizon_act_from_then_on_from_rest():
+    """No command was acting when the estimate was measured (the first one sent acts 30 ms into
+    the 40 ms horizon): thrust starts at hover and the rate at zero, nothing changes until the
+    command arrives, then both follow it with their lags."""
+    params = PredictorParams(enabled=True, latency_s=0.04, policy_delay_s=0.0, substep_s=0.0005)
+    p = StatePredictor(params, G, 0.5, 0.02, k_thrust=0.5)
+    p.record(0.99, [G + 4.0, 0.0, 0.0, 1.0])  # acts from 1.01; the estimate describes 0.98
+    _, vel, q = p.predict(1.0, 1.0, (0, 0, 0), (0, 0, 0), LEVEL, (0, 0, 0))
+    assert vel[2] == pytest.approx(_lagged(0.03, 0.04, 0.0, 4.0, 0.5, 0.02), abs=1e-3)
+    assert vel[2] > 0.003  # the late command acted
+    assert 2 * math.atan2(q[3], q[0]) == pytest.approx(_lagged(0.03, 0.04, 0.0, 1.0, 0.5, 0.02), abs=1e-3)
+
+
+def test_a_horizon_shorter_than_a_substep_is_one_step_of_its_own_length():
+    """4 ms to roll with 5 ms substeps: one step of 4 ms, flown on the command acting at its
+    start; a command that arrives 1 ms into it waits for the next step (there is none)."""
+    params = PredictorParams(enabled=True, latency_s=0.004, policy_delay_s=0.0, substep_s=0.005)
+    p = StatePredictor(params, G, 1.0, 0.02, k_thrust=0.5)
+    p.record(0.0, [G + 4.0, 0.0, 0.0, 0.0])
+    p.record(0.997, [G - 4.0, 0.0, 0.0, 0.0])  # acts from 0.999; the estimate describes 0.998
+    _, vel, _ = p.predict(1.0, 1.0, (0, 0, 0), (0, 0, 0), LEVEL, (0, 0, 0))
+    assert vel[2] == pytest.approx(4.0 * 0.004, abs=1e-12)
+
+
+def test_without_a_known_latency_the_estimate_is_returned_as_it_is():
+    """No ``latency_s`` and no round trip measured yet (the link not connected): nothing to roll
+    over, even with commands sent."""
+    p = StatePredictor(PredictorParams(enabled=True, latency_s=None), G, 0.4, 0.02)
+    p.record(0.0, [G + 5.0, 1.0, 0.0, 0.0])
+    assert p.predict(1.0, 0.9, (1, 2, 3), (4, 5, 6), LEVEL, (0, 0, 0)) == ((1, 2, 3), (4, 5, 6), LEVEL)
