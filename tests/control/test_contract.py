@@ -157,3 +157,37 @@ def test_one_frozen_controller_serves_envs_of_other_sizes_and_observation_settin
         # the frozen one builds its own observation (callers pass none: builds_observation)
         torch.testing.assert_close(frozen.act(env, None), expected, rtol=1e-4, atol=1e-4)
     assert frozen.builds_observation is True and plain.builds_observation is False
+
+
+@pytest.mark.parametrize("setting", ["predict_latency", "reference_lead"])
+def test_the_frozen_path_sees_the_prediction_and_the_reference_lead_as_the_observation_does(setting):
+    """What the policy answers behind a state predictor (``env.obs.predict_latency``, or the
+    deployment's reference lead) is the same whether the env builds the observation or the frozen
+    controller does: the frozen path once read the window now and missed the lead."""
+    from datt.control import DattController
+    from datt.envs.tracking import action_bounds
+    from datt.policies.networks import PolicyParams, make_actor
+
+    overrides = ["horizon=7", "traj=zigzag", "env.obs.action_history=2", "env.quad.latency_steps=3"]
+    if setting == "predict_latency":
+        overrides.append("env.obs.predict_latency=true")
+    env = make_env(compose("eval", overrides), num_envs=4, seed=3)
+    actor = make_actor(7, *action_bounds(env.params), PolicyParams(), env.state_dim)
+    gen = torch.Generator().manual_seed(1)
+    with torch.no_grad():
+        for param in actor.parameters():
+            param.copy_(0.2 * torch.randn(param.shape, generator=gen))
+    td = env.reset()
+    for _ in range(4):  # varied commands in flight
+        td["action"] = env.hover_action + torch.randn(4, 4, generator=gen) * torch.tensor([2.0, 2.0, 2.0, 0.5])
+        td = env.step(td)["next"].exclude("reward", "done", "terminated", "truncated")
+    if setting == "reference_lead":
+        env.set_reference_lead(1.5)
+    td = env.observe()
+    plain, frozen = DattController(actor, frozen=False), DattController(actor, frozen=True)
+    plain.reset(env), frozen.reset(env)
+    expected = plain.act(env, td)
+    torch.testing.assert_close(frozen.act(env, td), expected, rtol=1e-4, atol=1e-4)
+    env.set_reference_lead(0.0)
+    if setting == "reference_lead":  # and the lead changed what it answers
+        assert (frozen.act(env, env.observe()) - expected).abs().max() > 1e-3

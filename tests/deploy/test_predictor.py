@@ -195,3 +195,40 @@ def test_without_a_known_latency_the_estimate_is_returned_as_it_is():
     p = StatePredictor(PredictorParams(enabled=True, latency_s=None), G, 0.4, 0.02)
     p.record(0.0, [G + 5.0, 1.0, 0.0, 0.0])
     assert p.predict(1.0, 0.9, (1, 2, 3), (4, 5, 6), LEVEL, (0, 0, 0)) == ((1, 2, 3), (4, 5, 6), LEVEL)
+
+
+@pytest.mark.parametrize(
+    ("latency_s", "round_trip_s", "policy_delay_s", "lead_s"),
+    [
+        (0.08, 0.04, 0.02, 0.04),  # down = 0.08 - 0.02 = 0.06, less the trained 20 ms
+        (0.06, 0.04, 0.02, 0.02),
+        (0.03, 0.04, 0.02, 0.0),  # the chain within the trained delay: nothing ahead
+        (None, 0.04, 0.03, 0.02),  # null latency: the round trip + the trained delay, down = 0.05
+    ],
+)
+def test_the_reference_lead_is_the_downlink_beyond_the_trained_delay(latency_s, round_trip_s, policy_delay_s, lead_s):
+    params = PredictorParams(enabled=True, latency_s=latency_s, policy_delay_s=policy_delay_s)
+    pred = StatePredictor(params, G, k_rate=0.4, dt_s=0.02, round_trip_s=round_trip_s)
+    assert pred.lead_s == pytest.approx(lead_s, abs=1e-12)
+
+
+@pytest.mark.parametrize(
+    ("overrides", "trained", "noted"),
+    [
+        ((), True, True),  # off-board without the predictor it was trained behind
+        (("deploy.predictor.enabled=true",), True, False),
+        (("deploy.onboard=true",), True, False),  # onboard: nothing in flight to predict
+        (("deploy.mode=calibrate",), True, False),  # the calibration flies the PID only
+        ((), False, False),
+    ],
+)
+def test_a_policy_trained_behind_the_predictor_says_so_when_flown_off_board_without_it(overrides, trained, noted):
+    from datt.configuration import compose
+    from datt.deploy.schema import deploy_params
+    from datt.tasks.deploy import predictor_note
+
+    params = deploy_params(compose("deploy", list(overrides)).deploy)[0]
+    note = predictor_note(params, trained)
+    assert (note is not None) == noted
+    if noted:
+        assert "deploy.predictor.enabled=true" in note and "env.obs.predict_latency" in note

@@ -37,6 +37,8 @@ ADDED_SINCE: dict[str, tuple] = {
     # the firmware rate model's vehicle: read only under env.quad.rate_model=firmware
     "env.quad.vehicle_mass_kg": (0.034,),
     "env.quad.motor_time_constant_s": (0.03,),
+    "env.obs.predict_latency": (False,),
+    "env.obs.predict_latency_error_steps": (0,),
 }
 
 
@@ -60,6 +62,7 @@ def drop_added_keys(trained: dict, expected: dict) -> None:
     [
         ("deploy", "checkpoints/datt_h10_deploy.pt", "checkpoints/datt_h10_train_mix.pt"),
         ("deploy_firmware", "checkpoints/datt_h10_firmware.pt", "checkpoints/datt_h10_deploy.pt"),
+        ("deploy_predictor", "checkpoints/datt_h10_predictor.pt", "checkpoints/datt_h10_firmware.pt"),
     ],
 )
 def test_deploy_grade_checkpoint_is_the_output_of_its_experiment(experiment, checkpoint, parent):

@@ -57,8 +57,10 @@ class DattController(Controller):
 
     def _act_frozen(self, env) -> torch.Tensor:
         inputs = env.control_input()
-        pos, vel, quat, d_hat = inputs["pos_m"], inputs["vel_mps"], inputs["quat"], inputs["d_hat"]
-        future = inputs["ref_window_m"].transpose(0, 1)  # [H, N, 3], the graph's slot-major layout
+        d_hat = inputs["d_hat"]
+        # the state and window as the observation sees them (obs.predict_latency, a deployment's lead);
+        # the window [H, N, 3] is the graph's slot-major layout
+        pos, vel, quat, future = env.policy_view()
         obs = env.params.obs
         cmds = inputs["cmd_history"].flatten(1)  # [N, 4k], k = obs.action_history (may be 0)
         key = (tuple(future.shape), pos.dtype, obs.body_frame, obs.feedback, cmds.shape[1])

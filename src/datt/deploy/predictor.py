@@ -74,6 +74,12 @@ class StatePredictor:
         rtt = self.round_trip_s if math.isfinite(self.round_trip_s) else self.latency_s
         return min(rtt / 2, self.latency_s)
 
+    @property
+    def lead_s(self) -> float:
+        """How far the predicted state is ahead of the tick that reads it: ``down −
+        policy_delay_s`` (at least 0). The policy's reference window is read as far ahead."""
+        return max(0.0, self.latency_s - self.up_s - self.p.policy_delay_s)
+
     def record(self, t_s: float, action) -> None:
         """A command sent at ``t_s`` (monotonic): thrust m/s², body rates rad/s."""
         self.sent.append((float(t_s), torch.as_tensor(action, dtype=torch.float64)[:4].clone()))

@@ -91,12 +91,14 @@ class FlightModel:
         controller.reset(self.env)
         self.last_cmd = self.env.hover_action.clone()
 
-    def act(self, pos_m, vel_mps, quat, predicted=None) -> np.ndarray:
+    def act(self, pos_m, vel_mps, quat, predicted=None, lead_steps: float = 0.0) -> np.ndarray:
         """The command for the measured state; ``predicted`` ((pos, vel, quat), the state rolled
-        over the loop's latency) is what the controller then sees, while the adaptation is
-        updated from the measurement."""
+        over the loop's latency) is what the controller then sees, with the policy's reference
+        window read ``lead_steps`` ticks (a fraction interpolates) ahead, the predicted state's
+        time, while the adaptation is updated from the measurement."""
         self.env.set_state(pos_m, vel_mps, quat)
         self.env.adaptation.update(self.env.sim.state, self.last_cmd, None)
+        self.env.set_reference_lead(lead_steps)
         if predicted is not None:
             self.env.set_state(*predicted)
         td = None if self.controller.builds_observation else self.env.observe()
@@ -421,7 +423,7 @@ class FlightRunner:
             return OK
         # two passes: the takeoff's hover on the configured map (its PID may be saturated, its
         # integral winding up), then HOVER on that trim, steadier, refines it
-        if self._trim(name, later + ([hover[1]] if hover is not None else [])) != OK:
+        if self._trim(name, later + ([hover[1]] if hover is not None else []), final=hover is None) != OK:
             self._land(origin)
             return LAND
         if hover is None:
@@ -430,7 +432,7 @@ class FlightRunner:
         result = self._fly_phase(hover[1], hover[2], origin)
         if result != OK:
             return result
-        if self._trim(hover[0], later) != OK:
+        if self._trim(hover[0], later, final=True) != OK:
             self._land(origin)
             return LAND
         return OK
@@ -545,11 +547,12 @@ class FlightRunner:
         """The controller's command for a finite measured ``state`` (world frame; the model flies
         relative to ``origin``), seen through the latency predictor when ``predict``, plus the
         calibration's thrust excitation at tick ``k``."""
-        predicted = None
+        predicted, lead_steps = None, 0.0
         if predict:
             p, v, q = self.predictor.predict(now, state.t_s, state.pos_m, state.vel_mps, state.quat, model.d_hat)
             predicted = (np.array(p) - origin, v, q)
-        action = model.act(np.array(state.pos_m) - origin, state.vel_mps, state.quat, predicted)
+            lead_steps = self.predictor.lead_s * self.p.rate_hz
+        action = model.act(np.array(state.pos_m) - origin, state.vel_mps, state.quat, predicted, lead_steps)
         if self._excitation is not None:
             action[0] += self._excitation(k)
         return action
@@ -639,13 +642,15 @@ class FlightRunner:
             time.sleep(max(0.0, next_t - time.monotonic()))
         return OK
 
-    def _trim(self, phase: str, models: list[FlightModel]) -> str:
+    def _trim(self, phase: str, models: list[FlightModel], final: bool) -> str:
         """Hover trim (``deploy.flight.hover_trim``): rescale the thrust map so that it passes
         through the command the hover just flown in ``phase`` needed
         (:func:`~datt.deploy.thrust.hover_command_from_hover` over its last
-        ``hover_trim_window_s``); the ``models`` still to fly get the new ceiling. A map more than
-        ``hover_trim_max`` from the configured one (a wrong ``deploy.thrust.mass_kg``, a flat
-        battery) is not flown: LAND. Returns OK or LAND."""
+        ``hover_trim_window_s``); the ``models`` still to fly get the new ceiling. The ``final``
+        trim (the one TRACK flies) more than ``hover_trim_max`` from the configured map (a wrong
+        ``deploy.thrust.mass_kg``, a flat battery) is not flown: LAND. An earlier pass, measured on
+        the configured map while the PID may still be saturated, is only clamped to
+        ``hover_trim_max``: HOVER flies it and measures again. Returns OK or LAND."""
         n = max(2, int(round(self.p.hover_trim_window_s * self.p.rate_hz)))
         hover = [r for r in self.rows if r["phase"] == phase][-n:]
         measured = hover_command_from_hover(
@@ -654,9 +659,15 @@ class FlightRunner:
             [r["thrust_cmd"] for r in hover],
             self.thrust.p.gravity_mps2,
         )
-        scale = measured / self.thrust.hover_command
         text = f"the hover needed command {measured:.0f}, the thrust map {self.thrust.hover_command:.0f}"
         change = measured / self.configured_hover_command - 1.0
+        if not final and math.isfinite(change) and abs(change) > self.p.hover_trim_max:
+            # a rough first pass: fly HOVER at the limit and let the steadier second pass decide
+            change = math.copysign(self.p.hover_trim_max, change)
+            text += f" ({100 * (measured / self.configured_hover_command - 1):+.0f} % from deploy.thrust, clamped to"
+            text += f" {100 * change:+.0f} %: HOVER measures again)"
+            measured = self.configured_hover_command * (1.0 + change)
+        scale = measured / self.thrust.hover_command
         if not abs(change) <= self.p.hover_trim_max:
             self._event(
                 "LAND",

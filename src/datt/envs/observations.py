@@ -76,14 +76,18 @@ def observe_and_cost(
     ref_future_m: Tensor,
     obs: ObsParams,
     reward: RewardParams,
+    obs_ref_future_m: Tensor | None = None,
 ) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     """Observation plus the per-step cost, in one pass (compiled as one kernel by the env).
 
     The observation is built from the measured ``*_meas`` state, the tracking error and cost from
-    the true one. Returns ``state [N, 13]``, ``ref [N, H, 3]``, ``tracking_error_m [N, 1]`` and
+    the true one; ``obs_ref_future_m [H, N, 3]`` (default ``ref_future_m``) is the window the
+    observation reads (``obs.predict_latency``: the reference as far ahead as the prediction).
+    Returns ``state [N, 13]``, ``ref [N, H, 3]``, ``tracking_error_m [N, 1]`` and
     ``cost [N, 1]`` = pos ‖p − p_d‖ + yaw |ψ| + vel min(‖v‖, cap) (reward = −cost).
     """
-    state, ref = build_observation(pos_meas_m, vel_meas_mps, quat_meas, ref_future_m, obs.body_frame, obs.feedback)
+    seen = ref_future_m if obs_ref_future_m is None else obs_ref_future_m
+    state, ref = build_observation(pos_meas_m, vel_meas_mps, quat_meas, seen, obs.body_frame, obs.feedback)
     err_m = torch.linalg.vector_norm(pos_m - ref_future_m[0], dim=-1, keepdim=True)
     yaw_err = wrap_angle(quat_yaw(quat)).abs().unsqueeze(-1)  # ψ_ref = 0
     speed = torch.linalg.vector_norm(vel_mps, dim=-1, keepdim=True).clamp_max(reward.vel_cap_mps)

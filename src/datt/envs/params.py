@@ -66,7 +66,16 @@ class ObsParams:
     lines 134-147; ``BaseQuadsimEnv.step`` advances ``t`` and builds observation and reward from
     it, ``learning/base_env.py`` lines 239-259): the policy sees a state one step old, which with
     the one step of command latency makes two steps of dead time. The tracking error (metrics)
-    is the true state against the reference at the same time under both."""
+    is the true state against the reference at the same time under both.
+    ``predict_latency``: the measured state the policy sees is rolled forward over the commands
+    in flight beyond one step (a drone with d steps of latency: the d − 1 commands sent before the
+    last one, through the controller's nominal model, :mod:`datt.envs.prediction`) and the
+    reference window is read that many steps ahead, so that every drone's policy answers a state
+    whose next command in flight is the last one sent, as at the nominal one step. Training with it
+    teaches a policy the state predictor it flies behind off-board (``deploy.predictor``).
+    ``predict_latency_error_steps`` = e: each drone is predicted over its true delay plus a uniform
+    integer in −e..e (drawn per episode, within 1..``quad.latency_steps_max``), as a deployed
+    predictor whose latency is measured rather than known (0: the true delay)."""
 
     body_frame: bool = True
     feedback: bool = True
@@ -77,6 +86,8 @@ class ObsParams:
     critic_ref_points: int = ranged(0, Range(0, 1000, integer=True))
     critic_ref_spacing_s: float = ranged(0.1, POSITIVE)  # and a whole multiple of env.dt_s
     timing: str = ranged("project", Range(choices=OBS_TIMINGS))
+    predict_latency: bool = False
+    predict_latency_error_steps: int = ranged(0, Range(0, 10, integer=True))
 
 
 def check_device(device: str) -> None:
@@ -139,4 +150,9 @@ class EnvParams:
             f"low + g must be >= 0 (thrust cannot pull down), got {lo}",
         )
         self.quad.validate("env.quad")
+        need(
+            not (self.obs.predict_latency and self.obs.timing == "authors"),
+            "obs.predict_latency",
+            "true needs env.obs.timing=project (the prediction starts from the state after the step)",
+        )
         check_device(self.device)

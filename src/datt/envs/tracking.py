@@ -18,6 +18,8 @@ With ``obs.action_history = k > 0`` the env keeps the last k commands it applied
 
 from __future__ import annotations
 
+import math
+
 import torch
 from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Bounded, Categorical, Composite, Unbounded
@@ -28,6 +30,7 @@ from datt.compile import compile_or_eager
 from datt.configuration import check_horizon
 from datt.envs.observations import critic_reference, observe_and_cost, state_width
 from datt.envs.params import EnvParams
+from datt.envs.prediction import roll_forward
 from datt.errors import ConfigError
 from datt.refs.base import RefFamily
 from datt.sim.disturbances import Disturbance
@@ -120,6 +123,11 @@ class TrackingEnv(EnvBase):
         self.box_m = torch.tensor(params.safety_box_m, **kw)
         self._make_specs()
         self._all_idx = torch.arange(num_envs, device=device)
+        self._ref_lead_steps = 0.0  # deployment behind a state predictor: set_reference_lead
+        # obs.predict_latency_error_steps: the delay each drone is predicted over (None: its true one)
+        self.assumed_delay = None
+        if params.obs.predict_latency and params.obs.predict_latency_error_steps:
+            self.assumed_delay = torch.ones(num_envs, dtype=torch.long, device=device)
         self._reset_drones(self._all_idx)
 
     def _init_reference_buffers(self, params: EnvParams, horizon: int, num_envs: int, device) -> None:
@@ -183,6 +191,7 @@ class TrackingEnv(EnvBase):
         u = torch.rand(k, 3, generator=gen, device=self.device, dtype=self.dtype)
         self.sim.reset(idx, (2.0 * u - 1.0) * r)
         self.sim.randomise(idx, self.generator)
+        self._draw_assumed_delay(idx)
         self.step_idx[idx] = 0
         self.episode_len[idx] = self.params.episode_steps
         table = self.traj.sample(k, self.t_grid_s, self.generator).to(self.dtype)
@@ -313,8 +322,8 @@ class TrackingEnv(EnvBase):
         if idx is not None:
             pos, vel, quat, future = pos[idx], vel[idx], quat[idx], future[:, idx]
             kernel = observe_and_cost  # eager: subset sizes vary, avoid recompiles
-        measured = self._measure(pos, vel, quat)
-        state, ref, err_m, cost = kernel(*measured, pos, vel, quat, future, self.params.obs, self.params.reward)
+        measured, seen = self._policy_state(self._measure(pos, vel, quat), idx)
+        state, ref, err_m, cost = kernel(*measured, pos, vel, quat, future, self.params.obs, self.params.reward, seen)
         if read_state is not None:  # the metric: the simulator's state against the same-time reference
             err_m = torch.linalg.vector_norm(s.pos_m - future[0], dim=-1, keepdim=True)
         if self.cmd_history.shape[1]:
@@ -333,6 +342,79 @@ class TrackingEnv(EnvBase):
         # values are built here with the right shapes and device: skip TensorDict's checks
         td = TensorDict._new_unsafe(values, batch_size=self.batch_size, device=self.device)
         return td, err_m, cost
+
+    def policy_view(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+        """What the policy's observation is built from, without the observation noise:
+        ``(pos [N, 3], vel [N, 3], quat [N, 4], window [H, N, 3])``, the simulator's state (the
+        measurement on hardware) and the reference window, both as ``obs.predict_latency`` or
+        :meth:`set_reference_lead` move them (controllers that build the observation themselves
+        read this, as :meth:`observe` does)."""
+        s = self.sim.state
+        (pos, vel, quat), seen = self._policy_state((s.pos_m, s.vel_mps, s.quat), None)
+        return pos, vel, quat, self._ref_future() if seen is None else seen
+
+    def _policy_state(self, measured: tuple, idx: torch.Tensor | None) -> tuple[tuple, torch.Tensor | None]:
+        """The measured ``(pos, vel, quat)`` of all drones (or rows ``idx``) and the reference
+        window ``[H, N, 3]`` the observation reads: rolled forward and ahead under
+        ``obs.predict_latency``, the window ahead by the deployment's lead, else the state as
+        measured and None (the window now)."""
+        if self.params.obs.predict_latency:
+            return self._predict(measured, idx)
+        if self._ref_lead_steps:
+            rows = self._all_idx if idx is None else idx
+            whole = int(self._ref_lead_steps)
+            frac = self._ref_lead_steps - whole
+            window = self._window_ahead(rows, torch.full_like(rows, whole))
+            if frac:  # between two steps: linear interpolation (exact on the table's straight segments)
+                window = torch.lerp(window, self._window_ahead(rows, torch.full_like(rows, whole + 1)), frac)
+            return measured, window
+        return measured, None
+
+    def _draw_assumed_delay(self, idx: torch.Tensor) -> None:
+        """``obs.predict_latency_error_steps`` = e > 0: the delay drones ``idx`` are predicted
+        over this episode, their true one plus a uniform integer in −e..e, kept within
+        1..``max_latency_steps`` (a deployed predictor's latency is measured, not known)."""
+        err = self.params.obs.predict_latency_error_steps
+        if not (self.params.obs.predict_latency and err):
+            return
+        latency = self.sim.latency
+        true = latency.delay[idx] if latency.delay is not None else torch.full_like(idx, latency.steps)
+        off = torch.randint(-err, err + 1, (len(idx),), generator=self.generator, device=self.device)
+        self.assumed_delay[idx] = (true + off).clamp(1, max(latency.max_steps, 1))
+
+    def _predict(self, measured: tuple, idx: torch.Tensor | None) -> tuple[tuple, torch.Tensor]:
+        """``obs.predict_latency``: the measured ``(pos, vel, quat)`` of all drones (or rows
+        ``idx``) rolled over each drone's commands in flight beyond one step
+        (:func:`datt.envs.prediction.roll_forward`), and the reference window ``[H, N, 3]`` read
+        as many steps ahead."""
+        rows = self._all_idx if idx is None else idx
+        commands, active, acting = self.sim.latency.pending(self.assumed_delay)
+        commands, active = commands[:, rows], active[:, rows]
+        predicted = roll_forward(
+            *measured,
+            acting[rows],
+            commands,
+            active,
+            self.adaptation.d_hat[rows],
+            self.sim.params,
+            self.dt_s,
+        )
+        return predicted, self._window_ahead(rows, active.sum(0))
+
+    def _window_ahead(self, rows: torch.Tensor, lead_steps: torch.Tensor) -> torch.Tensor:
+        """The policy's reference window of drones ``rows [k]`` read ``lead_steps [k]`` steps
+        ahead of now, ``[H, k, 3]`` (world; held at the table's last point)."""
+        steps = (self.step_idx[rows] + lead_steps).unsqueeze(1) + self.ref_offsets
+        flat = (self._row_base[rows].unsqueeze(1) + steps.clamp_max(self.table_len - 1)).reshape(-1)
+        return self.ref_table.view(-1, 3).index_select(0, flat).view(len(rows), -1, 3).transpose(0, 1)
+
+    def set_reference_lead(self, steps: float) -> None:
+        """Deployment behind a state predictor: the observation's reference window is read
+        ``steps`` steps ahead of now (the time of the predicted state; a fraction interpolates
+        between two steps; 0: now). Training reads its own lead from ``obs.predict_latency``."""
+        if not steps >= 0 or not math.isfinite(steps):
+            raise ValueError(f"reference lead: must be a finite number >= 0 steps, got {steps}")
+        self._ref_lead_steps = float(steps)
 
     def _critic_ref(self, idx: torch.Tensor | None = None) -> torch.Tensor:
         """``critic_ref [N, K, 3]`` (or its rows ``idx``) from the true state: the critic is

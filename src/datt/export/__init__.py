@@ -91,6 +91,8 @@ def export_spec(cfg: DictConfig, golden_steps: int = 40) -> tuple[PolicySpec, Da
     (must be an L1 option) and a golden case recorded from a flight on ``cfg.traj``."""
     controller, merged, _ = build_controller(cfg)
     require_current_state_timing(merged, "the exported app")
+    # onboard the app answers the newest estimate within its own tick: nothing in flight to predict
+    merged.env.obs.predict_latency = False
     if not isinstance(controller, DattController):
         raise ConfigError("controller: the export needs a DATT policy (datt, datt_l1, datt_rma)")
     l1 = instantiate_option(merged, "adaptation")

@@ -162,6 +162,25 @@ class CommandLatency:
         order = (self._head - self.steps + torch.arange(self.steps, device=self._ring.device)) % size
         return self._ring.index_select(0, order)
 
+    def pending(self, assumed: Tensor | None = None) -> tuple[Tensor, Tensor, Tensor]:
+        """The commands the next steps will apply before the last one sent reaches the
+        actuators: for a drone with delay d, the d − 1 commands sent before the last, oldest
+        first, and the one acting now (the last applied). Returns ``(commands [S, N, *shape],
+        active [S, N], acting [N, *shape])`` with S = ``max_steps − 1`` (at least 0);
+        ``active[j, n]`` is False where drone n has fewer than j + 1 such commands.
+        ``assumed [N]`` (each in 1..max_steps): what a predictor that takes the delay to be these
+        would list instead (a longer one lists commands that already acted, a shorter one misses
+        some)."""
+        size = self.max_steps + 1
+        count = max(self.max_steps - 1, 0)
+        if assumed is None:
+            assumed = self.delay if self.delay is not None else torch.full_like(self._rows, self.steps)
+        j = torch.arange(count, device=self._ring.device).unsqueeze(1)  # [S, 1]
+        slots = (self._head - assumed.unsqueeze(0) + j) % size  # [S, N]: the one applied j steps on
+        commands = self._ring[slots, self._rows.unsqueeze(0)]
+        acting = self._ring[(self._head - 1 - assumed) % size, self._rows]
+        return commands, j < (assumed.unsqueeze(0) - 1), acting
+
     def reset(self, idx: Tensor) -> None:
         self._ring[:, idx] = self.fill
 

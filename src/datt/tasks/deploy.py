@@ -101,6 +101,32 @@ def _predictor(params: DeployParams, model_cfg: DictConfig) -> StatePredictor | 
     )
 
 
+def _flight_model_config(params: DeployParams, merged: DictConfig) -> DictConfig:
+    """The config the flight's one-drone envs are built from: no simulated disturbance, no
+    random start, eager; the training's latency prediction off (the deployment's own predictor,
+    ``deploy.predictor``, in continuous time, replaces it; a note if it is off for a policy
+    trained behind it)."""
+    model_cfg = with_options(merged, disturbance="none")
+    model_cfg.env.init_pos_range_m = 0.0
+    model_cfg.env.compile = False
+    note = predictor_note(params, bool(model_cfg.env.obs.get("predict_latency", False)))
+    if note:
+        console.print(note)
+    model_cfg.env.obs.predict_latency = False
+    return model_cfg
+
+
+def predictor_note(params: DeployParams, trained_behind_predictor: bool) -> str | None:
+    """The line ``deploy.py`` prints when a policy trained behind the state predictor
+    (``env.obs.predict_latency``) flies off-board without it, else None."""
+    if trained_behind_predictor and not (params.onboard or params.predictor.enabled or params.mode == "calibrate"):
+        return (
+            "note: this policy was trained behind the state predictor (env.obs.predict_latency=true); "
+            "off-board it is meant to fly with deploy.predictor.enabled=true"
+        )
+    return None
+
+
 def _print_summary(params: DeployParams, summary: dict, run_dir: Path) -> None:
     """The flight's outcome in one line (and, for a calibration, the fitted thrust map)."""
     if params.mode == "calibrate":
@@ -133,9 +159,7 @@ def run_deploy(cfg: DictConfig, run_dir: Path | None = None, estop=None, server_
     set_threads(cfg.threads)
     controller, merged, labels = build_controller(cfg)
     require_current_state_timing(merged, "deploy")
-    model_cfg = with_options(merged, disturbance="none")
-    model_cfg.env.init_pos_range_m = 0.0
-    model_cfg.env.compile = False
+    model_cfg = _flight_model_config(params, merged)
 
     def make_flight_env(family):
         return make_env(model_cfg, num_envs=1, seed=int(cfg.seed), traj=family)

@@ -66,6 +66,8 @@ KEYS_ADDED_SINCE: dict[str, object] = {
     "eval.protocol": "project",
     "curriculum.fixed_ref": "steps",
     "env.obs.timing": "project",
+    "env.obs.predict_latency": False,
+    "env.obs.predict_latency_error_steps": 0,
 }
 
 

@@ -20,8 +20,14 @@ from datt.tasks.deploy import run_deploy
 from datt.tasks.eval import run_eval
 
 # what benchmarks/transfer.py flies by default: the shipped policy (python train.py), the deploy-grade one
-# (experiment=deploy) and the firmware-grade one (experiment=deploy_firmware, what deploy.py flies)
-CHECKPOINTS = ["checkpoints/datt_h10.pt", "checkpoints/datt_h10_deploy.pt", "checkpoints/datt_h10_firmware.pt"]
+# (experiment=deploy), the firmware-grade one (experiment=deploy_firmware, what deploy.py flies) and the
+# one trained behind the state predictor (experiment=deploy_predictor)
+CHECKPOINTS = [
+    "checkpoints/datt_h10.pt",
+    "checkpoints/datt_h10_deploy.pt",
+    "checkpoints/datt_h10_firmware.pt",
+    "checkpoints/datt_h10_predictor.pt",
+]
 MASS_KG = 0.034  # deploy.thrust.mass_kg's default: what the controller believes
 CONDITIONS = {
     "deploy.server.radio_latency_s": 0.02,  # each way: 40 ms round trip
