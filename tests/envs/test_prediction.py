@@ -130,14 +130,15 @@ def test_roll_forward_follows_the_nominal_model_and_skips_inactive_steps():
     commands = torch.stack((climb, hover))
     active = torch.tensor([[True, False], [True, False]])
     d_hat = torch.tensor([[0.0, 0.0, 0.0], [0.0, 0.0, 0.0]], dtype=torch.float64)
-    p, v, q = roll_forward(pos, vel, quat, hover, commands, active, d_hat, quad, 0.02)
+    gravity = torch.tensor([0.0, 0.0, -quad.gravity_mps2], dtype=torch.float64)
+    p, v, q = roll_forward(pos, vel, quat, hover, commands, active, d_hat, gravity, quad, 0.02)
     a1 = 2.0 * quad.k_thrust  # the first step's excess acceleration
     a2 = 2.0 * quad.k_thrust * (1 - quad.k_thrust)  # the second: the actuator relaxes back
     assert v[0, 2].item() == pytest.approx((a1 + a2) * 0.02, abs=1e-12)
     assert p[0, 2].item() == pytest.approx(0.5 * a1 * 0.02**2 + a1 * 0.02 * 0.02 + 0.5 * a2 * 0.02**2, abs=1e-12)
     assert torch.equal(p[1], pos[1]) and torch.equal(v[1], vel[1]) and torch.equal(q[1], quat[1])
     # d-hat acts as a world-frame acceleration over both steps
-    p, v, _ = roll_forward(pos, vel, quat, hover, torch.stack((hover, hover)), active, d_hat + 1.0, quad, 0.02)
+    p, v, _ = roll_forward(pos, vel, quat, hover, torch.stack((hover, hover)), active, d_hat + 1.0, gravity, quad, 0.02)
     assert torch.allclose(v[0], torch.full((3,), 0.04, dtype=torch.float64), atol=1e-12)
 
 

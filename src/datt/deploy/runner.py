@@ -663,9 +663,8 @@ class FlightRunner:
         change = measured / self.configured_hover_command - 1.0
         if not final and math.isfinite(change) and abs(change) > self.p.hover_trim_max:
             # a rough first pass: fly HOVER at the limit and let the steadier second pass decide
-            change = math.copysign(self.p.hover_trim_max, change)
-            text += f" ({100 * (measured / self.configured_hover_command - 1):+.0f} % from deploy.thrust, clamped to"
-            text += f" {100 * change:+.0f} %: HOVER measures again)"
+            raw, change = change, math.copysign(self.p.hover_trim_max, change)
+            text += f" ({100 * raw:+.0f} % from deploy.thrust, clamped to {100 * change:+.0f} %: HOVER measures again)"
             measured = self.configured_hover_command * (1.0 + change)
         scale = measured / self.thrust.hover_command
         if not abs(change) <= self.p.hover_trim_max:

@@ -31,6 +31,7 @@ def roll_forward(
     commands: Tensor,
     active: Tensor,
     d_hat_mps2: Tensor,
+    gravity_mps2: Tensor,
     quad: QuadrotorParams,
     dt_s: float,
 ) -> tuple[Tensor, Tensor, Tensor]:
@@ -38,17 +39,17 @@ def roll_forward(
     command of ``commands [S, N, 4]`` (thrust m/s², body rates rad/s; oldest first) where
     ``active [S, N]``; a drone's inactive steps leave it where it is. ``acting_cmd [N, 4]``: the
     command acting when the state was measured (the actuators' assumed state); ``d_hat_mps2
-    [N, 3]``: world-frame disturbance estimate."""
+    [N, 3]``: world-frame disturbance estimate; ``gravity_mps2 [3]``: the world-frame gravity
+    vector (the simulator's ``gravity``)."""
     if commands.shape[0] == 0:
         return pos_m, vel_mps, quat
-    gravity = torch.tensor([0.0, 0.0, -quad.gravity_mps2], device=pos_m.device, dtype=pos_m.dtype)
     thrust, rate = acting_cmd[:, 0].clone(), acting_cmd[:, 1:].clone()
     pos, vel, q = pos_m, vel_mps, quat
     for command, on in zip(commands, active):
         if not bool(on.any()):
             break  # later steps are inactive for every drone too (active is a prefix)
         new = integrate(
-            pos, vel, q, rate, thrust, command, d_hat_mps2, gravity, dt_s,
+            pos, vel, q, rate, thrust, command, d_hat_mps2, gravity_mps2, dt_s,
             quad.k_thrust, quad.k_rate, quad.max_thrust_mps2, quad.max_rate_radps,
         )[:5]  # fmt: skip
         keep = on.unsqueeze(-1)

@@ -378,9 +378,8 @@ class TrackingEnv(EnvBase):
         if not (self.params.obs.predict_latency and err):
             return
         latency = self.sim.latency
-        true = latency.delay[idx] if latency.delay is not None else torch.full_like(idx, latency.steps)
         off = torch.randint(-err, err + 1, (len(idx),), generator=self.generator, device=self.device)
-        self.assumed_delay[idx] = (true + off).clamp(1, max(latency.max_steps, 1))
+        self.assumed_delay[idx] = (latency.delays()[idx] + off).clamp(1, max(latency.max_steps, 1))
 
     def _predict(self, measured: tuple, idx: torch.Tensor | None) -> tuple[tuple, torch.Tensor]:
         """``obs.predict_latency``: the measured ``(pos, vel, quat)`` of all drones (or rows
@@ -396,6 +395,7 @@ class TrackingEnv(EnvBase):
             commands,
             active,
             self.adaptation.d_hat[rows],
+            self.sim.gravity,
             self.sim.params,
             self.dt_s,
         )
@@ -404,9 +404,14 @@ class TrackingEnv(EnvBase):
     def _window_ahead(self, rows: torch.Tensor, lead_steps: torch.Tensor) -> torch.Tensor:
         """The policy's reference window of drones ``rows [k]`` read ``lead_steps [k]`` steps
         ahead of now, ``[H, k, 3]`` (world; held at the table's last point)."""
-        steps = (self.step_idx[rows] + lead_steps).unsqueeze(1) + self.ref_offsets
-        flat = (self._row_base[rows].unsqueeze(1) + steps.clamp_max(self.table_len - 1)).reshape(-1)
-        return self.ref_table.view(-1, 3).index_select(0, flat).view(len(rows), -1, 3).transpose(0, 1)
+        return self._table_points(rows, lead_steps.unsqueeze(1) + self.ref_offsets).transpose(0, 1)
+
+    def _table_points(self, rows: torch.Tensor, ahead: torch.Tensor) -> torch.Tensor:
+        """Reference points ``[k, K, 3]`` (world) of drones ``rows [k]`` at ``ahead [k, K]`` (or
+        ``[K]``) steps from now, held at the table's last point."""
+        steps = (self.step_idx[rows].unsqueeze(1) + ahead).clamp_max(self.table_len - 1)
+        flat = (self._row_base[rows].unsqueeze(1) + steps).reshape(-1)
+        return self.ref_table.view(-1, 3).index_select(0, flat).view(len(rows), -1, 3)
 
     def set_reference_lead(self, steps: float) -> None:
         """Deployment behind a state predictor: the observation's reference window is read
@@ -421,9 +426,7 @@ class TrackingEnv(EnvBase):
         trained only in simulation, so it may read what the sensors do not give the policy."""
         s = self.sim.state
         rows = self._all_idx if idx is None else idx
-        steps = (self.step_idx[rows].unsqueeze(1) + self.critic_offsets).clamp_max(self.table_len - 1)
-        flat = (self._row_base[rows].unsqueeze(1) + steps).reshape(-1)
-        points = self.ref_table.view(-1, 3).index_select(0, flat).view(len(rows), -1, 3)
+        points = self._table_points(rows, self.critic_offsets)
         return critic_reference(s.pos_m[rows], s.quat[rows], points, self.params.obs.body_frame)
 
     def _measure(self, pos: torch.Tensor, vel: torch.Tensor, quat: torch.Tensor):

@@ -162,6 +162,10 @@ class CommandLatency:
         order = (self._head - self.steps + torch.arange(self.steps, device=self._ring.device)) % size
         return self._ring.index_select(0, order)
 
+    def delays(self) -> Tensor:
+        """Each drone's delay in steps, ``[N]`` long (``steps`` for all until ``set_delay``)."""
+        return self.delay if self.delay is not None else torch.full_like(self._rows, self.steps)
+
     def pending(self, assumed: Tensor | None = None) -> tuple[Tensor, Tensor, Tensor]:
         """The commands the next steps will apply before the last one sent reaches the
         actuators: for a drone with delay d, the d − 1 commands sent before the last, oldest
@@ -174,7 +178,7 @@ class CommandLatency:
         size = self.max_steps + 1
         count = max(self.max_steps - 1, 0)
         if assumed is None:
-            assumed = self.delay if self.delay is not None else torch.full_like(self._rows, self.steps)
+            assumed = self.delays()
         j = torch.arange(count, device=self._ring.device).unsqueeze(1)  # [S, 1]
         slots = (self._head - assumed.unsqueeze(0) + j) % size  # [S, N]: the one applied j steps on
         commands = self._ring[slots, self._rows.unsqueeze(0)]
