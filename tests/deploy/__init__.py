@@ -2,8 +2,10 @@
 UDP ports of this test process's simulated Crazyflies."""
 
 import itertools
+import math
 import os
 import shutil
+import time
 
 # One counter per test process, in a block of its own per pytest-xdist worker (gw0, gw1, ...), so
 # that parallel workers never bind each other's simulated Crazyflie; below the kernel's ephemeral
@@ -30,9 +32,11 @@ SHORT_FLIGHT = [
 # machine (its threads share the host's process and CPUs; a real Crazyflie's stabilizer runs on
 # its own MCU): that flight is not the vehicle's and is flown again, at most STALL_ATTEMPTS times.
 # 2.5 physics steps: a fresh-clone CI run saw a flight whose host ran 7 ticks late (p99 57 ms)
-# track with 0.27 m instead of ~0.06 m. The host freezes the collector's heap while airborne,
+# track with 0.27 m instead of ~0.06 m. The host freezes the collector's heap during its flight,
 # which took the stalls seen in the default suite from 0.5-1.1 s (full collections of a test
 # worker's heap) to at most 0.15 s; in 3 of 23 flights of one suite run they passed 0.05 s.
+# Stalls that remain (50-150 ms in one of four flights of `pytest tests/deploy` on a 2-core VM,
+# 2026-12-05) mostly change nothing a test checks: after the last attempt its checks decide.
 STALL_LIMIT_S = 0.05
 STALL_ATTEMPTS = 3
 
@@ -41,11 +45,10 @@ def fly_sim(tmp_path, port: int, overrides=(), hook=None, estop=None) -> tuple[d
     """One shortened ``deploy.py`` flight against the simulated Crazyflie on ``port``;
     ``hook(server, runner)`` runs once both exist. Returns (summary, server, runner).
 
-    A flight the machine stalled (``server.physics_lag_max_s`` > ``STALL_LIMIT_S``) is flown
+    A flight the machine stalled (the simulated vehicle's physics more than ``STALL_LIMIT_S``
+    behind its clock between the host's preflight and DISARM) is flown
     again on a fresh port, the files it added to ``tmp_path`` removed and ``estop`` cleared;
-    a test fails when every attempt was stalled."""
-    import pytest
-
+    when every attempt was stalled the last one is returned and the test's checks judge it."""
     from datt.configuration import compose
     from datt.tasks.deploy import run_deploy
 
@@ -57,14 +60,24 @@ def fly_sim(tmp_path, port: int, overrides=(), hook=None, estop=None) -> tuple[d
 
         def server_hook(server, runner, seen=seen):
             seen["server"], seen["runner"] = server, runner
+            set_phase = runner._set_phase
+
+            def phase_timed(phase: str) -> None:  # DISARM: the host's loop no longer meets the vehicle's
+                if phase == "DISARM":
+                    seen.setdefault("disarm_t", time.monotonic())
+                set_phase(phase)
+
+            runner._set_phase = phase_timed
             if hook is not None:
                 hook(server, runner)
 
         summary = run_deploy(cfg, run_dir=tmp_path, estop=estop, server_hook=server_hook)
-        lags.append(seen["server"].physics_lag_max_s)
+        # a stall after DISARM (the collector's full pass once the heap thaws, while a vehicle whose
+        # link was cut stays armed) met nothing the host flew
+        lags.append(seen["server"].physics_lag_max_until(seen.get("disarm_t", math.inf)))
         print(f"flight {attempt + 1}: the simulated vehicle's physics fell {lags[-1] * 1e3:.0f} ms behind at most")
-        if lags[-1] <= STALL_LIMIT_S:
-            return summary, seen["server"], seen["runner"]
+        if lags[-1] <= STALL_LIMIT_S or attempt == STALL_ATTEMPTS - 1:
+            break
         print(f"flight {attempt + 1} is flown again: the machine stalled the simulated vehicle")
         for path in set(tmp_path.iterdir()) - before:
             if path.is_dir():
@@ -74,4 +87,6 @@ def fly_sim(tmp_path, port: int, overrides=(), hook=None, estop=None) -> tuple[d
         if estop is not None:
             estop.clear()
         port = next(ports)
-    pytest.fail(f"the machine stalled the simulated vehicle in every flight: {[round(x, 3) for x in lags]} s")
+    if lags[-1] > STALL_LIMIT_S:  # the test's own checks judge whether the stalls changed what they check
+        print(f"the machine stalled the simulated vehicle in every flight: {[round(x, 3) for x in lags]} s")
+    return summary, seen["server"], seen["runner"]

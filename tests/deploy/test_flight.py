@@ -79,9 +79,9 @@ def test_nominal_flight_tracks_and_lands(tmp_path, monkeypatch):
 
     summary, server = fly(tmp_path, hook=watch)
     assert summary["outcome"] == "landed"
-    # airborne, the collector skips the heap the host had before arming (a full collection of it
-    # pauses every thread for several ticks); it is handed back after the flight
-    assert calls == [("freeze", "PREFLIGHT"), ("unfreeze", "LAND")] and gc.get_freeze_count() == 0
+    # from CONNECT on, the collector skips the heap the host had before the flight (a full
+    # collection of it pauses every thread for several ticks); it is handed back after the flight
+    assert calls == [("freeze", "CONNECT"), ("unfreeze", "LAND")] and gc.get_freeze_count() == 0
     assert summary["track_steps"] == 150 and summary["track_error_m"] < 0.15
     assert motors_stopped(server) and server.true_state()["pos_m"][2] < 0.1
     with open(tmp_path / "flight.csv", newline="") as f:

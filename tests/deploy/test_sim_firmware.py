@@ -86,6 +86,29 @@ def test_arming_is_refused_while_locked_and_the_state_bitfield_says_why(vehicle)
     assert not server.armed and link.supervisor_bits() >> 6 & 1
 
 
+def test_a_lost_supervisor_request_is_asked_again_and_a_silent_vehicle_refused(vehicle):
+    """The state request is sent again after each io_timeout_s without an answer (a lost packet
+    costs half a second, not the flight); a vehicle that never answers is refused after
+    SUPERVISOR_REQUESTS requests, with one line."""
+    from datt.deploy.link import SUPERVISOR_REQUESTS
+
+    server, link = vehicle
+    answer, asked = server._on_supervisor, []
+
+    def lose_first(ch, data, lost=1):
+        asked.append(ch)
+        if len(asked) > lost:
+            answer(ch, data)
+
+    server._on_supervisor = lose_first
+    assert link.supervisor_bits() & 0b1 and asked == [0, 0]  # the first lost, the second answered
+    asked.clear()
+    server._on_supervisor = lambda ch, data: lose_first(ch, data, lost=99)
+    with pytest.raises(LinkError, match=r"^preflight: the vehicle does not answer the supervisor state request"):
+        link.supervisor_bits()
+    assert len(asked) == SUPERVISOR_REQUESTS
+
+
 def test_emergency_stop_locks_the_motors(vehicle):
     server, link = vehicle
     link.arm(True)
@@ -143,3 +166,23 @@ def test_a_stall_of_the_machine_is_measured_and_the_vehicle_catches_up():
         time.sleep(0.1)
         assert server.physics_lag_max_s > 0.25
         assert server.sim_time_s - start_sim_s == pytest.approx(0.4, abs=0.06)
+        (stalled_at, lag), *_ = [(t, lag) for t, lag in server.physics_lags if lag > 0.25]
+        assert server.physics_lag_max_until(stalled_at - lag + 0.01) == server.physics_lag_max_s
+        assert server.physics_lag_max_until(stalled_at - lag - 0.05) < 0.25  # ended before the stall began
+
+
+def test_the_stall_watch_starts_at_the_hosts_first_supervisor_request():
+    """Unarmed, a stall counts once the host's preflight asked the supervisor for its state (from
+    there the host's loop meets the vehicle's: a stall then can fail the arming or the flight)."""
+    from datt.deploy import firmware
+
+    with SimCrazyflie(SimCrazyflieParams(port=next(ports))) as server:
+        with server._lock:
+            time.sleep(0.2)
+        time.sleep(0.1)
+        assert server.physics_lag_max_s == 0.0 and server.physics_lags == []
+        server._on_supervisor(0, bytes([firmware.SUPERVISOR_CMD_GET_STATE_BITFIELD]))
+        with server._lock:
+            time.sleep(0.2)
+        time.sleep(0.1)
+        assert not server.armed and server.physics_lag_max_s > 0.15

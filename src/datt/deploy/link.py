@@ -52,6 +52,10 @@ OFFBOARD_SETTINGS = (
 PARAM_SETTLE_S = 0.05
 
 
+# how many times the supervisor's state is asked for (io_timeout_s apart) before the vehicle is
+# taken not to answer it
+SUPERVISOR_REQUESTS = 4
+
 # Decks that give the Kalman filter a position (or flow + height) of its own (firmware deck drivers'
 # requiredEstimator = kalman); without one and without mocap, x and y are unobserved.
 POSITIONING_DECKS = ("deck.bcLighthouse4", "deck.bcDWM1000", "deck.bcLoco", "deck.bcFlow", "deck.bcFlow2")
@@ -337,8 +341,13 @@ class CrazyflieLink:
             pk = CRTPPacket()
             pk.set_header(CRTPPort.SUPERVISOR, int(fact("supervisor_info_channel")))
             pk.data = bytes([firmware.SUPERVISOR_CMD_GET_STATE_BITFIELD])
-            self._send("supervisor state", self.cf.send_packet, pk)
-            if not got.wait(self._io.timeout_s * 4):
+            # asked again after each io_timeout_s without an answer (a request or its answer lost on
+            # the radio, as cflib resends the requests it expects answers to)
+            for _ in range(SUPERVISOR_REQUESTS):
+                self._send("supervisor state", self.cf.send_packet, pk)
+                if got.wait(self._io.timeout_s):
+                    break
+            else:
                 raise LinkError("preflight: the vehicle does not answer the supervisor state request (old firmware?)")
         finally:
             self.cf.remove_port_callback(CRTPPort.SUPERVISOR, cb)

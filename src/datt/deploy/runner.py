@@ -298,20 +298,21 @@ class FlightRunner:
     def _flight(self, build, airborne) -> dict:
         """CONNECT -> PREFLIGHT -> ``build(start)`` -> ARM -> ``airborne(origin, built)`` -> DISARM;
         the flight log is written whatever happens. Models are built (and the policy traced)
-        before the motors spin and the heap is frozen while they do (``frozen_heap``), so nothing
-        stalls the control loop mid-flight. A stop request
+        before the motors spin, and the heap is frozen from CONNECT to DISARM (``frozen_heap``: a
+        full collection of a large heap pauses every thread, the link's and the preflight's
+        too), so nothing stalls the control loop mid-flight. A stop request
         before arming (also one made while the flight was being prepared: ``stop_request``) ends
         the flight unarmed; after arming it KILLs."""
         try:
             with stop_signals(_raise_interrupt):
                 self._stop_if_requested()
-                self._connect()
-                self._set_phase("PREFLIGHT")
-                start = self._preflight()
-                origin = self._origin()
-                built = build(start - origin)
-                self._stop_if_requested()
                 with frozen_heap():
+                    self._connect()
+                    self._set_phase("PREFLIGHT")
+                    start = self._preflight()
+                    origin = self._origin()
+                    built = build(start - origin)
+                    self._stop_if_requested()
                     self._arm()
                     airborne(origin, built)
         except _Abort:

@@ -302,10 +302,14 @@ class SimCrazyflie:
         self._lock = threading.Lock()
         self._running = threading.Event()
         self._threads: list[threading.Thread] = []
-        # How far the physics loop fell behind its real-time schedule while armed (s): the host
+        # How far the physics loop fell behind its real-time schedule (s) from the host's first
+        # supervisor request on (its preflight: the flight's part of the session): the host
         # machine's stall (a real vehicle's stabilizer runs on its own MCU and never falls behind),
         # after which the vehicle catches up flying the last setpoint, as one would after a host stall.
+        # ``physics_lags``: (time.monotonic(), lag) of every step that ran over half a step late.
         self.physics_lag_max_s = 0.0
+        self.physics_lags: list[tuple[float, float]] = []
+        self._lag_watched = False
 
     def _boot_params(self) -> None:
         """The vehicle's parameters at boot: the configured decks attached, the boot overrides
@@ -434,13 +438,21 @@ class SimCrazyflie:
     def _physics_loop(self) -> None:
         next_t = time.monotonic()
         while self._running.is_set():
-            if self.armed:
-                self.physics_lag_max_s = max(self.physics_lag_max_s, time.monotonic() - next_t)
+            if self._lag_watched or self.armed:
+                now = time.monotonic()
+                self.physics_lag_max_s = max(self.physics_lag_max_s, now - next_t)
+                if now - next_t > self.p.dt_s / 2:
+                    self.physics_lags.append((now, now - next_t))
             with self._lock:
                 self._physics_step()
                 self._send_logs()
             next_t += self.p.dt_s
             time.sleep(max(0.0, next_t - time.monotonic()))
+
+    def physics_lag_max_until(self, t_s: float) -> float:
+        """How far the physics loop fell behind at most before ``time.monotonic()`` reached
+        ``t_s`` (the end of the host's flight; after it a stall no longer meets the host's loop)."""
+        return max((lag for t, lag in self.physics_lags if t - lag <= t_s), default=0.0)
 
     def _physics_step(self) -> None:
         self._settle_params()
@@ -927,6 +939,7 @@ class SimCrazyflie:
     def _on_supervisor(self, ch: int, data: bytes) -> None:
         if not data:
             return
+        self._lag_watched = True  # the host's preflight or arming: from here its loop meets the vehicle's
         if ch == 0 and data[0] == CMD_GET_STATE_BITFIELD:  # info channel
             reply = bytes([0x80 | CMD_GET_STATE_BITFIELD]) + struct.pack("<H", self.state_bitfield())
             self._send(crtp.packet(crtp.PORT_SUPERVISOR, 0, reply))
