@@ -232,3 +232,87 @@ def test_a_policy_trained_behind_the_predictor_says_so_when_flown_off_board_with
     assert (note is not None) == noted
     if noted:
         assert "deploy.predictor.enabled=true" in note and "env.obs.predict_latency" in note
+
+
+def ticked(tick_s=0.02, latency_s=0.06, round_trip_s=0.04, policy_delay_s=0.02) -> StatePredictor:
+    """A vehicle whose loop picks up setpoints every ``tick_s``; its clock reads 0 at host time
+    100.0 - transit (an estimate stamped v arrives at 100 + v + 0.02: the radio's one way)."""
+    params = PredictorParams(enabled=True, latency_s=latency_s, policy_delay_s=policy_delay_s, vehicle_tick_s=tick_s)
+    p = StatePredictor(params, G, 1.0, 0.02, round_trip_s=round_trip_s)
+    p.observe(100.0 + 0.5 + 0.02 + 0.003, 0.5)  # a late one (3 ms of jitter) ...
+    p.observe(100.0 + 0.52 + 0.02, 0.52)  # ... and the least transit: the clock is the minimum
+    return p
+
+
+def test_estimates_are_placed_by_the_vehicles_clock_and_its_least_transit():
+    p = ticked()
+    assert p.measured_at(0.6) == pytest.approx(100.6, abs=1e-12)  # 0.6 s on the vehicle: measured at 100.6
+    assert p.measured_at(0.0) == pytest.approx(100.0, abs=1e-12)
+
+
+@pytest.mark.parametrize(
+    "arrives, picked",
+    [(100.601, 100.62), (100.619, 100.62), (100.62, 100.62), (100.6201, 100.64), (100.6, 100.6)],
+)
+def test_a_setpoint_is_picked_up_at_the_vehicles_next_loop_tick_inclusive(arrives, picked):
+    assert ticked().picked_up(arrives) == pytest.approx(picked, abs=1e-9)
+
+
+def test_without_a_tick_or_a_clock_a_setpoint_acts_when_it_arrives():
+    assert ticked(tick_s=0.0).picked_up(100.613) == 100.613
+    no_clock = StatePredictor(PredictorParams(enabled=True, latency_s=0.06, vehicle_tick_s=0.02), G, 1.0, 0.02)
+    assert no_clock.picked_up(100.613) == 100.613
+
+
+def test_a_thrust_step_acts_from_the_tick_after_it_arrives_and_the_horizon_ends_on_a_tick():
+    """Thrust g + 4 sent at 100.585 reaches the vehicle at 100.605, is picked up at its tick 100.62,
+    acts 20 ms later (the actuation left of the 60 ms chain: 60 - 20 radio - 20 the policy's own).
+    The estimate stamped 0.60 was measured at 100.60; the command sent now (100.631) reaches the
+    vehicle at 100.651, is picked up at 100.66 and acts from 100.68: the policy's 20 ms earlier,
+    100.66, is where the prediction ends. Closed form: v_z = 4 (100.66 - 100.64)."""
+    p = ticked()
+    p.record(99.0, [G, 0.0, 0.0, 0.0])
+    p.record(100.585, [G + 4.0, 0.0, 0.0, 0.0])
+    pos, vel, _ = p.predict(100.631, 100.62, (0, 0, 1), (0, 0, 0), LEVEL, (0, 0, 0), vehicle_s=0.60)
+    assert vel[2] == pytest.approx(4.0 * 0.02, abs=4.0 * 0.005 + 1e-9)  # within one substep of when it acts
+    assert pos[2] == pytest.approx(1.0 + 0.5 * 4.0 * 0.02**2, abs=2e-4)
+    assert p.lead_at(100.631) == pytest.approx(100.66 - 100.631, abs=1e-9)
+    # the same with a vehicle that acts on arrival: from 100.625, the horizon to 100.651 + 0.02 - 0.02
+    free = ticked(tick_s=0.0)
+    free.record(99.0, [G, 0.0, 0.0, 0.0])
+    free.record(100.585, [G + 4.0, 0.0, 0.0, 0.0])
+    _, vel_free, _ = free.predict(100.631, 100.62, (0, 0, 1), (0, 0, 0), LEVEL, (0, 0, 0), vehicle_s=0.60)
+    assert vel_free[2] == pytest.approx(4.0 * (100.651 - 100.625), abs=4.0 * 0.005 + 1e-9)
+    assert free.lead_at(100.631) == pytest.approx(free.lead_s, abs=1e-12) == pytest.approx(0.02, abs=1e-12)
+
+
+def test_the_vehicle_tick_is_a_setting_that_defaults_to_acting_on_arrival():
+    from datt.configuration import compose
+    from datt.deploy.schema import deploy_params
+    from datt.tasks.deploy import _flight_model_config, _predictor
+
+    for overrides, tick in (([], 0.0), (["deploy.predictor.vehicle_tick_s=0.02"], 0.02)):
+        cfg = compose("deploy", ["deploy.predictor.enabled=true", *overrides])
+        params = deploy_params(cfg.deploy)[0]
+        assert _predictor(params, _flight_model_config(params, cfg)).vehicle_tick_s == tick
+
+
+@pytest.mark.parametrize("log_first", [True, False])
+def test_the_simulated_vehicle_logs_before_or_after_its_step_as_set(log_first):
+    """log_before_step: the estimate of now leaves before the step computes the next dt_s."""
+    import time
+
+    from datt.deploy.sim import SimCrazyflie, SimCrazyflieParams
+
+    from . import ports
+
+    server = SimCrazyflie(SimCrazyflieParams(port=next(ports), log_before_step=log_first))
+    calls = []
+    step = server._physics_step
+    server._send_logs = lambda: calls.append("log")
+    server._physics_step = lambda: (calls.append("step"), step())
+    with server:
+        time.sleep(0.1)
+    assert len(calls) >= 4
+    first = ["log", "step"] if log_first else ["step", "log"]
+    assert calls[: 2 * (len(calls) // 2)] == first * (len(calls) // 2)

@@ -92,6 +92,7 @@ class StateSample:
     vel_mps: tuple
     quat: tuple
     vbat_v: float
+    vehicle_s: float | None = None  # the vehicle's clock when it logged the position block (s)
 
 
 BLOCK_A = [
@@ -148,6 +149,7 @@ class CrazyflieLink:
         self._a: dict | None = None
         self._b: dict | None = None
         self._t_a = self._t_b = -math.inf
+        self._stamp_a = self._stamp_b = None  # the vehicle's timestamp (ms) of each block's latest sample
         self.variances: collections.deque = collections.deque(maxlen=50)  # (varPX, varPY, varPZ) samples
         self._lock = threading.Lock()
         self._fresh = threading.Condition(self._lock)  # notified with every log block
@@ -306,6 +308,7 @@ class CrazyflieLink:
             with self._lock:
                 setattr(self, store, data)
                 setattr(self, "_t" + store, time.monotonic())
+                setattr(self, "_stamp" + store, timestamp)
                 self._fresh.notify_all()
 
         return cb
@@ -386,6 +389,7 @@ class CrazyflieLink:
         with self._lock:
             a, b = self._a, self._b
             t = min(self._t_a, self._t_b)
+            stamp_ms = self._stamp_a
         if a is None or b is None:
             return None
         return StateSample(
@@ -394,6 +398,7 @@ class CrazyflieLink:
             vel_mps=(a["stateEstimate.vx"], a["stateEstimate.vy"], a["stateEstimate.vz"]),
             quat=(b["stateEstimate.qw"], b["stateEstimate.qx"], b["stateEstimate.qy"], b["stateEstimate.qz"]),
             vbat_v=b["pm.vbat"],
+            vehicle_s=None if stamp_ms is None else stamp_ms / 1000.0,
         )
 
     # -- the onboard app (deploy.onboard=true) --------------------------------------------------

@@ -39,6 +39,12 @@ class PredictorParams:
     latency_s: float | None = ranged(None, Range(0.0, 0.5, optional=True))
     policy_delay_s: float = ranged(0.02, NON_NEGATIVE)  # the command delay the policy was trained with
     substep_s: float = ranged(0.005, Range(0.0, 0.02, low_open=True))  # integration step
+    # the period at which the vehicle picks up a setpoint that has arrived (its control loop): 0 for
+    # a real Crazyflie (its stabilizer reads setpoints at 1 kHz, finer than the integration step);
+    # the simulated vehicle's physics step (deploy.server.dt_s) with deploy.server.log_before_step.
+    # Above 0, a command acts from the vehicle's first loop tick after it arrived (the ticks placed
+    # from the estimates' timestamps), not from the instant it arrived.
+    vehicle_tick_s: float = ranged(0.0, Range(0.0, 0.1))
 
     def validate(self) -> None:
         check_ranges(self, "deploy.predictor")
@@ -61,6 +67,10 @@ class StatePredictor:
         self.k_rate, self.k_thrust, self.dt_s = float(k_rate), float(k_thrust), float(dt_s)
         self.round_trip_s = float(round_trip_s)  # measured at connect (inf: unknown)
         self.sent: collections.deque = collections.deque(maxlen=64)  # (t_s, [thrust, wx, wy, wz])
+        self.vehicle_tick_s = float(params.vehicle_tick_s)
+        # the vehicle's clock against the host's: min over estimates of (arrival - vehicle time),
+        # the least transit seen (the radio's fixed part; jitter only adds)
+        self._transit_min_s = math.inf
 
     @property
     def latency_s(self) -> float:
@@ -80,30 +90,67 @@ class StatePredictor:
         policy_delay_s`` (at least 0). The policy's reference window is read as far ahead."""
         return max(0.0, self.latency_s - self.up_s - self.p.policy_delay_s)
 
+    def lead_at(self, now_s: float) -> float:
+        """:attr:`lead_s` for the tick at ``now_s``: with the vehicle's loop ticks known, the
+        wait for the next one is part of it."""
+        return max(0.0, self._acts_from(now_s, self.latency_s - self.up_s) - self.p.policy_delay_s - now_s)
+
+    def observe(self, arrived_s: float, vehicle_s: float) -> None:
+        """An estimate stamped ``vehicle_s`` by the vehicle's clock arrived at ``arrived_s`` (host,
+        monotonic): places the vehicle's loop ticks on the host's clock."""
+        self._transit_min_s = min(self._transit_min_s, float(arrived_s) - float(vehicle_s))
+
+    def measured_at(self, vehicle_s: float) -> float:
+        """The host time at which the vehicle measured an estimate stamped ``vehicle_s``: its
+        least transit less the radio's one way (``up_s``)."""
+        return float(vehicle_s) + self._transit_min_s - self.up_s
+
+    def picked_up(self, arrives_s: float) -> float:
+        """When a setpoint that reaches the vehicle at ``arrives_s`` (host time) is picked up: the
+        vehicle's first loop tick at or after it (the ticks are where its estimates were measured:
+        ``measured_at`` of whole multiples of ``vehicle_tick_s``); itself with no tick or no clock."""
+        tick = self.vehicle_tick_s
+        if tick <= 0 or not math.isfinite(self._transit_min_s):
+            return arrives_s
+        anchor = self.measured_at(0.0)
+        return anchor + math.ceil((arrives_s - anchor) / tick - 1e-6) * tick
+
+    def _acts_from(self, sent_s: float, down_s: float) -> float:
+        """When a command sent at ``sent_s`` starts to act: it reaches the vehicle ``up_s`` (the
+        radio's one way) later, waits for the vehicle's next loop tick, then the rest of ``down_s``
+        (the vehicle's actuation)."""
+        radio = min(self.up_s, down_s)
+        return self.picked_up(sent_s + radio) + (down_s - radio)
+
     def record(self, t_s: float, action) -> None:
         """A command sent at ``t_s`` (monotonic): thrust m/s², body rates rad/s."""
         self.sent.append((float(t_s), torch.as_tensor(action, dtype=torch.float64)[:4].clone()))
 
     def _command_at(self, t_s: float, down_s: float) -> torch.Tensor | None:
-        """The command acting at ``t_s``: the last one sent before ``t_s - down_s``."""
+        """The command acting at ``t_s``: the last one sent that acts from ``t_s`` or earlier."""
         acting = None
         for sent_t, action in self.sent:
-            if sent_t + down_s <= t_s:
+            if self._acts_from(sent_t, down_s) <= t_s:
                 acting = action
             else:
                 break
         return acting
 
-    def predict(self, now_s: float, arrived_s: float, pos_m, vel_mps, quat, d_hat_mps2) -> tuple:
-        """The estimate that arrived at ``arrived_s`` rolled forward to ``now_s + down -
-        policy_delay_s``; returns (pos, vel, quat) as tuples (unchanged when disabled, the horizon
-        is not positive or no command was sent yet)."""
+    def predict(
+        self, now_s: float, arrived_s: float, pos_m, vel_mps, quat, d_hat_mps2, vehicle_s: float | None = None
+    ) -> tuple:
+        """The estimate that arrived at ``arrived_s`` (stamped ``vehicle_s`` by the vehicle's
+        clock, when known) rolled forward to when the command sent now acts, less
+        ``policy_delay_s``; returns (pos, vel, quat) as tuples (unchanged when disabled, the
+        horizon is not positive or no command was sent yet)."""
         if not self.p.enabled or not self.sent or not math.isfinite(self.latency_s):
             return tuple(pos_m), tuple(vel_mps), tuple(quat)
         up = self.up_s
         down = self.latency_s - up
-        t0 = arrived_s - up
-        horizon_s = now_s + down - self.p.policy_delay_s - t0
+        if vehicle_s is not None:
+            self.observe(arrived_s, vehicle_s)
+        t0 = arrived_s - up if vehicle_s is None else self.measured_at(vehicle_s)
+        horizon_s = self._acts_from(now_s, down) - self.p.policy_delay_s - t0
         if horizon_s <= 0:
             return tuple(pos_m), tuple(vel_mps), tuple(quat)
         f64 = torch.float64

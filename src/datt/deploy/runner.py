@@ -550,9 +550,11 @@ class FlightRunner:
         calibration's thrust excitation at tick ``k``."""
         predicted, lead_steps = None, 0.0
         if predict:
-            p, v, q = self.predictor.predict(now, state.t_s, state.pos_m, state.vel_mps, state.quat, model.d_hat)
+            p, v, q = self.predictor.predict(
+                now, state.t_s, state.pos_m, state.vel_mps, state.quat, model.d_hat, state.vehicle_s
+            )
             predicted = (np.array(p) - origin, v, q)
-            lead_steps = self.predictor.lead_s * self.p.rate_hz
+            lead_steps = self.predictor.lead_at(now) * self.p.rate_hz
         action = model.act(np.array(state.pos_m) - origin, state.vel_mps, state.quat, predicted, lead_steps)
         if self._excitation is not None:
             action[0] += self._excitation(k)

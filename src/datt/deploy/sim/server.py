@@ -187,6 +187,10 @@ class SimCrazyflieParams:
     host: str = "127.0.0.1"
     port: int = 19850
     dt_s: float = ranged(0.02, Range(0.0, 1.0, low_open=True))
+    # True: each loop logs the estimate of now, then steps (what a real vehicle can know); False
+    # (the former order, kept as the default until the off-board defaults are re-validated on
+    # it, docs/deploy.md): the step first, so the state of t + dt_s leaves at t, a step early
+    log_before_step: bool = False
     battery_v: float = ranged(4.1, Range(2.5, 4.5))  # a 1S LiPo
     battery_drain_vps: float = ranged(0.002, NON_NEGATIVE)
     start_pos_m: tuple = ranged((0.0, 0.0, 0.0), Range(length=3))
@@ -444,8 +448,13 @@ class SimCrazyflie:
                 if now - next_t > self.p.dt_s / 2:
                     self.physics_lags.append((now, now - next_t))
             with self._lock:
+                # the step computes the next dt_s at once: logged after it, the state of t + dt_s
+                # leaves at t (log_before_step=False), a step earlier than a real vehicle knows it
+                if self.p.log_before_step:
+                    self._send_logs()
                 self._physics_step()
-                self._send_logs()
+                if not self.p.log_before_step:
+                    self._send_logs()
             next_t += self.p.dt_s
             time.sleep(max(0.0, next_t - time.monotonic()))
 
@@ -696,7 +705,7 @@ class SimCrazyflie:
         if self.client is None:
             return
         values = self._estimate()
-        ms = int(self.sim_time_s * 1000)
+        ms = int(round(self.sim_time_s * 1000))  # the vehicle's tick count (ms) at this step
         for block_id, block in list(self.log_blocks.items()):
             if not block["started"]:
                 continue
