@@ -39,8 +39,18 @@ def main() -> None:
         help="the simulated vehicle below its commander (deploy.server.rate_loop); firmware also "
         "evaluates on the simulator's firmware rate model",
     )
+    ap.add_argument(
+        "--log-before-step",
+        action="store_true",
+        help="the simulated vehicle logs before its step (deploy.server.log_before_step: a real vehicle's "
+        "timing) and the predictor models its 20 ms loop tick (deploy.predictor.vehicle_tick_s)",
+    )
     args = ap.parse_args()
     conditions = dict(CONDITIONS)
+    predictor_extra: tuple[str, ...] = ()
+    if args.log_before_step:
+        conditions["deploy.server.log_before_step"] = True
+        predictor_extra = ("deploy.predictor.vehicle_tick_s=0.02",)
     if args.rate_loop != "training_model":
         conditions["deploy.server.rate_loop"] = args.rate_loop
     results = {}
@@ -60,6 +70,8 @@ def main() -> None:
             for mode in args.modes:
                 extra, calibrated = MODES[mode]
                 extra = extra + (calibration if calibrated else ())
+                if "deploy.predictor.enabled=true" in extra:
+                    extra = extra + predictor_extra
                 flights = [
                     fly(ckpt, conditions, base / f"{mode}{i}".replace(" ", "_"), seed=i, extra=extra)
                     for i in range(args.flights)
@@ -77,7 +89,10 @@ def main() -> None:
                         f"    {f['outcome']}: star {shown}; jitter median {f['jitter_ms']['median']:.2f} ms, "
                         f"p99 {f['jitter_ms']['p99']:.2f} ms; compute median {f['compute_ms']['median']:.2f} ms"
                     )
-    path = write_result(args.out, {"conditions": conditions, "calibration": calibration, "policies": results})
+    path = write_result(
+        args.out,
+        {"conditions": conditions, "predictor_extra": predictor_extra, "calibration": calibration, "policies": results},
+    )
     print(f"wrote {path}")
 
 

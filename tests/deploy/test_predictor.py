@@ -316,3 +316,32 @@ def test_the_simulated_vehicle_logs_before_or_after_its_step_as_set(log_first):
     assert len(calls) >= 4
     first = ["log", "step"] if log_first else ["step", "log"]
     assert calls[: 2 * (len(calls) // 2)] == first * (len(calls) // 2)
+
+
+def test_the_float_attitude_step_is_the_simulators_quaternion_algebra():
+    """The predictor's scalar attitude update (plain floats, for speed) against datt.sim.frames:
+    q * exp(rotvec), normalised, and the body z axis, for tilted attitudes and small and large turns."""
+    import torch
+
+    from datt.deploy.predictor import _body_z, _turned
+    from datt.sim.frames import quat_body_z, quat_exp_rotvec, quat_mul, quat_normalize
+
+    g = torch.Generator().manual_seed(0)
+    for scale in (1e-6, 1e-3, 0.3, 2.0):
+        q = quat_normalize(torch.randn(4, generator=g, dtype=torch.float64))
+        rotvec = scale * torch.randn(3, generator=g, dtype=torch.float64)
+        expected = quat_normalize(quat_mul(q, quat_exp_rotvec(rotvec)))
+        assert _turned(q.tolist(), rotvec.tolist()) == pytest.approx(expected.tolist(), abs=1e-12)
+        assert _body_z(q.tolist()) == pytest.approx(quat_body_z(q).tolist(), abs=1e-12)
+
+
+@pytest.mark.parametrize("earliest", [100.6, 100.6049, 100.605, 100.6051, 100.619, 100.63])
+def test_the_host_tick_is_placed_so_its_command_lands_half_way_between_vehicle_ticks(earliest):
+    """Vehicle ticks at 100.00 + k 0.02 on the host's clock; a tick started at t sends at t + 3 ms,
+    the command arrives 20 ms later: t + 0.023 must be 100.01 + k 0.02, the first such t >= earliest."""
+    p = ticked()
+    slot = p.send_slot(earliest)
+    assert earliest <= slot < earliest + 0.02
+    arrives = slot + p.p.compute_s + p.up_s
+    assert ((arrives - 100.0) / 0.02) % 1.0 == pytest.approx(0.5, abs=1e-6)
+    assert ticked(tick_s=0.0).send_slot(earliest) == earliest

@@ -347,3 +347,16 @@ def test_rescaling_the_map_refuses_a_scale_that_is_not_finite_and_positive(scale
     with pytest.raises(ValueError, match="must be finite and positive"):
         m.rescale(scale)
     assert m.hover_command == pytest.approx(9.81 / K)
+
+
+def test_what_is_sent_is_the_clipped_command_in_si():
+    """The predictor rolls forward what the vehicle is asked for: above the ceiling the thrust the
+    map expects of max_command, rates clipped to max_rate_degps (roll, pitch, yaw), signs kept."""
+    m = ThrustMap(ThrustParams(max_command=50000, max_rate_degps=(720.0, 360.0, 400.0)))
+    ceiling = m.thrust_mps2(50000)
+    thrust, wx, wy, wz = m.as_sent(ceiling + 5.0, math.radians(800.0), math.radians(-400.0), math.radians(-500.0))
+    assert thrust == pytest.approx(ceiling) and ceiling < 14.0
+    assert (math.degrees(wx), math.degrees(wy), math.degrees(wz)) == pytest.approx((720.0, -360.0, -400.0))
+    inside = m.as_sent(9.0, 0.5, -0.25, 0.75)
+    assert inside[0] == pytest.approx(m.thrust_mps2(m.command(9.0))) and inside[0] == pytest.approx(9.0, abs=0.01)
+    assert inside[1:] == pytest.approx([0.5, -0.25, 0.75])

@@ -26,7 +26,6 @@ from dataclasses import dataclass
 import torch
 
 from datt.configuration import NON_NEGATIVE, Range, check_ranges, ranged
-from datt.sim.frames import quat_body_z, quat_exp_rotvec, quat_mul, quat_normalize
 
 
 @dataclass
@@ -45,6 +44,10 @@ class PredictorParams:
     # Above 0, a command acts from the vehicle's first loop tick after it arrived (the ticks placed
     # from the estimates' timestamps), not from the instant it arrived.
     vehicle_tick_s: float = ranged(0.0, Range(0.0, 0.1))
+    # with vehicle_tick_s: the tick's compute before its send (s); TRACK's host tick is placed so that
+    # its commands reach the vehicle half-way between two of its loop ticks (a few ms of compute or
+    # radio jitter then never moves a command to another tick)
+    compute_s: float = ranged(0.003, Range(0.0, 0.02))
 
     def validate(self) -> None:
         check_ranges(self, "deploy.predictor")
@@ -115,6 +118,16 @@ class StatePredictor:
         anchor = self.measured_at(0.0)
         return anchor + math.ceil((arrives_s - anchor) / tick - 1e-6) * tick
 
+    def send_slot(self, earliest_s: float) -> float:
+        """The first host time at or after ``earliest_s`` to start a tick whose command (sent
+        ``compute_s`` later, reaching the vehicle ``up_s`` after that) arrives half-way between two
+        of the vehicle's loop ticks; ``earliest_s`` itself with no tick or no clock."""
+        tick = self.vehicle_tick_s
+        if tick <= 0 or not math.isfinite(self._transit_min_s):
+            return earliest_s
+        slot = self.measured_at(0.0) + tick / 2 - self.up_s - self.p.compute_s
+        return slot + math.ceil((earliest_s - slot) / tick) * tick
+
     def _acts_from(self, sent_s: float, down_s: float) -> float:
         """When a command sent at ``sent_s`` starts to act: it reaches the vehicle ``up_s`` (the
         radio's one way) later, waits for the vehicle's next loop tick, then the rest of ``down_s``
@@ -128,13 +141,7 @@ class StatePredictor:
 
     def _command_at(self, t_s: float, down_s: float) -> torch.Tensor | None:
         """The command acting at ``t_s``: the last one sent that acts from ``t_s`` or earlier."""
-        acting = None
-        for sent_t, action in self.sent:
-            if self._acts_from(sent_t, down_s) <= t_s:
-                acting = action
-            else:
-                break
-        return acting
+        return _acting_at([(self._acts_from(t, down_s), a) for t, a in self.sent], t_s)
 
     def predict(
         self, now_s: float, arrived_s: float, pos_m, vel_mps, quat, d_hat_mps2, vehicle_s: float | None = None
@@ -153,26 +160,60 @@ class StatePredictor:
         horizon_s = self._acts_from(now_s, down) - self.p.policy_delay_s - t0
         if horizon_s <= 0:
             return tuple(pos_m), tuple(vel_mps), tuple(quat)
-        f64 = torch.float64
-        pos, vel = torch.tensor(pos_m, dtype=f64), torch.tensor(vel_mps, dtype=f64)
-        q = torch.tensor(quat, dtype=f64)
-        d = torch.as_tensor(d_hat_mps2, dtype=f64)
-        g = torch.tensor([0.0, 0.0, -self.gravity_mps2], dtype=f64)
-        first = self._command_at(t0, down)
-        rate = torch.zeros(3, dtype=f64) if first is None else first[1:].clone()
-        thrust = self.gravity_mps2 if first is None else float(first[0])
+        # plain floats, not tensors: the tick waits for this (tensor ops on 3-vectors cost 4-8 ms)
+        acting = [(self._acts_from(t, down), [float(x) for x in a.tolist()]) for t, a in self.sent]
+        pos, vel, q = [float(x) for x in pos_m], [float(x) for x in vel_mps], [float(x) for x in quat]
+        d = [float(x) for x in torch.as_tensor(d_hat_mps2, dtype=torch.float64).tolist()]
+        first = _acting_at(acting, t0)
+        rate = [0.0, 0.0, 0.0] if first is None else first[1:4]
+        thrust = self.gravity_mps2 if first is None else first[0]
         steps = max(1, int(math.ceil(horizon_s / self.p.substep_s)))
         h = horizon_s / steps
         alpha = 1.0 - (1.0 - self.k_rate) ** (h / self.dt_s)
         beta = 1.0 - (1.0 - self.k_thrust) ** (h / self.dt_s)
         for k in range(steps):
-            command = self._command_at(t0 + k * h, down)
+            command = _acting_at(acting, t0 + k * h)
             if command is None:
                 continue
-            thrust = thrust + beta * (float(command[0]) - thrust)
-            rate = rate + alpha * (command[1:] - rate)
-            acc = thrust * quat_body_z(q) + g + d
-            pos = pos + vel * h + 0.5 * acc * h * h
-            vel = vel + acc * h
-            q = quat_normalize(quat_mul(q, quat_exp_rotvec(rate * h)))
-        return tuple(pos.tolist()), tuple(vel.tolist()), tuple(q.tolist())
+            thrust = thrust + beta * (command[0] - thrust)
+            rate = [r + alpha * (c - r) for r, c in zip(rate, command[1:4])]
+            z = _body_z(q)
+            acc = [thrust * z[i] + d[i] for i in range(3)]
+            acc[2] -= self.gravity_mps2
+            pos = [p + v * h + 0.5 * a * h * h for p, v, a in zip(pos, vel, acc)]
+            vel = [v + a * h for v, a in zip(vel, acc)]
+            q = _turned(q, [r * h for r in rate])
+        return tuple(pos), tuple(vel), tuple(q)
+
+
+def _acting_at(acting: list, t_s: float) -> list | None:
+    """The command acting at ``t_s`` of ``acting`` ((acts from, command), in sending order)."""
+    command = None
+    for acts_s, action in acting:
+        if acts_s <= t_s:
+            command = action
+        else:
+            break
+    return command
+
+
+def _body_z(q: list) -> list:
+    """The body z axis in the world frame of the unit quaternion ``q`` (w, x, y, z)."""
+    w, x, y, z = q
+    return [2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y)]
+
+
+def _turned(q: list, rotvec: list) -> list:
+    """``q`` turned by the body-frame rotation vector ``rotvec`` (rad): q * exp(rotvec), normalised."""
+    angle = math.sqrt(sum(r * r for r in rotvec))
+    scale = 0.5 - angle * angle / 48.0 if angle < 1e-4 else math.sin(0.5 * angle) / angle
+    dw, dx, dy, dz = math.cos(0.5 * angle), rotvec[0] * scale, rotvec[1] * scale, rotvec[2] * scale
+    w, x, y, z = q
+    out = [
+        w * dw - x * dx - y * dy - z * dz,
+        w * dx + x * dw + y * dz - z * dy,
+        w * dy - x * dz + y * dw + z * dx,
+        w * dz + x * dy - y * dx + z * dw,
+    ]
+    norm = math.sqrt(sum(c * c for c in out))
+    return [c / norm for c in out]

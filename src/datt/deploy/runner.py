@@ -561,11 +561,11 @@ class FlightRunner:
         return action
 
     def _send_tick(self, model: FlightModel, action) -> int:
-        """Send the tick's command (and the e-stop watchdog); the predictor records the thrust sent.
+        """Send the tick's command (and the e-stop watchdog); the predictor records what was sent.
         Returns the thrust command sent."""
         command = self._send(action)
-        if self.predictor is not None:
-            self.predictor.record(time.monotonic(), model.last_cmd[0].detach())
+        if self.predictor is not None:  # what was sent: a command clipped at the map's ceiling gives less
+            self.predictor.record(time.monotonic(), self.thrust.as_sent(*(float(a) for a in action[:4])))
         if self.p.estop_watchdog and self.sends_estop_watchdog:
             self.link.send_estop_watchdog()
         return command
@@ -642,6 +642,8 @@ class FlightRunner:
             )
             model.advance()
             next_t += dt
+            if predict and k == 0:  # the vehicle's clock is known now: commands land mid-way between its ticks
+                next_t = self.predictor.send_slot(max(next_t - dt / 2, time.monotonic()))
             time.sleep(max(0.0, next_t - time.monotonic()))
         return OK
 

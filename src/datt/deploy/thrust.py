@@ -104,6 +104,13 @@ class ThrustMap:
         clip = lambda v, m: max(-m, min(m, v))  # noqa: E731
         return (clip(math.degrees(wx), lim[0]), clip(math.degrees(wy), lim[1]), clip(-math.degrees(wz), lim[2]))
 
+    def as_sent(self, thrust_mps2: float, wx: float, wy: float, wz: float) -> list[float]:
+        """What the vehicle is asked for when (thrust m/s², body rates rad/s) is sent: the thrust
+        the map expects of the clipped command, the rates clipped to ``max_rate_degps``."""
+        roll, pitch, yaw = self.rates_deg(wx, wy, wz)
+        thrust = self.thrust_mps2(self.command(thrust_mps2))
+        return [thrust, math.radians(roll), math.radians(pitch), -math.radians(yaw)]
+
     @staticmethod
     def body_rates_from_wire(roll: float, pitch_wire: float, yaw: float) -> tuple[float, float, float]:
         """What the firmware's rate controller tracks, in rad/s, from the packet's fields."""
