@@ -319,12 +319,14 @@ def test_the_simulated_vehicle_logs_before_or_after_its_step_as_set(log_first):
 
 
 def test_the_float_attitude_step_is_the_simulators_quaternion_algebra():
-    """The predictor's scalar attitude update (plain floats, for speed) against datt.sim.frames:
-    q * exp(rotvec), normalised, and the body z axis, for tilted attitudes and small and large turns."""
+    """The plain-float attitude step the predictor (and the simulated vehicle's stabilizer) uses
+    against datt.sim.frames' tensor algebra: q * exp(rotvec), normalised, and the body z axis, for
+    tilted attitudes and small and large turns."""
     import torch
 
-    from datt.deploy.predictor import _body_z, _turned
+    from datt.sim.frames import body_z_floats as _body_z
     from datt.sim.frames import quat_body_z, quat_exp_rotvec, quat_mul, quat_normalize
+    from datt.sim.frames import quat_turned_floats as _turned
 
     g = torch.Generator().manual_seed(0)
     for scale in (1e-6, 1e-3, 0.3, 2.0):

@@ -26,6 +26,7 @@ from dataclasses import dataclass
 import torch
 
 from datt.configuration import NON_NEGATIVE, Range, check_ranges, ranged
+from datt.sim.frames import body_z_floats, quat_turned_floats
 
 
 @dataclass
@@ -177,12 +178,12 @@ class StatePredictor:
                 continue
             thrust = thrust + beta * (command[0] - thrust)
             rate = [r + alpha * (c - r) for r, c in zip(rate, command[1:4])]
-            z = _body_z(q)
+            z = body_z_floats(q)
             acc = [thrust * z[i] + d[i] for i in range(3)]
             acc[2] -= self.gravity_mps2
             pos = [p + v * h + 0.5 * a * h * h for p, v, a in zip(pos, vel, acc)]
             vel = [v + a * h for v, a in zip(vel, acc)]
-            q = _turned(q, [r * h for r in rate])
+            q = quat_turned_floats(q, [r * h for r in rate])
         return tuple(pos), tuple(vel), tuple(q)
 
 
@@ -195,25 +196,3 @@ def _acting_at(acting: list, t_s: float) -> list | None:
         else:
             break
     return command
-
-
-def _body_z(q: list) -> list:
-    """The body z axis in the world frame of the unit quaternion ``q`` (w, x, y, z)."""
-    w, x, y, z = q
-    return [2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y)]
-
-
-def _turned(q: list, rotvec: list) -> list:
-    """``q`` turned by the body-frame rotation vector ``rotvec`` (rad): q * exp(rotvec), normalised."""
-    angle = math.sqrt(sum(r * r for r in rotvec))
-    scale = 0.5 - angle * angle / 48.0 if angle < 1e-4 else math.sin(0.5 * angle) / angle
-    dw, dx, dy, dz = math.cos(0.5 * angle), rotvec[0] * scale, rotvec[1] * scale, rotvec[2] * scale
-    w, x, y, z = q
-    out = [
-        w * dw - x * dx - y * dy - z * dz,
-        w * dx + x * dw + y * dz - z * dy,
-        w * dy - x * dz + y * dw + z * dx,
-        w * dz + x * dy - y * dx + z * dw,
-    ]
-    norm = math.sqrt(sum(c * c for c in out))
-    return [c / norm for c in out]

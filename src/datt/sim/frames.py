@@ -153,3 +153,27 @@ def quat_yaw(q: Tensor) -> Tensor:
 def wrap_angle(angle: Tensor) -> Tensor:
     """Wrap to (-π, π]."""
     return angle - 2.0 * math.pi * torch.ceil((angle - math.pi) / (2.0 * math.pi))
+
+
+def body_z_floats(q: list[float]) -> list[float]:
+    """:func:`quat_body_z` of one quaternion on plain floats (w, x, y, z), for per-tick loops where a
+    tensor op costs more than the math (the simulated vehicle's stabilizer, the off-board predictor)."""
+    w, x, y, z = q
+    return [2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y)]
+
+
+def quat_turned_floats(q: list[float], rotvec: list[float]) -> list[float]:
+    """``q`` (w, x, y, z, body to world) turned by the body-frame rotation vector ``rotvec`` (rad):
+    ``quat_normalize(quat_mul(q, quat_exp_rotvec(rotvec)))`` on plain floats (the same series near 0)."""
+    angle = math.sqrt(sum(r * r for r in rotvec))
+    scale = 0.5 - angle * angle / 48.0 if angle < 1e-4 else math.sin(0.5 * angle) / angle
+    dw, dx, dy, dz = math.cos(0.5 * angle), rotvec[0] * scale, rotvec[1] * scale, rotvec[2] * scale
+    w, x, y, z = q
+    out = [
+        w * dw - x * dx - y * dy - z * dz,
+        w * dx + x * dw + y * dz - z * dy,
+        w * dy - x * dz + y * dw + z * dx,
+        w * dz + x * dy - y * dx + z * dw,
+    ]
+    norm = math.sqrt(sum(c * c for c in out))
+    return [c / norm for c in out]

@@ -74,7 +74,7 @@ from datt.deploy.sim.onboard_app import OnboardApp
 from datt.deploy.sim.stabilizer import Stabilizer
 from datt.deploy.thrust import ThrustMap
 from datt.errors import ConfigError
-from datt.sim.frames import quat_body_z, quat_exp_rotvec, quat_mul
+from datt.sim.frames import body_z_floats, quat_body_z, quat_exp_rotvec, quat_mul, quat_turned_floats
 from datt.sim.quadrotor import Quadrotor, QuadrotorParams
 
 LOG_VARS = [  # (group, name, type)
@@ -141,32 +141,6 @@ def _yaw_rotated(q: list[float], angle_rad: float) -> list[float]:
     c, s = math.cos(angle_rad / 2), math.sin(angle_rad / 2)
     w, x, y, z = q
     return [c * w - s * z, c * x - s * y, c * y + s * x, c * z + s * w]
-
-
-def _quat_turned(q: list[float], rate_radps: list[float], dt_s: float) -> list[float]:
-    """``q`` (w, x, y, z, body to world) after turning at the body rates for ``dt_s``: q ⊗ exp(w dt / 2)."""
-    wx, wy, wz = (r * dt_s for r in rate_radps)
-    angle = math.sqrt(wx * wx + wy * wy + wz * wz)
-    if angle < 1e-12:
-        return q
-    c, k = math.cos(angle / 2), math.sin(angle / 2) / angle
-    x, y, z = wx * k, wy * k, wz * k
-    w0, x0, y0, z0 = q
-    out = [
-        w0 * c - x0 * x - y0 * y - z0 * z,
-        w0 * x + x0 * c + y0 * z - z0 * y,
-        w0 * y - x0 * z + y0 * c + z0 * x,
-        w0 * z + x0 * y - y0 * x + z0 * c,
-    ]
-    n = math.sqrt(sum(v * v for v in out))
-    return [v / n for v in out]
-
-
-def _body_z(q: list[float]) -> list[float]:
-    """The body z axis in the world frame for ``q`` (w, x, y, z): :func:`datt.sim.frames.quat_body_z`
-    on plain floats, for the stabilizer's 500 Hz loop (a tensor per tick costs more than the math)."""
-    w, x, y, z = q
-    return [2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y)]
 
 
 def _wrap(angle_rad: float) -> float:
@@ -545,8 +519,8 @@ class SimCrazyflie:
         h = self.p.dt_s / ticks
         for _ in range(ticks):
             force_n = self.stabilizer.tick(rate_sp_radps, command, self.battery_v)
-            q = _quat_turned(q, self.stabilizer.rate_radps, h)
-            z = _body_z(q)
+            q = quat_turned_floats(q, [r * h for r in self.stabilizer.rate_radps])
+            z = body_z_floats(q)
             acc = [z[i] * force_n / mass + d_mps2[i] for i in range(3)]
             acc[2] -= 9.81
             vel = [v + a * h for v, a in zip(vel, acc)]
