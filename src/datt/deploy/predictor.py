@@ -109,12 +109,17 @@ class StatePredictor:
         least transit less the radio's one way (``up_s``)."""
         return float(vehicle_s) + self._transit_min_s - self.up_s
 
+    @property
+    def _ticks_placed(self) -> bool:
+        """The vehicle has loop ticks to model and an estimate has placed them on the host's clock."""
+        return self.vehicle_tick_s > 0 and math.isfinite(self._transit_min_s)
+
     def picked_up(self, arrives_s: float) -> float:
         """When a setpoint that reaches the vehicle at ``arrives_s`` (host time) is picked up: the
         vehicle's first loop tick at or after it (the ticks are where its estimates were measured:
         ``measured_at`` of whole multiples of ``vehicle_tick_s``); itself with no tick or no clock."""
         tick = self.vehicle_tick_s
-        if tick <= 0 or not math.isfinite(self._transit_min_s):
+        if not self._ticks_placed:
             return arrives_s
         anchor = self.measured_at(0.0)
         return anchor + math.ceil((arrives_s - anchor) / tick - 1e-6) * tick
@@ -124,7 +129,7 @@ class StatePredictor:
         ``compute_s`` later, reaching the vehicle ``up_s`` after that) arrives half-way between two
         of the vehicle's loop ticks; ``earliest_s`` itself with no tick or no clock."""
         tick = self.vehicle_tick_s
-        if tick <= 0 or not math.isfinite(self._transit_min_s):
+        if not self._ticks_placed:
             return earliest_s
         slot = self.measured_at(0.0) + tick / 2 - self.up_s - self.p.compute_s
         return slot + math.ceil((earliest_s - slot) / tick) * tick
