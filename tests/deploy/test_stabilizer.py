@@ -172,3 +172,12 @@ def test_a_position_hold_mode_holds_the_height_of_a_vehicle_with_weak_motors(rat
         server._physics_step()
     s = server.quad.state
     assert float(s.vel_mps[0, 2]) == pytest.approx(0.0, abs=0.01) and 0.9 < float(s.pos_m[0, 2]) < 1.3
+
+
+@pytest.mark.parametrize("name", ["refuse_arming", "log_before_step"])
+@pytest.mark.parametrize("value", ["maybe", 1, None])
+def test_every_switch_of_the_simulated_vehicle_takes_only_true_or_false(name, value):
+    check_server_settings({name: True})
+    check_server_settings({name: False})
+    with pytest.raises(ConfigError, match=rf"^deploy.server.{name}: must be true or false, got {value!r}$"):
+        check_server_settings({name: value})

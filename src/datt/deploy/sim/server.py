@@ -219,7 +219,7 @@ def check_server_settings(node: dict, key: str = "deploy.server") -> None:
         rng = known[name].metadata.get("range")
         if rng is not None:
             rng.check(list(value) if isinstance(value, (list, tuple)) else value, f"{key}.{name}")
-        if name == "refuse_arming" and not isinstance(value, bool):
+        if known[name].type in (bool, "bool") and not isinstance(value, bool):  # every switch, not a truthy string
             raise ConfigError(f"{key}.{name}: must be true or false, got {value!r}")
         if name == "decks" and (
             not isinstance(value, (list, tuple)) or any(deck not in POSITIONING_DECKS for deck in value)
