@@ -8,8 +8,10 @@ flights of ``deploy.py`` (takeoff, the star, land; DATT + L1 as deployed) under 
 conditions: 40 ms radio round trip, motors 10 % weaker than the firmware's fit, the
 vehicle 10 % heavier than ``deploy.thrust.mass_kg``, 2 % of setpoint, mocap and log packets
 lost; in each mode of ``datt.tasks.transfer.MODES`` (off-board / onboard on the nominal map /
-onboard after a calibration flight under the same conditions); ``--rate-loop firmware`` flies
-the firmware's rate loop below the commander instead of the training model. Reports per flight the outcome,
+onboard after a calibration flight under the same conditions), on the simulated vehicle's timing
+(it logs the estimate of now before its 20 ms step; ``--log-after-step``: the former timing, a step
+early); ``--rate-loop firmware`` flies the firmware's rate loop below the commander instead of the
+training model. Reports per flight the outcome,
 star error, its ratio to the eval error, tick jitter and per-tick compute, and writes
 ``benchmarks/results/transfer.json`` (``--out``). Real time: ~20 s per flight; run it alone.
 """
@@ -40,17 +42,17 @@ def main() -> None:
         "evaluates on the simulator's firmware rate model",
     )
     ap.add_argument(
-        "--log-before-step",
+        "--log-after-step",
         action="store_true",
-        help="the simulated vehicle logs before its step (deploy.server.log_before_step: a real vehicle's "
-        "timing) and the predictor models its 20 ms loop tick (deploy.predictor.vehicle_tick_s)",
+        help="the simulated vehicle's former timing: it logs after its step, a step early "
+        "(deploy.server.log_before_step=false), and the predictor does not model its 20 ms loop tick "
+        "(deploy.predictor.vehicle_tick_s=0); to reproduce earlier results",
     )
     args = ap.parse_args()
     conditions = dict(CONDITIONS)
-    predictor_extra: tuple[str, ...] = ()
-    if args.log_before_step:
-        conditions["deploy.server.log_before_step"] = True
-        predictor_extra = ("deploy.predictor.vehicle_tick_s=0.02",)
+    if args.log_after_step:
+        conditions["deploy.server.log_before_step"] = False
+        conditions["deploy.predictor.vehicle_tick_s"] = 0.0
     if args.rate_loop != "training_model":
         conditions["deploy.server.rate_loop"] = args.rate_loop
     results = {}
@@ -70,8 +72,6 @@ def main() -> None:
             for mode in args.modes:
                 extra, calibrated = MODES[mode]
                 extra = extra + (calibration if calibrated else ())
-                if "deploy.predictor.enabled=true" in extra:
-                    extra = extra + predictor_extra
                 flights = [
                     fly(ckpt, conditions, base / f"{mode}{i}".replace(" ", "_"), seed=i, extra=extra)
                     for i in range(args.flights)
@@ -91,7 +91,7 @@ def main() -> None:
                     )
     path = write_result(
         args.out,
-        {"conditions": conditions, "predictor_extra": predictor_extra, "calibration": calibration, "policies": results},
+        {"conditions": conditions, "calibration": calibration, "policies": results},
     )
     print(f"wrote {path}")
 

@@ -118,6 +118,22 @@ def test_the_report_scores_by_hand_kills_as_killed_and_leaves_equivalents_out():
     assert rows[2] == "| datt.sim.frames | 8 | 7 | 3 | 1 | 2 | 0 | 1 | 80.0 % |"
 
 
+def test_a_fresh_run_of_a_module_replaces_every_earlier_result_of_it():
+    """A module's code changed and was mutated anew: the earlier run's names (other functions,
+    other numbers) go, the other modules' results stay."""
+    found = {
+        "datt.deploy.calibration.xǁCalibrationFlightǁ_square__mutmut_1": "no tests",
+        "datt.deploy.calibration.xǁCalibrationFlightǁfly__mutmut_140": "no tests",
+        "datt.deploy.calibration.xǁCalibrationFlightǁfly__mutmut_1": "no tests",
+        "datt.deploy.thrust.x_fit_hover__mutmut_1": "killed",
+    }
+    fresh = {
+        "datt.deploy.calibration.xǁCalibrationFlightǁfly__mutmut_1": "killed",
+        "datt.deploy.calibration.x_square_wave__mutmut_1": "killed",
+    }
+    assert mutation_report.refreshed(found, fresh) == {"datt.deploy.thrust.x_fit_hover__mutmut_1": "killed", **fresh}
+
+
 def test_check_by_hand_says_what_it_needs_without_mutmuts_directory(tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)  # no mutants/ here
     assert check_by_hand.main([]) == 2

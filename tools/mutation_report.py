@@ -6,6 +6,8 @@ Run from the repository root after ``mutmut run`` (see docs/mutation.md):
     python tools/mutation_report.py --survivors  # also lists every surviving mutant's diff
     python tools/mutation_report.py --results a.txt b.txt  # saved `mutmut results --all true`
                                                            # outputs instead, later files win
+    python tools/mutation_report.py --results a.txt --fresh c.txt  # c.txt is a complete re-run of
+                                                           # its modules: it replaces their results
 
 Mutants listed in ``docs/mutation-equivalent.txt`` (``<mutant name>  # reason``) are equivalent:
 no test can tell them from the original, so the score leaves them out (also when a loaded machine
@@ -55,6 +57,15 @@ def results(files: list[Path] | None = None) -> dict[str, str]:
             if status != "not checked" or name not in found:
                 found[name] = status
     return found
+
+
+def refreshed(found: dict[str, str], fresh: dict[str, str]) -> dict[str, str]:
+    """``found`` with every module that ``fresh`` holds replaced by ``fresh``'s results: a module
+    mutated anew (its code changed, so mutmut numbered its mutants anew) keeps none of the names
+    of an earlier run, which would otherwise be counted beside the new ones."""
+    modules = {module_of(name) for name in fresh}
+    kept = {name: status for name, status in found.items() if module_of(name) not in modules}
+    return {**kept, **fresh}
 
 
 def module_of(mutant: str) -> str:
@@ -109,8 +120,13 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--survivors", action="store_true", help="print each surviving mutant's diff")
     parser.add_argument("--results", nargs="+", type=Path, help="saved `mutmut results --all true` outputs")
+    parser.add_argument(
+        "--fresh", nargs="+", type=Path, default=[], help="saved outputs of complete re-runs: each replaces its modules"
+    )
     args = parser.parse_args()
     found = results(args.results)
+    for path in args.fresh:
+        found = refreshed(found, parse(path.read_text()))
     if not found:
         print("no mutmut results: run `mutmut run` first (docs/mutation.md)", file=sys.stderr)
         return 2

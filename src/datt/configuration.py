@@ -273,8 +273,9 @@ THREADS = Range(1, 1024, integer=True)
 
 
 def check_bools(cls: type, node: Any, key: str) -> None:
-    """A field typed ``bool`` takes true or false only: OmegaConf would turn ``1``, ``0`` or
-    ``"yes"`` into a bool, and the run would record one value and use another."""
+    """A field typed ``bool`` takes true or false only (``bool | None``: also null): OmegaConf
+    would turn ``1``, ``0`` or ``"yes"`` into a bool, and the run would record one value and use
+    another."""
     if isinstance(node, DictConfig):
         node = OmegaConf.to_container(node, resolve=True)
     if not isinstance(node, Mapping):
@@ -287,6 +288,8 @@ def check_bools(cls: type, node: Any, key: str) -> None:
         where = f"{key}.{f.name}" if key else f.name
         if hint is bool and not isinstance(value, bool):
             raise ConfigError(f"{where}: must be true or false, got {value!r}")
+        if hint == (bool | None) and not (value is None or isinstance(value, bool)):
+            raise ConfigError(f"{where}: must be true, false or null, got {value!r}")
         if isinstance(hint, type) and is_dataclass(hint):
             check_bools(hint, value, where)
 

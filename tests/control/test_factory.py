@@ -114,6 +114,7 @@ def test_a_policy_option_loads_the_checkpoint_and_labels_it(monkeypatch):
         "adaptation": "l1",
         "checkpoint": "checkpoints/datt_h10.pt",
         "frames": int(data["frames"]),
+        "predict_latency": False,  # trained without the state predictor (its env.obs.predict_latency)
     }
     assert merged.adaptation._target_.endswith("L1Adaptation") and merged.horizon == 10
     merged.not_a_key_before = 1  # not struct: the flying config can be extended

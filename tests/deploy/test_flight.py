@@ -299,6 +299,8 @@ def test_real_crazyflie_connects_and_logs():  # pragma: no cover - needs a Crazy
 
 
 def test_hover_calibration_finds_the_true_hover_command_and_slope(tmp_path):
+    from datt.control.factory import build_controller
+    from datt.deploy.calibration import EXCITATION_MPS2, excitation_half_period, square_wave
     from datt.deploy.sim.motors import FirmwareMotors, MotorParams
     from datt.deploy.thrust import ThrustMap
 
@@ -325,6 +327,27 @@ def test_hover_calibration_finds_the_true_hover_command_and_slope(tmp_path):
     fit = summary["calibration"]
     assert abs(fit["hover_command"] - true_hover) / true_hover < 0.01
     assert abs(fit["slope_mps2_per_command"] - true_slope) / true_slope < 0.15
+    # the flight log: the hover under the wave is its own phase, and the wave is in the thrust flown:
+    # at each of its edges the logged thrust jumps by twice the amplitude (the PID answers ticks later)
+    with open(tmp_path / "flight.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    phases = [r["phase"] for r in rows]
+    assert [p for k, p in enumerate(phases) if k == 0 or p != phases[k - 1]] == ["TAKEOFF", "CALIBRATE", "LAND"]
+    flight = cfg.deploy.flight
+    assert (
+        phases.count("TAKEOFF") == round((flight.takeoff_s + flight.hover_s) * 50) and phases.count("CALIBRATE") == 150
+    )
+    thrust = [float(r["thrust_mps2"]) for r in rows if r["phase"] == "CALIBRATE"]
+    half = excitation_half_period(50.0)
+    jumps = [(thrust[k] - thrust[k - 1]) * square_wave(k, half) for k in range(half, len(thrust), half)]
+    assert len(jumps) == 5 and all(abs(j - 2 * EXCITATION_MPS2) < 0.4 for j in jumps), jumps
+    calibrated = [e for e in summary["events"] if e["kind"] == "calibrated"]
+    assert len(calibrated) == 1 and calibrated[0]["phase"] == "CALIBRATE"
+    assert calibrated[0]["text"] == (
+        f"hover command {fit['hover_command']:.0f}, slope {fit['slope_mps2_per_command']:.3e} m/s² per unit, "
+        f"command-to-response latency {fit['response_latency_ms']:.0f} ms"
+    )
+    assert summary["controller"] == build_controller(cfg)[2]  # the run's labels, handed to the flight, kept
 
 
 HEAVY_WEAK = ["deploy.server.mass_kg=0.0374", "deploy.server.thrust_gain=0.9"]  # the transfer test's vehicle

@@ -213,25 +213,59 @@ def test_the_reference_lead_is_the_downlink_beyond_the_trained_delay(latency_s, 
 
 
 @pytest.mark.parametrize(
-    ("overrides", "trained", "noted"),
+    ("overrides", "trained", "enabled", "noted"),
     [
-        ((), True, True),  # off-board without the predictor it was trained behind
-        (("deploy.predictor.enabled=true",), True, False),
-        (("deploy.onboard=true",), True, False),  # onboard: nothing in flight to predict
-        (("deploy.mode=calibrate",), True, False),  # the calibration flies the PID only
-        ((), False, False),
+        ((), True, True, False),  # the default (null): on for a policy trained behind it, off-board
+        ((), False, False, False),  # ... and off for one trained without it (or a PID)
+        (("deploy.predictor.enabled=false",), True, False, True),  # forced off: the policy's note
+        (("deploy.predictor.enabled=true",), False, True, False),  # forced on for any controller
+        (("deploy.onboard=true",), True, False, False),  # onboard: nothing in flight to predict
+        (("deploy.mode=calibrate",), True, False, False),  # the calibration flies the PID only
     ],
 )
-def test_a_policy_trained_behind_the_predictor_says_so_when_flown_off_board_without_it(overrides, trained, noted):
+def test_the_predictor_is_on_off_board_for_a_policy_trained_behind_it(overrides, trained, enabled, noted):
     from datt.configuration import compose
     from datt.deploy.schema import deploy_params
-    from datt.tasks.deploy import predictor_note
+    from datt.tasks.deploy import predictor_enabled, predictor_note
 
     params = deploy_params(compose("deploy", list(overrides)).deploy)[0]
+    assert predictor_enabled(params, trained) is enabled
+    params.predictor.enabled = predictor_enabled(params, trained)
     note = predictor_note(params, trained)
     assert (note is not None) == noted
     if noted:
         assert "deploy.predictor.enabled=true" in note and "env.obs.predict_latency" in note
+
+
+@pytest.mark.parametrize("value", ["maybe", 1, "yes"])
+def test_the_predictor_switch_takes_true_false_or_null_only(value):
+    from datt.configuration import compose
+    from datt.deploy.schema import deploy_params
+    from datt.errors import ConfigError
+
+    with pytest.raises(ConfigError) as info:
+        deploy_params(compose("deploy", [f"deploy.predictor.enabled={value}"]).deploy)
+    assert str(info.value) == f"deploy.predictor.enabled: must be true, false or null, got {value!r}"
+
+
+def test_the_shipped_default_flies_the_predictor_policy_behind_the_predictor():
+    """``python deploy.py`` at its defaults: the policy trained behind the predictor, which the
+    null switch then turns on (off-board); the export builds the same policy for the app."""
+    from datt.configuration import compose
+    from datt.control.factory import build_controller
+    from datt.deploy.schema import deploy_params
+    from datt.tasks.deploy import _flight_model_config
+
+    cfg = compose("deploy", [])
+    assert cfg.checkpoint == compose("export", []).checkpoint == "checkpoints/datt_h10_predictor.pt"
+    params = deploy_params(cfg.deploy)[0]
+    assert params.predictor.enabled is None
+    _, merged, labels = build_controller(cfg)
+    assert labels["predict_latency"] is True  # read from the checkpoint's training config
+    _flight_model_config(params, merged, labels["predict_latency"])
+    assert params.predictor.enabled is True
+    firmware_grade = compose("deploy", ["checkpoint=checkpoints/datt_h10_firmware.pt"])
+    assert build_controller(firmware_grade)[2]["predict_latency"] is False
 
 
 def ticked(tick_s=0.02, latency_s=0.06, round_trip_s=0.04, policy_delay_s=0.02) -> StatePredictor:
@@ -286,15 +320,21 @@ def test_a_thrust_step_acts_from_the_tick_after_it_arrives_and_the_horizon_ends_
     assert free.lead_at(100.631) == pytest.approx(free.lead_s, abs=1e-12) == pytest.approx(0.02, abs=1e-12)
 
 
-def test_the_vehicle_tick_is_a_setting_that_defaults_to_acting_on_arrival():
+def test_the_vehicle_tick_is_the_simulated_vehicle_s_step_and_zero_for_a_real_crazyflie():
+    """The simulated vehicle picks setpoints up at its 20 ms step; a real Crazyflie's stabilizer
+    at 1 kHz: a command acts on arrival (0)."""
     from datt.configuration import compose
     from datt.deploy.schema import deploy_params
     from datt.tasks.deploy import _flight_model_config, _predictor
 
-    for overrides, tick in (([], 0.0), (["deploy.predictor.vehicle_tick_s=0.02"], 0.02)):
+    for overrides, tick in (
+        ([], 0.02),
+        (["deploy=crazyflie"], 0.0),
+        (["deploy.predictor.vehicle_tick_s=0.01"], 0.01),
+    ):
         cfg = compose("deploy", ["deploy.predictor.enabled=true", *overrides])
         params = deploy_params(cfg.deploy)[0]
-        assert _predictor(params, _flight_model_config(params, cfg)).vehicle_tick_s == tick
+        assert _predictor(params, _flight_model_config(params, cfg, False)).vehicle_tick_s == tick
 
 
 @pytest.mark.parametrize("log_first", [True, False])
@@ -347,3 +387,48 @@ def test_the_host_tick_is_placed_so_its_command_lands_half_way_between_vehicle_t
     arrives = slot + p.p.compute_s + p.up_s
     assert ((arrives - 100.0) / 0.02) % 1.0 == pytest.approx(0.5, abs=1e-6)
     assert ticked(tick_s=0.0).send_slot(earliest) == earliest
+
+
+def test_before_the_first_recorded_command_acts_the_vehicle_coasts_at_hover_thrust():
+    """The only command recorded acts after the horizon ends: the 51 ms from the estimate's
+    measurement (100.60) to the horizon's end (sent 100.631, arrives 100.651, acts 20 ms later,
+    less the policy's 20 ms) pass at hover thrust with no rates: the position moves with the
+    velocity, nothing else changes (the time is not skipped)."""
+    p = ticked(tick_s=0.0)
+    p.record(100.631, [G + 4.0, 2.0, -1.0, 0.5])
+    pos, vel, quat = p.predict(100.631, 100.62, (0.0, 0.0, 1.0), (1.0, -0.5, 0.2), LEVEL, (0, 0, 0), vehicle_s=0.60)
+    assert pos == pytest.approx((1.0 * 0.051, -0.5 * 0.051, 1.0 + 0.2 * 0.051), abs=1e-9)
+    assert vel == pytest.approx((1.0, -0.5, 0.2), abs=1e-12) and quat == pytest.approx(LEVEL, abs=1e-12)
+
+
+def test_an_estimate_is_placed_by_its_timestamp_not_by_its_arrival():
+    """The estimate stamped 0.62 arrives 10 ms later than the least transit (at 100.65, not 100.64):
+    it was measured at 100.62 all the same, so the horizon to the same end (100.681: sent 100.661,
+    arrives 100.681, acts 20 ms later, less the policy's 20 ms) is 61 ms, not 51 ms."""
+    p = ticked(tick_s=0.0)
+    p.record(99.0, [G, 0.0, 0.0, 0.0])
+    pos, _, _ = p.predict(100.661, 100.65, (0.0, 0.0, 1.0), (1.0, 0.0, 0.0), LEVEL, (0, 0, 0), vehicle_s=0.62)
+    assert pos[0] == pytest.approx(0.061, abs=1e-9)
+
+
+@pytest.mark.parametrize(("tick_s", "round_trip_s"), [(0.02, 0.03), (0.015, 0.04)])
+def test_ticks_and_slots_follow_the_vehicles_clock_for_any_tick_and_round_trip(tick_s, round_trip_s):
+    """Ticks that do not divide a second and a one-way leg that is not a whole number of half
+    ticks: the estimates (transit 20 ms) place the vehicle's tick 0 at 100.02 − up on the host's
+    clock; a setpoint is picked up at the next tick, and the host tick's command arrives half-way."""
+    params = PredictorParams(enabled=True, latency_s=0.06, policy_delay_s=0.02, vehicle_tick_s=tick_s)
+    p = StatePredictor(params, G, 1.0, 0.02, round_trip_s=round_trip_s)
+    for v in (0.5, 0.52, 0.54):
+        p.observe(100.0 + v + 0.02, v)
+    anchor = 100.02 - round_trip_s / 2
+    assert p.measured_at(0.0) == pytest.approx(anchor, abs=1e-12)
+    for arrives in (100.3, 100.3071, 100.61):
+        picked = p.picked_up(arrives)
+        assert arrives <= picked + 1e-9 < arrives + tick_s
+        ticks = (picked - anchor) / tick_s
+        assert ticks == pytest.approx(round(ticks), abs=1e-6)  # on the vehicle's tick grid
+    for earliest in (100.6, 100.6049, 100.61):
+        slot = p.send_slot(earliest)
+        assert earliest <= slot < earliest + tick_s
+        arrives = slot + p.p.compute_s + round_trip_s / 2
+        assert ((arrives - anchor) / tick_s) % 1.0 == pytest.approx(0.5, abs=1e-6)

@@ -2,11 +2,13 @@
 trip, motors 10 % weak, the vehicle 10 % heavy and 2 % packet loss, compared with eval.py's star
 error for the same policy. Real time (~25 s a flight): slow.
 
-What they pin (docs/deploy.md has the figures of benchmarks/transfer.py): the firmware-grade
-policy (what ``deploy.py`` flies) lands off-board (its error there varies too much to pin: 1.5x
-is not met off-board) and flies onboard within 1.3x of its eval error without a calibration
-flight (the hover trim: 1.19-1.22x measured) and within 2x after one; the deploy-grade and the
-shipped policy land onboard after a calibration flight too."""
+What they pin (docs/deploy.md has the figures of benchmarks/transfer.py, on the simulated
+vehicle's real timing): the predictor policy (what ``deploy.py`` flies) lands off-board behind
+the state predictor within 2.5x of its eval error (1.5x is not met off-board); the firmware-grade
+policy lands off-board without it (its error there varies too much to pin) and flies onboard
+within 1.3x of its eval error without a calibration flight (the hover trim: 1.22-1.32x measured)
+and within 2x after one; the deploy-grade and the shipped policy land onboard after a
+calibration flight too."""
 
 import pytest
 
@@ -19,19 +21,20 @@ pytestmark = [pytest.mark.slow, pytest.mark.flight]
 FIRMWARE_GRADE = "checkpoints/datt_h10_firmware.pt"
 
 
-def test_the_deployed_policy_lands_off_board(tmp_path):
-    """It lands; its error is not pinned (1.85-4.07x on 2026-12-05, 3 flights)."""
-    flight = fly(FIRMWARE_GRADE, CONDITIONS, tmp_path / "flight", seed=0)
+def test_the_firmware_grade_policy_lands_off_board_without_the_predictor(tmp_path):
+    """It lands; its error is not pinned (5.4-7.6x landed, 1 of 3 KILLed, on the real timing)."""
+    flight = fly(FIRMWARE_GRADE, CONDITIONS, tmp_path / "flight", seed=0, extra=("deploy.predictor.enabled=false",))
     # a landing (an early one too: a 2-core machine can stall the host's streams for ~250 ms)
     assert flight["outcome"].startswith("landed"), flight["outcome"]
 
 
 def test_the_predictor_policy_lands_off_board_behind_the_predictor_within_2_5x(tmp_path):
-    """The policy trained behind the state predictor, flown off-board with it: it lands, within
-    2.5x of its eval error (1.39-1.86x in 6 flights on 2026-12-05, alone; not the issue's 1.5x)."""
+    """The policy trained behind the state predictor, flown off-board at the defaults (the
+    predictor on for it): it lands, within 2.5x of its eval error (1.68-1.72x landed, 1 of 3
+    KILLed on the floor, on the real timing; not the issue's 1.5x)."""
     checkpoint = "checkpoints/datt_h10_predictor.pt"
     eval_err = eval_star_error(checkpoint, tmp_path / "eval")
-    flight = fly(checkpoint, CONDITIONS, tmp_path / "flight", seed=0, extra=("deploy.predictor.enabled=true",))
+    flight = fly(checkpoint, CONDITIONS, tmp_path / "flight", seed=0)
     assert flight["outcome"] == "landed", flight["outcome"]
     assert flight["track_error_m"] <= 2.5 * eval_err, (flight["track_error_m"], eval_err)
 

@@ -38,7 +38,10 @@ def build_controller(cfg: DictConfig):
     layout = {key: train_cfg.env.obs[key] for key in OBS_LAYOUT_KEYS if key in train_cfg.env.obs}
     merged = OmegaConf.merge(merged, {"horizon": train_cfg.horizon, "env": {"obs": layout}})
     OmegaConf.set_struct(merged, False)
-    labels = {**labels, "checkpoint": str(cfg.checkpoint), "frames": int(data["frames"])}
+    # trained behind the state predictor (not part of the layout: it changes which state the policy
+    # expects, which deploy.py's own predictor then supplies off-board)
+    behind = bool(train_cfg.env.obs.get("predict_latency", False))
+    labels = {**labels, "checkpoint": str(cfg.checkpoint), "frames": int(data["frames"]), "predict_latency": behind}
     return DattController(actor, frozen=True), merged, labels
 
 

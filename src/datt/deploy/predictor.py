@@ -33,7 +33,9 @@ from datt.sim.frames import body_z_floats, quat_turned_floats
 class PredictorParams:
     """``deploy.predictor``."""
 
-    enabled: bool = False
+    # null: on when the policy flown was trained behind the predictor (its env.obs.predict_latency)
+    # and the flight is off-board, off otherwise (a policy trained without it, a PID, onboard)
+    enabled: bool | None = None
     # the chain from the estimate's measurement to the command's effect (s); null = the radio round trip
     # measured at connect + policy_delay_s (a vehicle that actuates with the policy's trained delay)
     latency_s: float | None = ranged(None, Range(0.0, 0.5, optional=True))
@@ -179,10 +181,9 @@ class StatePredictor:
         beta = 1.0 - (1.0 - self.k_thrust) ** (h / self.dt_s)
         for k in range(steps):
             command = _acting_at(acting, t0 + k * h)
-            if command is None:
-                continue
-            thrust = thrust + beta * (command[0] - thrust)
-            rate = [r + alpha * (c - r) for r, c in zip(rate, command[1:4])]
+            if command is not None:  # before the first recorded command acts: hover thrust, no rates
+                thrust = thrust + beta * (command[0] - thrust)
+                rate = [r + alpha * (c - r) for r, c in zip(rate, command[1:4])]
             z = body_z_floats(q)
             acc = [thrust * z[i] + d[i] for i in range(3)]
             acc[2] -= self.gravity_mps2

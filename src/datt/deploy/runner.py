@@ -642,8 +642,8 @@ class FlightRunner:
             )
             model.advance()
             next_t += dt
-            if predict and k == 0:  # the vehicle's clock is known now: commands land mid-way between its ticks
-                next_t = self.predictor.send_slot(max(next_t - dt / 2, time.monotonic()))
+            if predict and k == 0:  # commands land mid-way between vehicle ticks (from the schedule: late stays late)
+                next_t = self.predictor.send_slot(next_t - dt / 2)
             time.sleep(max(0.0, next_t - time.monotonic()))
         return OK
 

@@ -87,8 +87,17 @@ def _flight_kind(params: DeployParams, policy_id: int | None) -> tuple[type, dic
     return FlightRunner, {}
 
 
+def predictor_enabled(params: DeployParams, trained_behind_predictor: bool) -> bool:
+    """``deploy.predictor.enabled`` with null resolved: on for a policy trained behind the state
+    predictor (``env.obs.predict_latency``) flying off-board, off otherwise."""
+    if params.predictor.enabled is not None:
+        return params.predictor.enabled
+    return trained_behind_predictor and not params.onboard and params.mode != "calibrate"
+
+
 def _predictor(params: DeployParams, model_cfg: DictConfig) -> StatePredictor | None:
-    """The latency predictor of ``deploy.predictor``, on the flight model's own constants."""
+    """The latency predictor of ``deploy.predictor`` (``enabled`` resolved), on the flight model's
+    own constants."""
     if not params.predictor.enabled:
         return None
     quad = model_cfg.env.quad
@@ -101,15 +110,17 @@ def _predictor(params: DeployParams, model_cfg: DictConfig) -> StatePredictor | 
     )
 
 
-def _flight_model_config(params: DeployParams, merged: DictConfig) -> DictConfig:
+def _flight_model_config(params: DeployParams, merged: DictConfig, trained_behind: bool) -> DictConfig:
     """The config the flight's one-drone envs are built from: no simulated disturbance, no
     random start, eager; the training's latency prediction off (the deployment's own predictor,
-    ``deploy.predictor``, in continuous time, replaces it; a note if it is off for a policy
+    ``deploy.predictor``, in continuous time, replaces it: ``params.predictor.enabled`` is resolved
+    here from ``trained_behind``, the policy's training setting; a note if it is off for a policy
     trained behind it)."""
     model_cfg = with_options(merged, disturbance="none")
     model_cfg.env.init_pos_range_m = 0.0
     model_cfg.env.compile = False
-    note = predictor_note(params, bool(model_cfg.env.obs.get("predict_latency", False)))
+    params.predictor.enabled = predictor_enabled(params, trained_behind)
+    note = predictor_note(params, trained_behind)
     if note:
         console.print(note)
     model_cfg.env.obs.predict_latency = False
@@ -122,7 +133,7 @@ def predictor_note(params: DeployParams, trained_behind_predictor: bool) -> str 
     if trained_behind_predictor and not (params.onboard or params.predictor.enabled or params.mode == "calibrate"):
         return (
             "note: this policy was trained behind the state predictor (env.obs.predict_latency=true); "
-            "off-board it is meant to fly with deploy.predictor.enabled=true"
+            "off-board it is meant to fly with the predictor (deploy.predictor.enabled=true or null)"
         )
     return None
 
@@ -159,7 +170,7 @@ def run_deploy(cfg: DictConfig, run_dir: Path | None = None, estop=None, server_
     set_threads(cfg.threads)
     controller, merged, labels = build_controller(cfg)
     require_current_state_timing(merged, "deploy")
-    model_cfg = _flight_model_config(params, merged)
+    model_cfg = _flight_model_config(params, merged, bool(labels.get("predict_latency", False)))
 
     def make_flight_env(family):
         return make_env(model_cfg, num_envs=1, seed=int(cfg.seed), traj=family)

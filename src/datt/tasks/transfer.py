@@ -36,7 +36,7 @@ CONDITIONS = {
     "deploy.server.radio_loss": 0.02,
 }
 MODES = {  # name -> (deploy overrides, calibrate first)
-    "off-board": ((), False),
+    "off-board": (("deploy.predictor.enabled=false",), False),  # without it, whatever the policy
     "off-board, predictor": (("deploy.predictor.enabled=true",), False),
     "onboard": (("deploy.onboard=true",), False),
     "onboard, calibrated": (("deploy.onboard=true",), True),
