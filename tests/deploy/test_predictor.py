@@ -4,7 +4,7 @@ import math
 
 import pytest
 
-from datt.deploy.predictor import PredictorParams, StatePredictor
+from datt.deploy.predictor import PredictorParams, StatePredictor, _acting_at
 from datt.errors import ConfigError
 
 LEVEL = (1.0, 0.0, 0.0, 0.0)
@@ -132,10 +132,11 @@ def test_the_rate_starts_from_the_command_acting_when_the_estimate_was_taken():
 def test_a_command_acts_from_the_instant_it_reaches_the_vehicle_inclusive():
     p = predictor(latency_s=0.5)
     p.record(0.25, [G + 1.0, 0.0, 0.0, 0.0])
-    assert p._command_at(0.5, 0.25) is not None  # sent at 0.25, acting from 0.25 + 0.25
-    assert p._command_at(0.4999, 0.25) is None
+    assert _acting_at(p._acting(0.25), 0.5) is not None  # sent at 0.25, acting from 0.25 + 0.25
+    assert _acting_at(p._acting(0.25), 0.4999) is None
     p.record(0.3, [G + 3.0, 0.0, 0.0, 0.0])
-    assert float(p._command_at(0.54, 0.25)[0]) == G + 1.0 and float(p._command_at(0.55, 0.25)[0]) == G + 3.0
+    acting = p._acting(0.25)
+    assert float(_acting_at(acting, 0.54)[0]) == G + 1.0 and float(_acting_at(acting, 0.55)[0]) == G + 3.0
 
 
 def test_it_keeps_the_last_64_commands_of_four_values_each():
@@ -254,7 +255,7 @@ def test_the_shipped_default_flies_the_predictor_policy_behind_the_predictor():
     from datt.configuration import compose
     from datt.control.factory import build_controller
     from datt.deploy.schema import deploy_params
-    from datt.tasks.deploy import _flight_model_config
+    from datt.tasks.deploy import resolve_predictor
 
     cfg = compose("deploy", [])
     assert cfg.checkpoint == compose("export", []).checkpoint == "checkpoints/datt_h10_predictor.pt"
@@ -262,7 +263,7 @@ def test_the_shipped_default_flies_the_predictor_policy_behind_the_predictor():
     assert params.predictor.enabled is None
     _, merged, labels = build_controller(cfg)
     assert labels["predict_latency"] is True  # read from the checkpoint's training config
-    _flight_model_config(params, merged, labels["predict_latency"])
+    resolve_predictor(params, labels["predict_latency"])
     assert params.predictor.enabled is True
     firmware_grade = compose("deploy", ["checkpoint=checkpoints/datt_h10_firmware.pt"])
     assert build_controller(firmware_grade)[2]["predict_latency"] is False
@@ -334,7 +335,7 @@ def test_the_vehicle_tick_is_the_simulated_vehicle_s_step_and_zero_for_a_real_cr
     ):
         cfg = compose("deploy", ["deploy.predictor.enabled=true", *overrides])
         params = deploy_params(cfg.deploy)[0]
-        assert _predictor(params, _flight_model_config(params, cfg, False)).vehicle_tick_s == tick
+        assert _predictor(params, _flight_model_config(params, cfg)).vehicle_tick_s == tick
 
 
 @pytest.mark.parametrize("log_first", [True, False])

@@ -147,9 +147,10 @@ class StatePredictor:
         """A command sent at ``t_s`` (monotonic): thrust m/s², body rates rad/s."""
         self.sent.append((float(t_s), torch.as_tensor(action, dtype=torch.float64)[:4].clone()))
 
-    def _command_at(self, t_s: float, down_s: float) -> torch.Tensor | None:
-        """The command acting at ``t_s``: the last one sent that acts from ``t_s`` or earlier."""
-        return _acting_at([(self._acts_from(t, down_s), a) for t, a in self.sent], t_s)
+    def _acting(self, down_s: float) -> list:
+        """Each command sent, as (when it starts to act, its values as floats), in sending order
+        (the predictor's integration reads it with :func:`_acting_at`)."""
+        return [(self._acts_from(t, down_s), [float(x) for x in a.tolist()]) for t, a in self.sent]
 
     def predict(
         self, now_s: float, arrived_s: float, pos_m, vel_mps, quat, d_hat_mps2, vehicle_s: float | None = None
@@ -169,7 +170,7 @@ class StatePredictor:
         if horizon_s <= 0:
             return tuple(pos_m), tuple(vel_mps), tuple(quat)
         # plain floats, not tensors: the tick waits for this (tensor ops on 3-vectors cost 4-8 ms)
-        acting = [(self._acts_from(t, down), [float(x) for x in a.tolist()]) for t, a in self.sent]
+        acting = self._acting(down)
         pos, vel, q = [float(x) for x in pos_m], [float(x) for x in vel_mps], [float(x) for x in quat]
         d = [float(x) for x in torch.as_tensor(d_hat_mps2, dtype=torch.float64).tolist()]
         first = _acting_at(acting, t0)

@@ -110,21 +110,25 @@ def _predictor(params: DeployParams, model_cfg: DictConfig) -> StatePredictor | 
     )
 
 
-def _flight_model_config(params: DeployParams, merged: DictConfig, trained_behind: bool) -> DictConfig:
+def _flight_model_config(params: DeployParams, merged: DictConfig) -> DictConfig:
     """The config the flight's one-drone envs are built from: no simulated disturbance, no
     random start, eager; the training's latency prediction off (the deployment's own predictor,
-    ``deploy.predictor``, in continuous time, replaces it: ``params.predictor.enabled`` is resolved
-    here from ``trained_behind``, the policy's training setting; a note if it is off for a policy
-    trained behind it)."""
+    ``deploy.predictor``, in continuous time, replaces it)."""
     model_cfg = with_options(merged, disturbance="none")
     model_cfg.env.init_pos_range_m = 0.0
     model_cfg.env.compile = False
+    model_cfg.env.obs.predict_latency = False
+    return model_cfg
+
+
+def resolve_predictor(params: DeployParams, trained_behind: bool) -> None:
+    """Set ``params.predictor.enabled`` to what flies (:func:`predictor_enabled`, from
+    ``trained_behind``, the policy's ``env.obs.predict_latency``) and print the note if a policy
+    trained behind the predictor flies off-board without it."""
     params.predictor.enabled = predictor_enabled(params, trained_behind)
     note = predictor_note(params, trained_behind)
     if note:
         console.print(note)
-    model_cfg.env.obs.predict_latency = False
-    return model_cfg
 
 
 def predictor_note(params: DeployParams, trained_behind_predictor: bool) -> str | None:
@@ -170,7 +174,8 @@ def run_deploy(cfg: DictConfig, run_dir: Path | None = None, estop=None, server_
     set_threads(cfg.threads)
     controller, merged, labels = build_controller(cfg)
     require_current_state_timing(merged, "deploy")
-    model_cfg = _flight_model_config(params, merged, bool(labels.get("predict_latency", False)))
+    resolve_predictor(params, bool(labels.get("predict_latency", False)))
+    model_cfg = _flight_model_config(params, merged)
 
     def make_flight_env(family):
         return make_env(model_cfg, num_envs=1, seed=int(cfg.seed), traj=family)
