@@ -287,7 +287,48 @@ def test_hover_command_from_a_steady_hover_is_the_mean_command():
     t = [0.02 * k for k in range(25)]
     commands = [50000 + (300 if k % 2 else -300) + 7 * k for k in range(25)]
     got = hover_command_from_hover(t, [-0.1] * 25, commands)
-    assert got == pytest.approx(sum(commands) / 25, abs=1e-6)
+    assert got == pytest.approx(sum(commands[:-1]) / 24, abs=1e-6)  # the last acts after the stretch
+    # uneven ticks: each command weighs as long as it acted
+    uneven = [0.0, 0.01, 0.05, 0.06]
+    got = hover_command_from_hover(uneven, [0.2] * 4, [40000, 50000, 60000, 1])
+    assert got == pytest.approx((40000 * 0.01 + 50000 * 0.04 + 60000 * 0.01) / 0.06, rel=1e-12)
+
+
+@pytest.mark.parametrize("dead_ticks", [2, 3, 4])
+def test_the_hover_trim_pairs_velocities_with_the_commands_that_acted_on_them(dead_ticks):
+    """A vehicle with thrust ``k c`` acting ``dead_ticks`` after the command is sent (radio and
+    actuation), caught by a controller whose command rises and wobbles through the stretch: the
+    commands sent one latency before the velocities give its hover command exactly; the ones sent
+    at the same ticks are off by the rise over the latency (here over 0.5 %)."""
+    from datt.deploy.thrust import commands_acting
+
+    dt, g, k = 0.02, 9.81, 9.81 / 55000.0
+    sent_t = [dt * i for i in range(80)]
+    sent = [50000.0 + 160.0 * i + (400.0 if i % 3 else -800.0) for i in range(80)]
+    vel = [0.0]
+    for i in range(79):  # the command sent at tick i acts over [i + dead, i + dead + 1)
+        acting = sent[i - dead_ticks] if i >= dead_ticks else sent[0]
+        vel.append(vel[-1] + dt * (k * acting - g))
+    window = slice(50, 76)
+    t = sent_t[window]
+    paired = commands_acting(t, sent_t, sent, dead_ticks * dt)
+    assert paired == pytest.approx(sent[50 - dead_ticks : 76 - dead_ticks], rel=1e-12)
+    assert hover_command_from_hover(t, vel[window], paired, g) == pytest.approx(55000.0, rel=1e-9)
+    same_tick = hover_command_from_hover(t, vel[window], sent[window], g)
+    assert same_tick / 55000.0 - 1 > 0.005
+    # half a tick of lag: the commands half-way between two sends
+    half = commands_acting([0.05], sent_t, sent, 0.02)
+    assert half == pytest.approx([(sent[2] + sent[1]) / 2], rel=1e-12)
+    # before the first send: the first command
+    assert commands_acting([0.0], sent_t, sent, 0.1) == [sent[0]]
+
+
+def test_commands_acting_needs_the_commands_sent_with_their_times():
+    from datt.deploy.thrust import commands_acting
+
+    for sent_t, sent in (([], []), ([0.0, 0.02], [1.0])):
+        with pytest.raises(ValueError, match="needs the commands sent, each with its time"):
+            commands_acting([0.0], sent_t, sent, 0.05)
 
 
 @pytest.mark.parametrize("acc_mps2", [0.5, -0.8])

@@ -36,7 +36,7 @@ from datt.deploy import firmware
 from datt.deploy.flight_log import FlightLog
 from datt.deploy.outcome import Kind, Outcome
 from datt.deploy.safety import KILL, LAND, OK, BatteryFilter, SafetyParams, check, tilt_deg
-from datt.deploy.thrust import ThrustMap, hover_command_from_hover
+from datt.deploy.thrust import ThrustMap, commands_acting, hover_command_from_hover
 from datt.errors import LinkError
 from datt.refs.base import RefFamily
 from datt.runs import stop_signals
@@ -144,6 +144,10 @@ class FlightParams:
     hover_trim_window_s: float = ranged(0.5, POSITIVE)  # the end of the hover the trim averages over
     hover_trim_max: float = ranged(0.25, Range(0.0, 1.0, low_open=True, high_open=True))  # larger change: LAND
     hover_trim_settle_s: float = ranged(1.0, NON_NEGATIVE)  # HOVER on the trim, trimmed again, before TRACK (0: none)
+    # how long after it is sent a command shows in the logged velocity (s): the trim pairs each window's
+    # velocity change with the commands sent this much earlier; null = the radio round trip measured at
+    # connect + one control tick (the vehicle's actuation)
+    hover_trim_lag_s: float | None = ranged(None, Range(0.0, 0.5, optional=True))
 
     def validate(self) -> None:
         from datt.errors import ConfigError
@@ -658,13 +662,16 @@ class FlightRunner:
         ``hover_trim_max``: HOVER flies it and measures again. Returns OK or LAND."""
         n = max(2, int(round(self.p.hover_trim_window_s * self.p.rate_hz)))
         hover = [r for r in self.rows if r["phase"] == phase][-n:]
+        lag_s = self._trim_lag_s()
+        t_s = [r["t_s"] for r in hover]
+        sent_t_s, sent = [r["t_s"] for r in self.rows], [r["thrust_cmd"] for r in self.rows]
         measured = hover_command_from_hover(
-            [r["t_s"] for r in hover],
-            [r["vel"][2] for r in hover],
-            [r["thrust_cmd"] for r in hover],
-            self.thrust.p.gravity_mps2,
+            t_s, [r["vel"][2] for r in hover], commands_acting(t_s, sent_t_s, sent, lag_s), self.thrust.p.gravity_mps2
         )
-        text = f"the hover needed command {measured:.0f}, the thrust map {self.thrust.hover_command:.0f}"
+        text = (
+            f"the hover needed command {measured:.0f} (commands {lag_s * 1e3:.0f} ms before the velocities), "
+            f"the thrust map {self.thrust.hover_command:.0f}"
+        )
         change = measured / self.configured_hover_command - 1.0
         if not final and math.isfinite(change) and abs(change) > self.p.hover_trim_max:
             # a rough first pass: fly HOVER at the limit and let the steadier second pass decide
@@ -684,6 +691,14 @@ class FlightRunner:
             model.set_thrust_ceiling(self.thrust.ceiling_mps2)
         self._event("trim", f"{text}: map rescaled by {100 * (scale - 1):+.1f} %", hover_command=measured)
         return OK
+
+    def _trim_lag_s(self) -> float:
+        """``deploy.flight.hover_trim_lag_s``, or null: the measured radio round trip (the estimate's
+        way up, the command's way down) + one control tick (the vehicle's actuation)."""
+        if self.p.hover_trim_lag_s is not None:
+            return float(self.p.hover_trim_lag_s)
+        round_trip = self.link.round_trip_s if math.isfinite(self.link.round_trip_s) else 0.0
+        return round_trip + 1.0 / self.p.rate_hz
 
     def _model(self, controller, family: RefFamily) -> FlightModel:
         model = FlightModel(self.make_env, controller, family, self.thrust.ceiling_mps2)

@@ -26,6 +26,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numpy as np
+
 from datt.configuration import POSITIVE, POSITIVE_OR_NONE, check_ranges, ranged
 
 UINT16_MAX = 65535
@@ -136,15 +138,30 @@ def hover_command_from_hover(
 ) -> float:
     """The command that holds the vehicle's height, from a stretch of hover: with thrust linear
     in the command through zero (``a + g = k c``, the firmware's battery-compensated map, whatever
-    the vehicle's mass and motors), the mean command ``c̄`` over the stretch and the mean vertical
-    acceleration ``ā`` (first and last velocity) give ``k = (ā + g) / c̄`` and the hover command
-    ``g / k = c̄ g / (ā + g)`` (NaN for ``ā <= -g``). Needs two samples over a positive time."""
+    the vehicle's mass and motors), the mean command ``c̄`` over the stretch (``commands[i]`` acting
+    from ``t_s[i]`` to ``t_s[i + 1]``, weighted by that time; the last one acts after the stretch)
+    and the mean vertical acceleration ``ā`` (first and last velocity) give ``k = (ā + g) / c̄``
+    and the hover command ``g / k = c̄ g / (ā + g)`` (NaN for ``ā <= -g``). Needs two samples over
+    a positive time. The commands are the ones acting on the logged velocities
+    (:func:`commands_acting`), not the ones sent at the same ticks."""
     if len(t_s) < 2 or not len(t_s) == len(vel_z_mps) == len(commands) or not t_s[-1] > t_s[0]:
         raise ValueError("hover trim: needs at least two samples over a positive time")
-    acc = (vel_z_mps[-1] - vel_z_mps[0]) / (t_s[-1] - t_s[0])
+    span = t_s[-1] - t_s[0]
+    acc = (vel_z_mps[-1] - vel_z_mps[0]) / span
     if not acc + g_mps2 > 0:  # falling at g or faster: no command explains it
         return math.nan
-    return (sum(commands) / len(commands)) * g_mps2 / (acc + g_mps2)
+    mean_command = sum(c * (t1 - t0) for c, t0, t1 in zip(commands, t_s[:-1], t_s[1:])) / span
+    return mean_command * g_mps2 / (acc + g_mps2)
+
+
+def commands_acting(t_s: list[float], sent_t_s: list[float], sent_commands: list[float], lag_s: float) -> list[float]:
+    """The command acting at each time of ``t_s``: the one sent ``lag_s`` earlier (``sent_t_s``
+    increasing, the same clock), linearly interpolated between sends; before the first send, the
+    first. What :func:`hover_command_from_hover` pairs with a stretch of logged velocities, whose
+    changes show the commands sent one latency before them."""
+    if not sent_t_s or len(sent_t_s) != len(sent_commands):
+        raise ValueError("commands_acting: needs the commands sent, each with its time")
+    return [float(c) for c in np.interp(np.asarray(t_s, dtype=float) - lag_s, sent_t_s, sent_commands)]
 
 
 def response_lag_ticks(excitation: list[float], vertical_acc_mps2: list[float], window: int = 10) -> float:
