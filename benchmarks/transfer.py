@@ -12,7 +12,9 @@ onboard after a calibration flight under the same conditions), on the simulated 
 (it logs the estimate of now before its 20 ms step; ``--log-after-step``: the former timing, a step
 early); ``--rate-loop firmware`` flies the firmware's rate loop below the commander instead of the
 training model. Reports per flight the outcome,
-star error, its ratio to the eval error, tick jitter and per-tick compute, and writes
+star error (each estimate against the reference when it was measured, as ``eval.py``; off-board
+also against the reference of the tick it arrived in, the figure before 2026-12-05), its ratio
+to the eval error, tick jitter and per-tick compute, and writes
 ``benchmarks/results/transfer.json`` (``--out``). Real time: ~20 s per flight; run it alone.
 """
 
@@ -85,6 +87,8 @@ def main() -> None:
                 for f in flights:
                     err = f["track_error_m"]
                     shown = "-" if err is None else f"{err:.3f} m ({f['ratio_to_eval']:.2f}x eval)"
+                    if f.get("track_error_received_m") is not None:
+                        shown += f" [against the tick it arrived in: {f['track_error_received_m']:.3f} m]"
                     print(
                         f"    {f['outcome']}: star {shown}; jitter median {f['jitter_ms']['median']:.2f} ms, "
                         f"p99 {f['jitter_ms']['p99']:.2f} ms; compute median {f['compute_ms']['median']:.2f} ms"

@@ -360,6 +360,39 @@ def _true_hover_command(mass_kg: float, thrust_gain: float) -> float:
     return 9.81 / (vehicle.thrust_mps2(40000, 4.1) / 40000)
 
 
+def test_the_tracking_error_is_the_vehicles_own_not_the_age_of_its_estimate(tmp_path):
+    """At a 40 ms round trip an estimate arrives ~30 ms after the vehicle was there. The flight's
+    ``track_error_m`` takes each tick's reference at the time its estimate was measured (the
+    vehicle's stamp on the host's clock): it is the true error of the simulated vehicle (its
+    position at each tick's scheduled time against that tick's reference point) within 10 %;
+    ``track_error_received_m``, the estimate against the reference of the tick it arrived in,
+    reads the estimate's age as error (+30-45 % seen). flight.csv has both times."""
+    import numpy as np
+
+    summary, server, runner = fly_sim(
+        tmp_path, next(ports), ["deploy.server.radio_latency_s=0.02", "deploy.flight.track_s=4.0"]
+    )
+    assert summary["outcome"] == "landed", summary["outcome"]
+    track = [r for r in runner.rows if r["phase"] == "TRACK"]
+    t_true = np.array([t for t, _ in server.truth])
+    p_true = np.array([p for _, p in server.truth])
+    true = []
+    for r in track:
+        at = runner.log.t0 + r["sched_t_s"]
+        pos = np.array([np.interp(at, t_true, p_true[:, i]) for i in range(3)])
+        true.append(float(np.linalg.norm(pos - np.array(r["ref"]))))
+    true_m = float(np.mean(true))
+    assert abs(summary["track_error_m"] - true_m) < 0.1 * true_m, (summary["track_error_m"], true_m)
+    assert summary["track_error_received_m"] - true_m > 0.15 * true_m, (summary["track_error_received_m"], true_m)
+    # each estimate measured before it arrived, by about the radio's one way (20 ms) and at most a log period more
+    age = [r["arrived_s"] - r["state_t_s"] for r in track]
+    assert 0.015 < float(np.median(age)) < 0.045, np.median(age)
+    rows = list(csv.DictReader((tmp_path / "flight.csv").open()))
+    logged = [r for r in rows if r["phase"] == "TRACK"]
+    assert [float(r["state_t_s"]) for r in logged] == pytest.approx([r["state_t_s"] for r in track], abs=1e-4)
+    assert [float(r["sched_t_s"]) for r in logged] == pytest.approx([r["sched_t_s"] for r in track], abs=1e-4)
+
+
 def test_the_hover_trim_finds_a_heavy_weak_vehicles_hover_command_and_tracks_on_it(tmp_path):
     """The vehicle is 10 % heavier and its motors 10 % weaker than the map assumes: it needs 22 %
     more command to hover. The trim after the takeoff's hover finds that within 2 %, the HOVER

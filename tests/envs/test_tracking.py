@@ -615,6 +615,36 @@ def test_commands_above_the_thrust_ceiling_reach_history_and_l1_as_the_ceiling(m
     assert env.command_high[0].item() == 12.0 and env.action_high[0].item() == pytest.approx(9.81 + 30.0)
 
 
+def test_behind_a_trimmed_map_each_drone_is_clamped_at_its_own_ceiling(make_tracking_env):
+    """``env.quad.thrust_map_trimmed``: every drone's map clips at its own ceiling
+    (``max_thrust_mps2 · gain / mass``) or at ``max_thrust_mps2``, the lower (as deploy's flight
+    model, whose ceiling the trim can only lower): a full-thrust request reaches the command
+    history and L1 as that, per drone, and a request under every ceiling passes unchanged;
+    check_env_specs holds."""
+    over = [
+        "env.quad.max_thrust_mps2=12.0",
+        "env.quad.mass_spread=0.1",
+        "env.quad.thrust_gain_spread=0.1",
+        "env.quad.thrust_map_trimmed=true",
+        "env.obs.action_history=2",
+        "adaptation=l1",
+        "env.init_pos_range_m=0",
+    ]
+    env = make_tracking_env(over, n=64)
+    check_env_specs(env)
+    td = env.reset()
+    ceiling = env.sim.command_ceiling_mps2.clone()
+    assert ceiling.shape == (64,) and ceiling.min() < 11.0 and ceiling.max() > 13.5
+    td["action"] = torch.tensor([[30.0, 0.0, 0.0, 0.0]] * 64)
+    env.step(td)
+    clipped = torch.stack([ceiling.clamp(max=12.0)] + [torch.zeros(64)] * 3, -1)
+    torch.testing.assert_close(env.cmd_history[:, -1, 0], env.scaled_command(clipped)[:, 0])
+    td["action"] = torch.tensor([[9.5, 0.0, 0.0, 0.0]] * 64)
+    env.step(td)
+    want = env.scaled_command(torch.tensor([[9.5, 0.0, 0.0, 0.0]]))[0, 0]
+    assert torch.allclose(env.cmd_history[:, -1, 0], want.expand(64))
+
+
 def test_observation_defaults_are_the_papers_input():
     """``build_observation`` without the ablation flags is the body-frame input with feedback."""
     from datt.envs.observations import build_observation

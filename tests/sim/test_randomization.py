@@ -168,3 +168,76 @@ def test_randomise_draws_from_the_given_generator_in_a_fixed_order():
     assert torch.equal(quad.latency.delay[idx], delay.to(quad.latency.delay.dtype))
     assert torch.equal(quad.second_order[idx], second)
     assert torch.equal(gen.get_state(), replay.get_state())  # nothing else drawn
+
+
+@pytest.mark.parametrize("rate_model", ["first_order", "firmware"])
+def test_behind_a_trimmed_map_the_commanded_thrust_is_produced_and_the_vehicle_moves_only_its_ceiling(rate_model):
+    """``thrust_map_trimmed`` with an exact trim: a hovering command holds every drone's height,
+    whatever its mass and gain (without the trim it accelerates at (gain / mass − 1) g), and the
+    most each drone's map commands is ``max_thrust_mps2 · gain / mass``; a command above a weak
+    drone's ceiling gives its ceiling, not the command."""
+    n, ceiling = 6, 12.92
+    params = QuadrotorParams(
+        mass_spread=0.1,
+        thrust_gain_spread=0.1,
+        thrust_map_trimmed=True,
+        latency_steps=0,
+        rate_model=rate_model,
+        max_thrust_mps2=ceiling,
+    )
+    quad = Quadrotor(n, params, dtype="float64")
+    quad.randomise(torch.arange(n), torch.Generator().manual_seed(2))
+    scale = quad.thrust_scale
+    assert scale.min() < 0.97 and scale.max() > 1.15  # weak and strong drones among them
+    torch.testing.assert_close(quad.map_scale, scale)
+    torch.testing.assert_close(quad.command_ceiling_mps2, ceiling * scale)
+    quad.reset(pos_m=torch.zeros(n, 3, dtype=torch.float64))
+    for _ in range(100):  # 2 s: the actuators settle from their reset thrust
+        quad.step(hover(n))
+    before = quad.state.vel_mps[:, 2].clone()
+    for _ in range(25):
+        quad.step(hover(n))
+    acc = (quad.state.vel_mps[:, 2] - before) / (25 * quad.dt_s)
+    assert acc.abs().max() < 1e-3, acc
+    # full command to each drone: it produces its own ceiling (the commanded units' ceiling, exactly)
+    full = hover(n)
+    full[:, 0] = 40.0
+    for _ in range(50):
+        quad.step(full)
+    before = quad.state.vel_mps[:, 2].clone()
+    quad.step(full)
+    acc = (quad.state.vel_mps[:, 2] - before) / quad.dt_s
+    tol = 0.02 if rate_model == "firmware" else 1e-9  # the firmware loop truncates to whole commands
+    torch.testing.assert_close(acc, ceiling * scale - G, atol=tol, rtol=0.0)
+
+
+def test_a_trims_error_is_drawn_on_both_sides_and_without_bias():
+    """``trim_error_spread`` s: the trimmed map's gain / mass is the true one times U(1 − s, 1 + s):
+    both tails reached, the mean 1, nothing beyond; the vehicle then produces the command divided
+    by that error."""
+    n, s = 20000, 0.02
+    params = QuadrotorParams(mass_spread=0.1, thrust_gain_spread=0.1, thrust_map_trimmed=True, trim_error_spread=s)
+    quad = Quadrotor(n, params, dtype="float64")
+    quad.randomise(torch.arange(n), torch.Generator().manual_seed(4))
+    error = quad.map_scale / quad.thrust_scale
+    assert error.min() >= 1 - s and error.max() <= 1 + s
+    assert error.min() < 1 - 0.98 * s and error.max() > 1 + 0.98 * s
+    assert abs(float(error.mean()) - 1.0) < 0.0005
+    assert abs(float((error < 1).double().mean()) - 0.5) < 0.02
+    # a trim error alone (a nominal vehicle): the map's scale is the error itself
+    alone = Quadrotor(n, QuadrotorParams(thrust_map_trimmed=True, trim_error_spread=s), dtype="float64")
+    alone.randomise(torch.arange(n), torch.Generator().manual_seed(4))
+    assert alone.thrust_scale is None and alone.map_scale.min() >= 1 - s and alone.map_scale.max() <= 1 + s
+    alone.reset(pos_m=torch.zeros(n, 3, dtype=torch.float64))
+    alone.params.k_thrust = 1.0
+    alone.state.thrust_mps2.fill_(G)
+    cmd = hover(n)
+    for _ in range(alone.params.latency_steps + 1):
+        alone.step(cmd)
+    torch.testing.assert_close(alone.state.thrust_mps2, G / alone.map_scale)
+
+
+def test_without_the_trim_flag_the_map_scales_nothing():
+    quad = Quadrotor(3, QuadrotorParams(mass_spread=0.1, trim_error_spread=0.05))
+    quad.randomise(torch.arange(3), torch.Generator().manual_seed(0))
+    assert quad.map_scale is None and quad.command_ceiling_mps2 is None

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import csv
 import json
+import math
 import time
 from pathlib import Path
 
@@ -14,8 +15,48 @@ import torch
 COLUMNS = [
     "t_s", "phase", "x", "y", "z", "vx", "vy", "vz", "qw", "qx", "qy", "qz", "ref_x", "ref_y", "ref_z",
     "thrust_mps2", "wx", "wy", "wz", "thrust_cmd", "dhat_x", "dhat_y", "dhat_z", "vbat_v", "decision",
-    "jitter_ms", "compute_ms",
+    "jitter_ms", "compute_ms", "sched_t_s", "state_t_s",
 ]  # fmt: skip
+
+
+def measured_at(rows: list[dict], round_trip_s: float) -> list[float]:
+    """Flight-log time (s from ``t0``) at which the vehicle measured each row's estimate: its stamp
+    (``vehicle_s``, the vehicle's clock) on the host's clock, placed by the least transit over the
+    flight (``arrived_s − vehicle_s``: the radio's fixed part, jitter only adds) less the radio's
+    one way (half ``round_trip_s``, measured at connect; 0 if unknown). A row without a stamp:
+    its arrival less the one way; without either (the onboard app's rows): NaN."""
+    one_way = round_trip_s / 2 if math.isfinite(round_trip_s) else 0.0
+    stamped = [r["arrived_s"] - r["vehicle_s"] for r in rows if r.get("vehicle_s") is not None and "arrived_s" in r]
+    offset = min(stamped, default=math.nan) - one_way
+    out = []
+    for r in rows:
+        if r.get("vehicle_s") is not None and "arrived_s" in r:
+            out.append(r["vehicle_s"] + offset)
+        else:
+            out.append(r["arrived_s"] - one_way if "arrived_s" in r else math.nan)
+    return out
+
+
+def errors_when_measured(track: list[dict]) -> list[float]:
+    """‖estimate − reference‖ per TRACK row, the reference taken at the time the estimate was
+    measured (``state_t_s``), not when it arrived: tick k shows reference point k at its scheduled
+    time ``sched_t_s``, interpolated between ticks (held before the first, after the last). An
+    estimate arrives an up-link later than the vehicle was there (a radio leg, the log period's
+    phase); paired with the tick's reference, a vehicle exactly on a reference moving at v reads
+    v × that age of error. This is ``eval.py``'s error (the state at t against p_d(t))."""
+    if not track:
+        return []
+    sched = np.array([r["sched_t_s"] for r in track])
+    ref = np.array([r["ref"] for r in track], dtype=float)
+    out = []
+    for r in track:
+        t = r["state_t_s"]
+        if not math.isfinite(t):
+            out.append(math.nan)
+            continue
+        at = np.array([np.interp(t, sched, ref[:, i]) for i in range(3)])
+        out.append(float(np.linalg.norm(np.array(r["pos"]) - at)))
+    return out
 
 
 class FlightLog:
@@ -52,7 +93,8 @@ class FlightLog:
                     [
                         f"{r['t_s']:.4f}", r["phase"], *r["pos"], *r["vel"], *r["quat"], *r["ref"], *r["action"],
                         r["thrust_cmd"], *r["d_hat"], r["vbat"], r["decision"], f"{r['jitter_ms']:.3f}",
-                        f"{r['compute_ms']:.3f}",
+                        f"{r['compute_ms']:.3f}", f"{r.get('sched_t_s', math.nan):.4f}",
+                        f"{r.get('state_t_s', math.nan):.4f}",
                     ]
                 )  # fmt: skip
         jitter = np.array([r["jitter_ms"] for r in self.rows]) if self.rows else np.zeros(1)

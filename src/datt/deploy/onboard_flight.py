@@ -279,6 +279,10 @@ class OnboardFlight(FlightRunner):
         )
         return None
 
+    def _received_errors(self) -> list[float]:
+        """None: the app's error is of one instant already (no estimate crosses the radio)."""
+        return []
+
     def _track_errors(self) -> list[float]:
         """The app's own per-step error (the estimate it flew on vs p_d at that step)."""
         return [e for k, e in sorted(self._app["samples"].items()) if k < self._onboard_steps]

@@ -33,7 +33,7 @@ import torch
 
 from datt.configuration import FINITE, NON_NEGATIVE, POSITIVE, POSITIVE_OR_NONE, Range, check_ranges, ranged
 from datt.deploy import firmware
-from datt.deploy.flight_log import FlightLog
+from datt.deploy.flight_log import FlightLog, errors_when_measured, measured_at
 from datt.deploy.outcome import Kind, Outcome
 from datt.deploy.safety import KILL, LAND, OK, BatteryFilter, SafetyParams, check, tilt_deg
 from datt.deploy.thrust import ThrustMap, commands_acting, hover_command_from_hover
@@ -627,29 +627,38 @@ class FlightRunner:
             if ended is not None:
                 return ended
             command = self._send_tick(model, action)
-            self.rows.append(
-                {
-                    "t_s": now - self.log.t0,
-                    "phase": self.phase,
-                    "pos": list(state.pos_m),
-                    "vel": list(state.vel_mps),
-                    "quat": list(state.quat),
-                    "ref": list(model.reference() + origin),
-                    "action": [float(a) for a in action],
-                    "thrust_cmd": command,
-                    "d_hat": list(model.d_hat),
-                    "vbat": state.vbat_v,
-                    "decision": decision.action,
-                    "jitter_ms": jitter_ms,
-                    "compute_ms": (time.monotonic() - now) * 1e3,
-                }
-            )
+            self._record(model, state, origin, action, command, decision, now, scheduled, jitter_ms)
             model.advance()
             next_t += dt
             if predict and k == 0:  # commands land mid-way between vehicle ticks (from the schedule: late stays late)
                 next_t = self.predictor.send_slot(next_t - dt / 2)
             time.sleep(max(0.0, next_t - time.monotonic()))
         return OK
+
+    def _record(
+        self, model: FlightModel, state, origin, action, command: int, decision, now, scheduled, jitter_ms
+    ) -> None:
+        """One flight-log row: the tick's estimate, reference, command and timing (flight-log times)."""
+        self.rows.append(
+            {
+                "t_s": now - self.log.t0,
+                "sched_t_s": scheduled - self.log.t0,  # when this tick's reference point is due
+                "arrived_s": state.t_s - self.log.t0,  # the estimate: its arrival, its vehicle stamp
+                "vehicle_s": state.vehicle_s,
+                "phase": self.phase,
+                "pos": list(state.pos_m),
+                "vel": list(state.vel_mps),
+                "quat": list(state.quat),
+                "ref": list(model.reference() + origin),
+                "action": [float(a) for a in action],
+                "thrust_cmd": command,
+                "d_hat": list(model.d_hat),
+                "vbat": state.vbat_v,
+                "decision": decision.action,
+                "jitter_ms": jitter_ms,
+                "compute_ms": (time.monotonic() - now) * 1e3,
+            }
+        )
 
     def _trim(self, phase: str, models: list[FlightModel], final: bool) -> str:
         """Hover trim (``deploy.flight.hover_trim``): rescale the thrust map so that it passes
@@ -743,19 +752,30 @@ class FlightRunner:
 
     # -- records ---------------------------------------------------------------------------
     def _track_errors(self) -> list[float]:
-        """|pos - ref| of each TRACK tick (the onboard flight: the app's own per-step error)."""
+        """‖estimate − reference‖ of each TRACK tick, the reference at the time the estimate was
+        measured (:func:`~datt.deploy.flight_log.errors_when_measured`; the onboard flight: the
+        app's own per-step error, both of one instant)."""
+        return errors_when_measured(self._track_rows())
+
+    def _received_errors(self) -> list[float]:
+        """‖estimate − reference‖ of each TRACK tick, the tick's own reference point (the estimate
+        an up-link old): what ``track_error_m`` was before it took the reference when measured."""
         return [float(np.linalg.norm(np.array(r["pos"]) - np.array(r["ref"]))) for r in self._track_rows()]
 
     def _track_rows(self) -> list[dict]:
         return [r for r in self.rows if r["phase"] == "TRACK"]
 
     def _write(self) -> dict:
+        for row, t in zip(self.rows, measured_at(self.rows, self.link.round_trip_s)):
+            row["state_t_s"] = t
         err = self._track_errors()
+        received = self._received_errors()
         summary = {
             "outcome": self.outcome.text,
             "outcome_kind": self.outcome.kind.value,
             "track_steps": len(err),
             "track_error_m": float(np.mean(err)) if err else None,
+            "track_error_received_m": float(np.mean(received)) if received else None,
             **self.summary_extra,
         }
         return self.log.write(summary, self._track_rows())

@@ -450,6 +450,9 @@ class TrackingEnv(EnvBase):
         update the disturbance. Returns ``(state, cmd, d)`` for the controller's half
         (adaptation update, observation), which :meth:`_step` and the latency timer run next."""
         cmd = torch.clamp(action, self.action_low, self.command_high)
+        ceiling = self.sim.command_ceiling_mps2
+        if ceiling is not None:  # a trimmed map's ceiling differs per drone (env.quad.thrust_map_trimmed)
+            cmd = torch.cat((torch.minimum(cmd[:, :1], ceiling.unsqueeze(-1)), cmd[:, 1:]), dim=-1)
         self.record_command(cmd)
         s = self.sim.step(cmd, self.disturbance.current_mps2)
         self._advance_refs()

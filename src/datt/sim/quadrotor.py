@@ -73,6 +73,14 @@ class QuadrotorParams:
     ``firmware`` (a stock Crazyflie's rate PIDs, mixing, motors and rigid body at 500 Hz,
     :mod:`datt.sim.firmware_rates`: ``vehicle_mass_kg`` and ``motor_time_constant_s`` are its
     vehicle, and its motors' lag replaces ``k_thrust``, ``k_rate`` and ``max_rate_radps``).
+
+    ``thrust_map_trimmed``: the vehicle flies behind a thrust map trimmed to it, as a deployed one
+    after ``deploy.flight.hover_trim``: the commanded thrust is divided by the trim's estimate of
+    ``gain / mass`` (that ratio times ``U(1 − trim_error_spread, 1 + trim_error_spread)``) before
+    the actuator, so the vehicle produces the commanded thrust (up to the trim's error) and its
+    mass and gain move only its ceiling (``max_thrust_mps2 · gain / mass`` in commanded units,
+    :attr:`Quadrotor.command_ceiling_mps2`), where without the trim they scale every command and
+    L1's d̂ carries the error.
     """
 
     gravity_mps2: float = ranged(9.81, POSITIVE)
@@ -84,6 +92,8 @@ class QuadrotorParams:
     max_rate_radps: float = ranged(40.0, POSITIVE)
     mass_spread: float = ranged(0.0, SPREAD)
     thrust_gain_spread: float = ranged(0.0, SPREAD)
+    thrust_map_trimmed: bool = False
+    trim_error_spread: float = ranged(0.0, SPREAD)
     latency_steps_max: int | None = ranged(None, Range(0, 100, integer=True, optional=True))
     rate_model: str = ranged("first_order", Range(choices=RATE_MODELS))
     kw_rate: float = ranged(0.4, FRACTION)
@@ -238,6 +248,10 @@ class Quadrotor:
         self.rate_torque: Tensor | None = None  # [N, 3] second-order model's rate increment per step
         if p.mass_spread or p.thrust_gain_spread:
             self.thrust_scale = torch.ones(n, **kw)
+        # [N] thrust_map_trimmed: the trimmed map's gain / mass, which divides the commanded thrust
+        self.map_scale: Tensor | None = None
+        if p.thrust_map_trimmed and (self.thrust_scale is not None or p.trim_error_spread):
+            self.map_scale = torch.ones(n, **kw)
         self.motor_gain: Tensor | None = None  # [N] firmware rate model: motor force / nominal
         self.firmware: FirmwareRateLoop | None = None
         if p.rate_model == "firmware":
@@ -283,10 +297,19 @@ class Quadrotor:
             self.thrust_scale[idx] = gain / spread(p.mass_spread)
             if self.motor_gain is not None:
                 self.motor_gain[idx] = gain
+        if self.map_scale is not None:
+            true_scale = self.thrust_scale[idx] if self.thrust_scale is not None else 1.0
+            self.map_scale[idx] = true_scale * spread(p.trim_error_spread)
         if p.max_latency_steps != p.latency_steps:
             self.latency.set_delay(idx, torch.randint(p.latency_steps, p.max_latency_steps + 1, (k,), **kw))
         if p.rate_model == "mixed":
             self.second_order[idx] = torch.rand(k, **kw) < 0.5
+
+    @property
+    def command_ceiling_mps2(self) -> Tensor | None:
+        """``[N]``: with ``thrust_map_trimmed``, the most thrust each drone's map commands (its
+        actuator's ``max_thrust_mps2`` in commanded units); None otherwise (``max_thrust_mps2``)."""
+        return None if self.map_scale is None else self.params.max_thrust_mps2 * self.map_scale
 
     def step(self, cmd: Tensor, disturbance_mps2: Tensor | None = None) -> QuadState:
         """Advance all drones by ``dt_s``.
@@ -297,6 +320,8 @@ class Quadrotor:
         p = self.params
         applied = self.latency.push(cmd)
         self.last_applied_cmd = applied
+        if self.map_scale is not None:  # the trimmed map: the actuator's thrust for the one commanded
+            applied = torch.cat((applied[:, :1] / self.map_scale.unsqueeze(-1), applied[:, 1:]), dim=-1)
         if disturbance_mps2 is None:
             disturbance_mps2 = torch.zeros_like(self.state.pos_m)
         s = self.state

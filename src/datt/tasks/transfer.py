@@ -12,7 +12,8 @@ same conditions (:func:`calibrate`: the deploy procedure of docs/deploy.md). Use
 
 from __future__ import annotations
 
-import itertools
+import random
+import socket
 from pathlib import Path
 
 from datt.configuration import compose, load_option
@@ -41,7 +42,21 @@ MODES = {  # name -> (deploy overrides, calibrate first)
     "onboard": (("deploy.onboard=true",), False),
     "onboard, calibrated": (("deploy.onboard=true",), True),
 }
-_ports = itertools.count(19950)
+
+
+def _free_port() -> int:
+    """A UDP port nothing on this machine holds now, for one flight's simulated Crazyflie: two
+    processes flying transfer flights at once (a benchmark and a test, two test workers) never
+    share one. Drawn below the kernel's ephemeral range (32768 on), where cflib's own sockets go."""
+    rng = random.SystemRandom()
+    while True:
+        port = rng.randrange(22000, 32000)  # above the test workers' blocks (tests/deploy, 19900 + 500 each)
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+            try:
+                probe.bind(("127.0.0.1", port))
+            except OSError:
+                continue
+        return port
 
 
 # the simulated vehicle's rate loop -> the training simulator's rate model that evaluates the same loop
@@ -71,7 +86,7 @@ def eval_star_error(checkpoint: str, out: Path, rate_loop: str = "training_model
 
 def _flight_overrides(conditions: dict, seed: int) -> list[str]:
     """A fresh port, ``conditions`` (``deploy.*`` overrides), ``seed`` for the run and the radio's losses."""
-    overrides = [f"deploy.uri=udp://127.0.0.1:{next(_ports)}", f"seed={seed}"]
+    overrides = [f"deploy.uri=udp://127.0.0.1:{_free_port()}", f"seed={seed}"]
     return overrides + [f"{k}={v}" for k, v in conditions.items()] + [f"deploy.server.radio_seed={seed}"]
 
 
@@ -83,6 +98,8 @@ def fly(checkpoint: str, conditions: dict, out: Path, seed: int, extra: tuple = 
     return {
         "outcome": summary["outcome"],
         "track_error_m": summary["track_error_m"],
+        # the estimate against the reference of the tick it arrived in (the former pairing)
+        "track_error_received_m": summary.get("track_error_received_m"),
         "jitter_ms": summary["jitter_ms"],
         "late_ticks": summary["late_ticks"],
         "compute_ms": summary["compute_ms"],

@@ -54,6 +54,7 @@ complementary; 2 = Kalman):
 
 from __future__ import annotations
 
+import collections
 import heapq
 import math
 import random
@@ -288,6 +289,9 @@ class SimCrazyflie:
         self.physics_lag_max_s = 0.0
         self.physics_lags: list[tuple[float, float]] = []
         self._lag_watched = False
+        # (time.monotonic(), true [x, y, z]) as each physics step begins, the last 10 min: the truth
+        # tests measure the host's estimate-based figures against
+        self.truth: collections.deque = collections.deque(maxlen=30000)
 
     def _boot_params(self) -> None:
         """The vehicle's parameters at boot: the configured decks attached, the boot overrides
@@ -438,6 +442,7 @@ class SimCrazyflie:
         return max((lag for t, lag in self.physics_lags if t - lag <= t_s), default=0.0)
 
     def _physics_step(self) -> None:
+        self.truth.append((time.monotonic(), self.quad.state.pos_m[0].tolist()))
         self._settle_params()
         if self.controller == "OutOfTree":
             self.hook_t = self.sim_time_s  # the hook runs in every stabilizer tick under this controller
