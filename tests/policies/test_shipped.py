@@ -39,6 +39,9 @@ ADDED_SINCE: dict[str, tuple] = {
     "env.quad.motor_time_constant_s": (0.03,),
     "env.obs.predict_latency": (False,),
     "env.obs.predict_latency_error_steps": (0,),
+    # the thrust map trimmed to the vehicle (experiment=deploy_trimmed): off, and its error unused then
+    "env.quad.thrust_map_trimmed": (False,),
+    "env.quad.trim_error_spread": (0.0,),
 }
 
 
