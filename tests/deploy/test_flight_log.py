@@ -96,8 +96,9 @@ def test_estimates_are_placed_at_their_vehicle_stamp_on_the_hosts_clock():
     a stamp falls back to its arrival less the one way; one without either is NaN."""
     from datt.deploy.flight_log import measured_at
 
-    waits = [0.0, 0.004, 0.01, 0.007]
-    rows = [{"vehicle_s": 0.02 * k, "arrived_s": 100.0 + 0.02 * k + 0.02 + w} for k, w in enumerate(waits)]
+    waits = [0.004, 0.0, 0.01, 0.007]
+    # the vehicle booted 5 s before its clock's first stamp here: its clock reads 5.0 at host time 100.0
+    rows = [{"vehicle_s": 5.0 + 0.02 * k, "arrived_s": 100.0 + 0.02 * k + 0.02 + w} for k, w in enumerate(waits)]
     assert measured_at(rows, 0.04) == pytest.approx([100.0 + 0.02 * k for k in range(4)], abs=1e-12)
     # an unmeasured round trip: the stamps keep their spacing, placed at the least transit
     assert measured_at(rows, math.inf) == pytest.approx([100.02 + 0.02 * k for k in range(4)], abs=1e-12)
@@ -124,5 +125,6 @@ def test_the_error_takes_the_reference_at_the_time_the_estimate_was_measured():
     received = [float(np.linalg.norm(np.array(r["pos"]) - np.array(r["ref"]))) for r in track]
     assert received == pytest.approx([0.03] * 10)
     track[5]["state_t_s"] = math.nan
-    assert math.isnan(errors_when_measured(track)[5])
+    with_gap = errors_when_measured(track)
+    assert math.isnan(with_gap[5]) and with_gap[6:] == pytest.approx([0.0] * 4, abs=1e-12)  # the rest still scored
     assert errors_when_measured([]) == []

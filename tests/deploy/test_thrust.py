@@ -327,7 +327,7 @@ def test_commands_acting_needs_the_commands_sent_with_their_times():
     from datt.deploy.thrust import commands_acting
 
     for sent_t, sent in (([], []), ([0.0, 0.02], [1.0])):
-        with pytest.raises(ValueError, match="needs the commands sent, each with its time"):
+        with pytest.raises(ValueError, match="^commands_acting: needs the commands sent, each with its time$"):
             commands_acting([0.0], sent_t, sent, 0.05)
 
 
@@ -356,14 +356,22 @@ def test_hover_command_from_a_vehicle_falling_at_g_is_not_a_number():
     t = [0.0, 0.5]
     assert math.isnan(hover_command_from_hover(t, [0.0, -0.5 * 9.81], [40000, 40000]))
     assert math.isnan(hover_command_from_hover(t, [0.0, -0.5 * 12.0], [40000, 40000]))
+    # falling a little slower than g: thrust 0.5 m/s² from the mean command, so hover at 9.81 / 0.5 of it
+    assert hover_command_from_hover(t, [0.0, -0.5 * 9.31], [2000, 2000]) == pytest.approx(2000 * 9.81 / 0.5)
 
 
 @pytest.mark.parametrize(
     "t, vel, cmds",
-    [([0.0], [0.0], [1.0]), ([0.0, 0.0], [0.0, 0.0], [1.0, 1.0]), ([0.0, 0.1], [0.0], [1.0, 1.0]), ([], [], [])],
+    [
+        ([0.0], [0.0], [1.0]),
+        ([0.0, 0.0], [0.0, 0.0], [1.0, 1.0]),
+        ([0.0, 0.1], [0.0], [1.0, 1.0]),
+        ([], [], []),
+        ([0.0, 0.1, 0.0], [0.0] * 3, [1.0] * 3),  # ends where it began
+    ],
 )
 def test_hover_command_from_hover_needs_two_samples_over_a_positive_time(t, vel, cmds):
-    with pytest.raises(ValueError, match="hover trim: needs at least two samples"):
+    with pytest.raises(ValueError, match="^hover trim: needs at least two samples over a positive time$"):
         hover_command_from_hover(t, vel, cmds)
 
 
@@ -401,3 +409,27 @@ def test_what_is_sent_is_the_clipped_command_in_si():
     inside = m.as_sent(9.0, 0.5, -0.25, 0.75)
     assert inside[0] == pytest.approx(m.thrust_mps2(m.command(9.0))) and inside[0] == pytest.approx(9.0, abs=0.01)
     assert inside[1:] == pytest.approx([0.5, -0.25, 0.75])
+
+
+def test_the_thrust_settings_take_their_bounds_exactly():
+    """``max_command`` in (0, 65535]: 1 is a ceiling (0 is not); ``hover_command`` in (0,
+    max_command): 1 is a hover command, 0 and max_command are not (the map refuses a hover at
+    its ceiling too)."""
+    from datt.errors import ConfigError
+
+    ThrustParams(max_command=1).validate()
+    ThrustParams(hover_command=1.0).validate()
+    for bad in ({"max_command": 0}, {"hover_command": 0.0}, {"hover_command": 60000.0, "max_command": 60000}):
+        with pytest.raises(ConfigError, match="^deploy.thrust."):
+            ThrustParams(**bad).validate()
+    with pytest.raises(ConfigError, match="deploy.thrust"):
+        ThrustMap(ThrustParams(mass_kg=0.1, max_command=int(round(ThrustMap(ThrustParams(mass_kg=0.1)).hover_command))))
+
+
+def test_no_thrust_is_command_zero_whatever_the_map():
+    """Zero thrust asked is the motors' zero command, also on a steep calibrated map whose line
+    would cross zero thrust far above command 0."""
+    steep = ThrustMap(ThrustParams(hover_command=55000.0, slope_mps2_per_command=3e-4))
+    assert 55000.0 - 9.81 / 3e-4 > 20000  # the line's zero thrust sits at command ~22,300
+    assert steep.command(0.0) == 0 and steep.command(-1.0) == 0 and steep.command(float("nan")) == 0
+    assert steep.command(1e-6) > 20000  # just above zero thrust: on the line
