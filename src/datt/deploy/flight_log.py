@@ -26,15 +26,12 @@ def measured_at(rows: list[dict], round_trip_s: float) -> list[float]:
     one way (half ``round_trip_s``, measured at connect; 0 if unknown). A row without a stamp:
     its arrival less the one way; without either (the onboard app's rows): NaN."""
     one_way = round_trip_s / 2 if math.isfinite(round_trip_s) else 0.0
-    stamped = [r["arrived_s"] - r["vehicle_s"] for r in rows if r.get("vehicle_s") is not None and "arrived_s" in r]
-    offset = min(stamped, default=math.nan) - one_way
-    out = []
-    for r in rows:
-        if r.get("vehicle_s") is not None and "arrived_s" in r:
-            out.append(r["vehicle_s"] + offset)
-        else:
-            out.append(r["arrived_s"] - one_way if "arrived_s" in r else math.nan)
-    return out
+
+    def stamped(r: dict) -> bool:
+        return r.get("vehicle_s") is not None and "arrived_s" in r
+
+    offset = min((r["arrived_s"] - r["vehicle_s"] for r in rows if stamped(r)), default=math.nan) - one_way
+    return [r["vehicle_s"] + offset if stamped(r) else r.get("arrived_s", math.nan) - one_way for r in rows]
 
 
 def errors_when_measured(track: list[dict]) -> list[float]:
@@ -48,15 +45,10 @@ def errors_when_measured(track: list[dict]) -> list[float]:
         return []
     sched = np.array([r["sched_t_s"] for r in track])
     ref = np.array([r["ref"] for r in track], dtype=float)
-    out = []
-    for r in track:
-        t = r["state_t_s"]
-        if not math.isfinite(t):
-            out.append(math.nan)
-            continue
-        at = np.array([np.interp(t, sched, ref[:, i]) for i in range(3)])
-        out.append(float(np.linalg.norm(np.array(r["pos"]) - at)))
-    return out
+    measured = np.array([r["state_t_s"] for r in track], dtype=float)  # NaN (no time) interpolates to NaN
+    at = np.stack([np.interp(measured, sched, ref[:, i]) for i in range(3)], axis=-1)
+    pos = np.array([r["pos"] for r in track], dtype=float)
+    return [float(e) for e in np.linalg.norm(pos - at, axis=-1)]
 
 
 class FlightLog:

@@ -452,7 +452,7 @@ class TrackingEnv(EnvBase):
         cmd = torch.clamp(action, self.action_low, self.command_high)
         ceiling = self.sim.command_ceiling_mps2
         if ceiling is not None:  # a trimmed map's ceiling differs per drone (env.quad.thrust_map_trimmed)
-            cmd = torch.cat((torch.minimum(cmd[:, :1], ceiling.unsqueeze(-1)), cmd[:, 1:]), dim=-1)
+            cmd[:, 0] = torch.minimum(cmd[:, 0], ceiling)  # cmd is clamp's own copy
         self.record_command(cmd)
         s = self.sim.step(cmd, self.disturbance.current_mps2)
         self._advance_refs()
