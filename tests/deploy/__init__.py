@@ -53,6 +53,7 @@ def fly_sim(tmp_path, port: int, overrides=(), hook=None, estop=None) -> tuple[d
     from datt.tasks.deploy import run_deploy
 
     lags = []
+    tmp_path.mkdir(parents=True, exist_ok=True)  # a test's sub-directory for a second flight
     for attempt in range(STALL_ATTEMPTS):
         before = set(tmp_path.iterdir())
         cfg = compose("deploy", [f"deploy.uri=udp://127.0.0.1:{port}", *SHORT_FLIGHT, *overrides])

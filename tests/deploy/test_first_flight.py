@@ -3,6 +3,7 @@ the firmware would (controller ids, flight-mode holds, write echoes, arming, the
 queue), and the host's settings refuse what would disable a check. One test (or more) per way a
 first flight went wrong when read against crazyflie-firmware 2026.08 (docs/deploy.md)."""
 
+import json
 import math
 import os
 import shutil
@@ -322,7 +323,10 @@ def test_a_stop_signal_before_arming_arms_nothing(tmp_path):
     finally:
         task.run_deploy = real
     assert not seen["server"].armed and seen["server"].true_state()["pos_m"][2] == 0.0
-    assert (tmp_path / "events.json").is_file()
+    logged = json.loads((tmp_path / "events.json").read_text())
+    stops = [e for e in logged["events"] if e["kind"] == "stopped"]  # the log says why it ended, once
+    assert [e["text"] for e in stops] == ["stopped before arming (SIGINT): nothing was armed"]
+    assert logged["outcome_kind"] == "stopped"
 
 
 # -- the outcome type: one exit status per kind ---------------------------------------------------

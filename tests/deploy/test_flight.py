@@ -375,6 +375,9 @@ def test_the_tracking_error_is_the_vehicles_own_not_the_age_of_its_estimate(tmp_
     )
     assert summary["outcome"] == "landed", summary["outcome"]
     track = [r for r in runner.rows if r["phase"] == "TRACK"]
+    # every row keeps the vehicle's stamp, and each is placed by the same clock offset
+    offsets = [r["state_t_s"] - r["vehicle_s"] for r in track]
+    assert max(offsets) - min(offsets) < 1e-9
     t_true = np.array([t for t, _ in server.truth])
     p_true = np.array([p for _, p in server.truth])
     true = []
@@ -416,7 +419,16 @@ def test_the_hover_trim_finds_a_heavy_weak_vehicles_hover_command_and_tracks_on_
     # paired with the commands sent one measured latency earlier (round trip + one tick): -2.2 % with
     # the same tick's commands in 1 of 3 flights, -0.25 to -0.92 % paired (docs/deploy.md)
     assert abs(trim["hover_command"] - true_hover) / true_hover < 0.02, (trim, true_hover)
-    assert int(trim["text"].split("(commands ")[1].split(" ms")[0]) > 20
+    # the lag null means: the round trip measured at connect + one 20 ms tick, the same chain the
+    # predictor compensates (its null latency: the round trip + the policy's 20 ms)
+    lag_ms = int(trim["text"].split("(commands ")[1].split(" ms")[0])
+    (predictor,) = [e["text"] for e in summary["events"] if e["kind"] == "predictor"]
+    assert abs(lag_ms - int(predictor.split("latency ")[1].split(" ms")[0])) <= 1, (trim["text"], predictor)
+    # each pass says how much it rescaled the map it found: the hover commands' ratio
+    for e, prev in zip(trims, [nominal, trims[0]["hover_command"]]):
+        assert f"the thrust map {prev:.0f}" in e["text"]
+        pct = float(e["text"].split("map rescaled by ")[1].split(" %")[0])
+        assert pct == pytest.approx(100 * (e["hover_command"] / prev - 1), abs=0.06), e["text"]
     rows = list(csv.DictReader((tmp_path / "flight.csv").open()))
     phases = [r["phase"] for r in rows]
     assert phases.index("HOVER") > phases.index("TAKEOFF") and phases.index("TRACK") > phases.index("HOVER")
@@ -426,6 +438,34 @@ def test_the_hover_trim_finds_a_heavy_weak_vehicles_hover_command_and_tracks_on_
     assert abs(sum(hover_cmds) / len(hover_cmds) - true_hover) / true_hover < 0.05
     # off-board on this vehicle the default policy flies 2-4x its 0.049 m eval error (docs/deploy.md)
     assert summary["track_error_m"] < 0.3
+
+
+def test_the_ceiling_guard_levels_a_vehicle_at_its_thrust_ceiling_and_says_how_often(tmp_path):
+    """The heavy, weak vehicle under a map capped at 58,000 (a thrust-to-weight ratio of ~1.04: a
+    tilt limit of ~16 deg at the ceiling) with ``deploy.flight.ceiling_guard=true``: the policy's
+    commands hit the ceiling, the guard levels some of them, the summary counts them and the log
+    says so; the rows sent at the ceiling then never tilt far past the limit."""
+    from datt.deploy.ceiling_guard import tilt_limit_rad
+
+    summary, _ = fly(
+        tmp_path,
+        [*SHORT, *HEAVY_WEAK, "deploy.thrust.max_command=58000", "deploy.flight.ceiling_guard=true"],
+    )
+    guarded = summary["ceiling_guarded_ticks"]
+    assert guarded > 0, summary["outcome"]
+    notes = [e["text"] for e in summary["events"] if e["kind"] == "ceiling guard"]
+    assert notes == [
+        f"{guarded} TRACK commands at the thrust ceiling levelled the vehicle instead of tilting it further"
+    ]
+    rows = [r for r in csv.DictReader((tmp_path / "flight.csv").open()) if r["phase"] == "TRACK"]
+    ceiling = max(float(r["thrust_mps2"]) for r in rows)
+    limit_deg = math.degrees(tilt_limit_rad(ceiling, 9.81))
+    tilts = [
+        math.degrees(math.acos(min(1.0, 1 - 2 * (float(r["qx"]) ** 2 + float(r["qy"]) ** 2))))
+        for r in rows
+        if float(r["thrust_mps2"]) >= ceiling - 1e-6
+    ]
+    assert max(tilts) < limit_deg + 15.0, (max(tilts), limit_deg)
 
 
 def test_a_hover_trim_beyond_its_limit_lands_without_tracking(tmp_path):

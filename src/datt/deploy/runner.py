@@ -33,6 +33,7 @@ import torch
 
 from datt.configuration import FINITE, NON_NEGATIVE, POSITIVE, POSITIVE_OR_NONE, Range, check_ranges, ranged
 from datt.deploy import firmware
+from datt.deploy.ceiling_guard import keep_altitude_at_ceiling
 from datt.deploy.flight_log import FlightLog, errors_when_measured, measured_at
 from datt.deploy.outcome import Kind, Outcome
 from datt.deploy.safety import KILL, LAND, OK, BatteryFilter, SafetyParams, check, tilt_deg
@@ -81,8 +82,13 @@ PRE_ARM_PHASES = ("CONNECT", "PREFLIGHT")  # a stop here ends the flight with no
 class FlightModel:
     """A controller flying from measurements: a one-drone env whose state is set each tick."""
 
-    def __init__(self, make_env, controller, family: RefFamily, thrust_ceiling_mps2: float = math.inf) -> None:
+    def __init__(
+        self, make_env, controller, family: RefFamily, thrust_ceiling_mps2: float = math.inf, guard=None
+    ) -> None:
         self.env = make_env(family)
+        # (gravity m/s², climb reserve m/s², levelling gain 1/s) of datt.deploy.ceiling_guard, or None
+        self.guard = guard
+        self.guarded = 0  # commands the guard changed
         # the thrust map clips at max_command: the adaptation and the history get what is sent
         self.command_high = self.env.command_high.clone()
         self.command_high[0] = min(float(self.command_high[0]), thrust_ceiling_mps2)
@@ -104,10 +110,25 @@ class FlightModel:
         td = None if self.controller.builds_observation else self.env.observe()
         action = self.controller.act(self.env, td)
         cmd = torch.clamp(action, self.env.action_low, self.command_high)
+        if self.guard is not None:  # the attitude the controller saw (the predicted one, when predicting)
+            cmd = self._keep_altitude(cmd, self.env.sim.state.quat[0].tolist())
         self.env.sim.latency.push(cmd)  # model-based controllers see the command in flight
         self.env.record_command(cmd)  # policies with obs.action_history see the commands sent
         self.last_cmd = cmd
         return cmd[0].detach().numpy().astype(float)  # as the env would apply it (NaN stays NaN)
+
+    def _keep_altitude(self, cmd: torch.Tensor, quat: list[float]) -> torch.Tensor:
+        """``cmd`` (1, 4) with the roll and pitch rates :func:`keep_altitude_at_ceiling` leaves."""
+        values = cmd[0].tolist()
+        rates, guarded = keep_altitude_at_ceiling(
+            values[0], values[1:4], quat, float(self.command_high[0]), *self.guard
+        )
+        if not guarded:
+            return cmd
+        self.guarded += 1
+        # the guard's levelling rate stays within the rate bounds the policy's commands have
+        rates_t = torch.tensor(rates, dtype=cmd.dtype).clamp(self.env.action_low[1:4], self.command_high[1:4])
+        return torch.cat([cmd[:, :1], rates_t.unsqueeze(0)], dim=1)
 
     def set_thrust_ceiling(self, thrust_ceiling_mps2: float) -> None:
         """The most collective thrust the map will now command (after :meth:`FlightRunner._trim`)."""
@@ -148,6 +169,12 @@ class FlightParams:
     # velocity change with the commands sent this much earlier; null = the radio round trip measured at
     # connect + one control tick (the vehicle's actuation)
     hover_trim_lag_s: float | None = ranged(None, Range(0.0, 0.5, optional=True))
+    # altitude first at the thrust ceiling (datt.deploy.ceiling_guard): a command at the map's ceiling
+    # from an attitude tilted past acos((g + reserve) / ceiling) levels instead of tilting further
+    # (off by default: not better in the transfer test, docs/deploy.md)
+    ceiling_guard: bool = False
+    ceiling_climb_reserve_mps2: float = ranged(0.0, NON_NEGATIVE)
+    ceiling_level_gain_per_s: float = ranged(4.0, NON_NEGATIVE)
 
     def validate(self) -> None:
         from datt.errors import ConfigError
@@ -455,11 +482,25 @@ class FlightRunner:
             if self._climb(origin, takeoff, hover, [track]) != OK:
                 return  # killed, or already landed
             self._set_phase("TRACK")
-            if self._fly_phase(track, self.p.track_s, origin) != OK:
+            ended = self._fly_phase(track, self.p.track_s, origin)
+            self._note_guard(track)
+            if ended != OK:
                 return
             self._land(origin)
 
         return self._flight(build, airborne)
+
+    def _note_guard(self, track: FlightModel) -> None:
+        """How many TRACK commands the ceiling guard levelled (the summary's ``ceiling_guarded_ticks``)."""
+        if track.guard is None:
+            return
+        self.summary_extra["ceiling_guarded_ticks"] = track.guarded
+        if track.guarded:
+            self._event(
+                "ceiling guard",
+                f"{track.guarded} TRACK commands at the thrust ceiling levelled the vehicle "
+                "instead of tilting it further",
+            )
 
     def _preflight(self) -> np.ndarray:
         deadline = time.monotonic() + self.p.preflight_timeout_s
@@ -710,7 +751,12 @@ class FlightRunner:
         return round_trip + 1.0 / self.p.rate_hz
 
     def _model(self, controller, family: RefFamily) -> FlightModel:
-        model = FlightModel(self.make_env, controller, family, self.thrust.ceiling_mps2)
+        guard = (
+            (self.thrust.p.gravity_mps2, self.p.ceiling_climb_reserve_mps2, self.p.ceiling_level_gain_per_s)
+            if self.p.ceiling_guard
+            else None
+        )
+        model = FlightModel(self.make_env, controller, family, self.thrust.ceiling_mps2, guard)
         model.act([0.0, 0.0, 0.0], [0.0, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0])  # warm-up (traces the policy)
         model.env.reset()
         controller.reset(model.env)
