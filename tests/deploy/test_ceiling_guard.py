@@ -81,9 +81,13 @@ def test_past_the_limit_the_vehicle_levels_at_the_gain_times_the_excess(axis, ya
 
 
 def body_z_world_in_body(q) -> np.ndarray:
-    """World up in the body frame."""
-    w, x, y, z = q
-    return np.array([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)])
+    """World up in the body frame (the tensor rotation, not the guard's float form)."""
+    import torch
+
+    from datt.sim.frames import quat_rotate_inverse
+
+    q_t = torch.tensor([q], dtype=torch.float64)
+    return quat_rotate_inverse(q_t, torch.tensor([[0.0, 0.0, 1.0]], dtype=torch.float64))[0].numpy()
 
 
 def test_a_command_already_levelling_fast_enough_is_left_alone():

@@ -361,12 +361,20 @@ def test_the_simulated_vehicle_logs_before_or_after_its_step_as_set(log_first):
 
 def test_the_float_attitude_step_is_the_simulators_quaternion_algebra():
     """The plain-float attitude step the predictor (and the simulated vehicle's stabilizer) uses
-    against datt.sim.frames' tensor algebra: q * exp(rotvec), normalised, and the body z axis, for
+    against datt.sim.frames' tensor algebra: q * exp(rotvec), normalised, the body z axis and world
+    up in the body frame, for
     tilted attitudes and small and large turns."""
     import torch
 
     from datt.sim.frames import body_z_floats as _body_z
-    from datt.sim.frames import quat_body_z, quat_exp_rotvec, quat_mul, quat_normalize
+    from datt.sim.frames import (
+        quat_body_z,
+        quat_exp_rotvec,
+        quat_mul,
+        quat_normalize,
+        quat_rotate_inverse,
+        world_up_floats,
+    )
     from datt.sim.frames import quat_turned_floats as _turned
 
     g = torch.Generator().manual_seed(0)
@@ -376,6 +384,8 @@ def test_the_float_attitude_step_is_the_simulators_quaternion_algebra():
         expected = quat_normalize(quat_mul(q, quat_exp_rotvec(rotvec)))
         assert _turned(q.tolist(), rotvec.tolist()) == pytest.approx(expected.tolist(), abs=1e-12)
         assert _body_z(q.tolist()) == pytest.approx(quat_body_z(q).tolist(), abs=1e-12)
+        up = quat_rotate_inverse(q.unsqueeze(0), torch.tensor([[0.0, 0.0, 1.0]], dtype=torch.float64))[0]
+        assert world_up_floats(q.tolist()) == pytest.approx(up.tolist(), abs=1e-12)  # the ceiling guard's
 
 
 @pytest.mark.parametrize("earliest", [100.6, 100.6049, 100.605, 100.6051, 100.619, 100.63])

@@ -21,6 +21,8 @@ from __future__ import annotations
 
 import math
 
+from datt.sim.frames import world_up_floats
+
 
 def tilt_limit_rad(ceiling_mps2: float, gravity_mps2: float, climb_reserve_mps2: float = 0.0) -> float:
     """The largest tilt at which ``ceiling_mps2`` still gives ``gravity + climb_reserve`` upward;
@@ -45,9 +47,7 @@ def keep_altitude_at_ceiling(
     raised to that, so that d(cos tilt)/dt = sin(tilt) · ``level_gain_per_s`` · excess."""
     if not math.isfinite(ceiling_mps2) or thrust_mps2 < ceiling_mps2:
         return tuple(rates_radps), False
-    w, x, y, z = quat
-    # world up in the body frame (the third row of the body-to-world rotation)
-    up = (2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y))
+    up = world_up_floats(quat)
     tilt = math.atan2(math.hypot(up[0], up[1]), up[2])
     excess = tilt - tilt_limit_rad(ceiling_mps2, gravity_mps2, climb_reserve_mps2)
     if excess <= 0:

@@ -162,6 +162,14 @@ def body_z_floats(q: list[float]) -> list[float]:
     return [2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y)]
 
 
+def world_up_floats(q: list[float]) -> list[float]:
+    """World z expressed in the body frame of one quaternion (w, x, y, z, body to world) on plain
+    floats: ``quat_rotate_inverse(q, e_z)``, the third row of the rotation (:func:`body_z_floats`
+    is its third column)."""
+    w, x, y, z = q
+    return [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]
+
+
 def quat_turned_floats(q: list[float], rotvec: list[float]) -> list[float]:
     """``q`` (w, x, y, z, body to world) turned by the body-frame rotation vector ``rotvec`` (rad):
     ``quat_normalize(quat_mul(q, quat_exp_rotvec(rotvec)))`` on plain floats (the same series near 0)."""
