@@ -3,6 +3,7 @@ against the geometry of a tilted thrust vector."""
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -176,7 +177,7 @@ def test_the_flight_model_sends_remembers_and_counts_the_guarded_command():
     q = tilted(tilt)
     state = ([0.0, 0.0, -3.0], [0.0, 0.0, -2.0], q)
     plain = _model(11.0, None).act(*state)
-    model = _model(11.0, (G, 0.0, 4.0))
+    model = _model(11.0, functools.partial(keep_altitude_at_ceiling, gravity_mps2=G))
     sent = model.act(*state)
     assert plain[0] == sent[0] == pytest.approx(11.0)
     wanted = -4.0 * (tilt - tilt_limit_rad(11.0, G))
@@ -202,3 +203,24 @@ def test_the_guard_is_off_by_default_and_its_settings_are_checked():
     for key in ("ceiling_climb_reserve_mps2", "ceiling_level_gain_per_s"):
         with pytest.raises(ConfigError, match=f"deploy.flight.{key}"):
             deploy_params(compose("deploy", [f"deploy.flight.{key}=-1"]).deploy)
+
+
+@pytest.mark.parametrize("reserve, gain", [(0.0, 4.0), (0.5, 2.5)], ids=["defaults", "other"])
+def test_the_runner_binds_the_configured_reserve_gain_and_the_maps_gravity(reserve, gain):
+    """The guard a flight uses is the configured one: its reserve and gain, the thrust map's
+    gravity (here not 9.81, so a guard bound to the standard value shows); none when off."""
+    from types import SimpleNamespace
+
+    from datt.deploy.runner import FlightRunner
+
+    runner = FlightRunner.__new__(FlightRunner)  # the settings alone: no link, no vehicle
+    runner.thrust = SimpleNamespace(p=SimpleNamespace(gravity_mps2=9.0))
+    on = dict(ceiling_guard=True, ceiling_climb_reserve_mps2=reserve, ceiling_level_gain_per_s=gain)
+    runner.p = SimpleNamespace(**on)
+    q, rates = tilted(math.radians(40.0)), (0.2, -0.1, 0.3)
+    bound = runner._ceiling_guard()(CEILING, rates, q, CEILING)
+    want = keep_altitude_at_ceiling(CEILING, rates, q, CEILING, 9.0, climb_reserve_mps2=reserve, level_gain_per_s=gain)
+    assert bound == want and want[1]
+    assert keep_altitude_at_ceiling(CEILING, rates, q, CEILING, G, reserve, gain) != want  # gravity matters here
+    runner.p = SimpleNamespace(**{**on, "ceiling_guard": False})
+    assert runner._ceiling_guard() is None

@@ -169,6 +169,33 @@ def test_an_app_that_stops_stepping_is_taken_over_by_the_host(tmp_path):
     assert not server.locked and server.true_state()["pos_m"][2] < 0.15
 
 
+@pytest.mark.flight  # a real flight through cflib (seconds): not in the mutation-testing selection
+@needs_gcc
+def test_an_app_that_does_not_keep_the_trimmed_map_is_not_started_and_the_pid_lands(tmp_path):
+    """After the hover trim, the host hands the app the trimmed map with ``datt.run = 1`` and
+    reads them back: a vehicle that keeps its old ``datt.hoverCmd`` fails the read-back while the
+    PID hovers it. Nothing is KILLed (the vehicle would drop): ``datt.run`` goes back to 0 and
+    the PID lands; the log says why."""
+
+    def keep_the_old_hover_command(server, runner):
+        app_set = server.app.set
+
+        def stubborn(name, value):
+            if name == "hoverCmd" and runner.phase == "TRACK":
+                return  # an app of another version that no longer takes the trim here
+            app_set(name, value)
+
+        server.app.set = stubborn
+
+    summary, server = fly(tmp_path, ["deploy.onboard=true"], hook=keep_the_old_hover_command)
+    assert summary["outcome"].startswith("landed early: the app's start was not confirmed: datt.hoverCmd reads back"), (
+        summary["outcome"]
+    )
+    assert not any(e["kind"] == "KILL" for e in summary["events"])
+    assert server.app.phase == onboard.IDLE and server.app.run_request == 0
+    assert not server.locked and server.true_state()["pos_m"][2] < 0.15
+
+
 # -- 3: a read that can fail ------------------------------------------------------------------
 def test_a_setting_the_vehicle_does_not_keep_is_refused():
     """Without the app the firmware has no out-of-tree controller: writing its id is echoed as

@@ -60,7 +60,8 @@ def test_timing_summary_counts_late_ticks_strictly_and_takes_absolute_jitter(tmp
 def test_a_flight_without_ticks_still_writes_a_summary(tmp_path):
     summary = FlightLog(tmp_path).write({"outcome": "refused"}, [])
     assert summary["ticks"] == 0 and summary["late_ticks"] == 0 and summary["jitter_ms"]["max"] == 0.0
-    assert (tmp_path / "events.json").exists() and not (tmp_path / "track.png").exists()
+    assert (tmp_path / "events.json").exists() and not (tmp_path / "tracks_flight.png").exists()
+    assert not (tmp_path / "axes_flight.png").exists()
 
 
 def test_the_runner_scores_only_the_track_ticks(tmp_path):
@@ -128,3 +129,161 @@ def test_the_error_takes_the_reference_at_the_time_the_estimate_was_measured():
     with_gap = errors_when_measured(track)
     assert math.isnan(with_gap[5]) and with_gap[6:] == pytest.approx([0.0] * 4, abs=1e-12)  # the rest still scored
     assert errors_when_measured([]) == []
+
+
+# -- the log's files field by field: what a reader of flight.csv and events.json gets ---------------
+def distinct_row() -> dict:
+    """A row whose every number is different, so a column that takes another field's value shows."""
+    return {
+        "t_s": 1.234567,
+        "phase": "TRACK",
+        "pos": [1.5, 2.5, 3.5],
+        "vel": [4.5, 5.5, 6.5],
+        "quat": [0.25, 0.125, 0.0625, 0.03125],
+        "ref": [11.5, 12.5, 13.5],
+        "action": [14.5, 15.5, 16.5, 17.5],
+        "thrust_cmd": 18123,
+        "d_hat": [19.5, 20.5, 21.5],
+        "vbat": 3.875,
+        "decision": "LAND",
+        "jitter_ms": -1.23456,
+        "compute_ms": 2.34567,
+        "sched_t_s": 3.141592,
+        "state_t_s": 2.718281,
+    }
+
+
+def test_every_csv_column_holds_its_own_field(tmp_path):
+    """Each column of flight.csv under its header: times to 0.1 ms, jitter and compute to 1 µs,
+    vectors in x, y, z (w, x, y, z for the quaternion) order; a row without the scheduled or
+    measured time says nan there."""
+    log = FlightLog(tmp_path)
+    bare = {k: v for k, v in distinct_row().items() if k not in ("sched_t_s", "state_t_s")}
+    log.rows = [distinct_row(), bare]
+    log.write({}, [])
+    with open(tmp_path / "flight.csv") as f:
+        first, second = list(csv.DictReader(f))
+    expected = {
+        "t_s": "1.2346", "phase": "TRACK", "x": 1.5, "y": 2.5, "z": 3.5, "vx": 4.5, "vy": 5.5, "vz": 6.5,
+        "qw": 0.25, "qx": 0.125, "qy": 0.0625, "qz": 0.03125, "ref_x": 11.5, "ref_y": 12.5, "ref_z": 13.5,
+        "thrust_mps2": 14.5, "wx": 15.5, "wy": 16.5, "wz": 17.5, "thrust_cmd": "18123", "dhat_x": 19.5,
+        "dhat_y": 20.5, "dhat_z": 21.5, "vbat_v": 3.875, "decision": "LAND", "jitter_ms": "-1.235",
+        "compute_ms": "2.346", "sched_t_s": "3.1416", "state_t_s": "2.7183",
+    }  # fmt: skip
+    assert list(first) == COLUMNS == list(expected)
+    got = {k: (float(v) if isinstance(expected[k], float) else v) for k, v in first.items()}
+    assert got == expected
+    assert second["sched_t_s"] == "nan" and second["state_t_s"] == "nan" and second["t_s"] == "1.2346"
+
+
+class Clock:
+    """A monotonic clock the test sets."""
+
+    def __init__(self, now: float) -> None:
+        self.now = now
+
+    def monotonic(self) -> float:
+        return self.now
+
+
+class Console:
+    def __init__(self) -> None:
+        self.lines: list[str] = []
+
+    def print(self, line: str) -> None:
+        self.lines.append(line)
+
+
+def test_events_carry_their_time_since_the_start_their_phase_and_go_to_the_console(tmp_path, monkeypatch):
+    """An event is stamped with the seconds since the log began (to 0.1 ms) and the phase it
+    happened in; extra fields are kept; the console gets one aligned line per event. A phase
+    change is itself an event of the new phase. The log starts in CONNECT."""
+    from datt.deploy import flight_log
+
+    clock = Clock(1000.0)
+    monkeypatch.setattr(flight_log, "time", clock)
+    console = Console()
+    log = FlightLog(tmp_path, console=console)
+    assert log.phase == "CONNECT" and log.events == [] and log.rows == []
+    clock.now = 1001.234567
+    log.event("link", "radio up", round_trip_ms=12.5)
+    clock.now = 1002.5
+    log.set_phase("TAKEOFF")
+    clock.now = 1012.75
+    log.event("safety", "LAND: mocap stale")
+    assert log.events == [
+        {"t_s": 1.2346, "phase": "CONNECT", "kind": "link", "text": "radio up", "round_trip_ms": 12.5},
+        {"t_s": 2.5, "phase": "TAKEOFF", "kind": "phase", "text": "TAKEOFF"},
+        {"t_s": 12.75, "phase": "TAKEOFF", "kind": "safety", "text": "LAND: mocap stale"},
+    ]
+    assert console.lines == [
+        "[   1.23 s] CONNECT  link: radio up",
+        "[   2.50 s] TAKEOFF  phase: TAKEOFF",
+        "[  12.75 s] TAKEOFF  safety: LAND: mocap stale",
+    ]
+    silent = FlightLog(tmp_path)  # no console: events are still kept
+    silent.event("x", "y")
+    silent.event("armed")  # an event without a text has an empty one
+    assert [(e["kind"], e["text"]) for e in silent.events] == [("x", "y"), ("armed", "")]
+
+
+def test_events_json_is_the_summary_with_the_timing_and_every_event(tmp_path):
+    """events.json holds what the caller summarised, the tick count and timing, and the events in
+    order (values json cannot write, such as a path, as text); it is created with its directory."""
+    run_dir = tmp_path / "a" / "b"
+    log = FlightLog(run_dir)
+    log.event("upload", "done", path=tmp_path / "ref.csv")
+    log.set_phase("TRACK")
+    log.rows = [row(k, "TRACK", 1.0, 2.0) for k in range(3)]
+    summary = log.write({"outcome": "landed", "ticks": -1}, [])
+    on_disk = json.loads((run_dir / "events.json").read_text())
+    assert on_disk == json.loads(json.dumps(summary, default=str))
+    assert on_disk["outcome"] == "landed" and on_disk["ticks"] == 3  # the count, not the caller's
+    assert [(e["kind"], e["text"]) for e in on_disk["events"]] == [("upload", "done"), ("phase", "TRACK")]
+    assert on_disk["events"][0]["path"] == str(tmp_path / "ref.csv")
+    # indented by two, one value per line, so that two flights' files read side by side in a diff
+    assert (run_dir / "events.json").read_text() == json.dumps(summary, indent=2, default=str) + "\n"
+
+
+def test_the_default_late_tick_is_five_milliseconds_and_an_empty_flight_times_zero(tmp_path):
+    log = FlightLog(tmp_path)
+    assert (log.rate_hz, log.late_tick_ms, log.run_dir) == (50.0, 5.0, tmp_path)
+    log.rows = [row(k, "TRACK", j, 1.0) for k, j in enumerate([5.0, 5.001, 4.0])]
+    assert log.write({}, [])["late_ticks"] == 1
+    empty = FlightLog(tmp_path / "empty").write({}, [])
+    assert empty["jitter_ms"] == {"median": 0.0, "p99": 0.0, "max": 0.0}
+    assert empty["compute_ms"] == {"median": 0.0, "p99": 0.0}
+
+
+@pytest.mark.parametrize("rate_hz", [50.0, 25.0])
+def test_the_plots_show_the_track_flown_against_its_reference(tmp_path, monkeypatch, rate_hz):
+    """The two plots of a flight get the track rows' positions and references as one trace of
+    [1, ticks, 3], all of it drawn (the last index as its end) at the log's tick period; without
+    track rows there is no plot. Then the real plots are drawn: two PNG files."""
+    from datt.eval import plots
+
+    calls = []
+    monkeypatch.setattr(plots, "plot_tracks", lambda *a, **k: calls.append(("tracks", a, k)))
+    monkeypatch.setattr(plots, "plot_group_axes", lambda *a, **k: calls.append(("axes", a, k)))
+    track = [
+        {**row(k, "TRACK", 0.0, 1.0), "pos": [0.1 * k, -0.2 * k, 1.0 + k], "ref": [k, 2.0 * k, 1.5]} for k in range(5)
+    ]
+    FlightLog(tmp_path, rate_hz=rate_hz).write({}, track)
+    (kind_t, a_t, k_t), (kind_a, a_a, k_a) = calls
+    assert (kind_t, kind_a) == ("tracks", "axes")
+    for trace in (a_t[0], a_a[0]):
+        assert trace.pos_m.shape == trace.ref_m.shape == (1, 5, 3)
+        assert trace.pos_m[0, :, 2].tolist() == pytest.approx([1.0, 2.0, 3.0, 4.0, 5.0])
+        assert trace.ref_m[0, :, 1].tolist() == pytest.approx([0.0, 2.0, 4.0, 6.0, 8.0])
+        assert trace.crashed_at.tolist() == [4]
+    assert a_t[1:] == (["track"], [1], tmp_path / "tracks_flight.png")
+    assert k_t == {"title": "flight: reference vs flown", "per_group": 1}
+    assert a_a[1:] == (["track"], [1], pytest.approx(1.0 / rate_hz), tmp_path / "axes_flight.png")
+    assert k_a == {"title": "flight"}
+    calls.clear()
+    FlightLog(tmp_path / "none").write({}, [])
+    assert calls == []
+    monkeypatch.undo()
+    FlightLog(tmp_path / "real", rate_hz=rate_hz).write({}, track)
+    for name in ("tracks_flight.png", "axes_flight.png"):
+        assert (tmp_path / "real" / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

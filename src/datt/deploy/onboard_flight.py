@@ -164,9 +164,14 @@ class OnboardFlight(FlightRunner):
         """Hand the flight to the app and watch until it has landed (or the time it needs has
         passed). Returns OK (the app landed), LAND (stopped: the host lands) or KILL."""
         # the hover trim's map goes with the start (in order: the app reads it when it starts)
-        self.link.set_params_checked(
-            {"datt.hoverCmd": self.thrust.hover_command, "datt.slope": self.thrust.slope, "datt.run": 1}
-        )
+        try:
+            self.link.set_params_checked(
+                {"datt.hoverCmd": self.thrust.hover_command, "datt.slope": self.thrust.slope, "datt.run": 1}
+            )
+        except LinkError as exc:  # the app may not fly on the trimmed map: the PID, still hovering, lands
+            self._event("LAND", f"the app's start was not confirmed: {str(exc).removeprefix('connect: ')}")
+            self.link.set_param("datt.run", 0)
+            return LAND
         dt = 1.0 / self.p.rate_hz
         budget_s = self._onboard_steps * dt + self.p.land_s + 0.5 + 2.0
         deadline = time.monotonic() + budget_s

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import functools
 import gc
 import math
 import signal
@@ -86,7 +87,8 @@ class FlightModel:
         self, make_env, controller, family: RefFamily, thrust_ceiling_mps2: float = math.inf, guard=None
     ) -> None:
         self.env = make_env(family)
-        # (gravity m/s², climb reserve m/s², levelling gain 1/s) of datt.deploy.ceiling_guard, or None
+        # keep_altitude_at_ceiling with its settings bound (thrust, rates, quat, ceiling) -> (rates,
+        # guarded), or None: datt.deploy.ceiling_guard
         self.guard = guard
         self.guarded = 0  # commands the guard changed
         # the thrust map clips at max_command: the adaptation and the history get what is sent
@@ -120,9 +122,7 @@ class FlightModel:
     def _keep_altitude(self, cmd: torch.Tensor, quat: list[float]) -> torch.Tensor:
         """``cmd`` (1, 4) with the roll and pitch rates :func:`keep_altitude_at_ceiling` leaves."""
         values = cmd[0].tolist()
-        rates, guarded = keep_altitude_at_ceiling(
-            values[0], values[1:4], quat, float(self.command_high[0]), *self.guard
-        )
+        rates, guarded = self.guard(values[0], values[1:4], quat, float(self.command_high[0]))
         if not guarded:
             return cmd
         self.guarded += 1
@@ -750,13 +750,20 @@ class FlightRunner:
         round_trip = self.link.round_trip_s if math.isfinite(self.link.round_trip_s) else 0.0
         return round_trip + 1.0 / self.p.rate_hz
 
-    def _model(self, controller, family: RefFamily) -> FlightModel:
-        guard = (
-            (self.thrust.p.gravity_mps2, self.p.ceiling_climb_reserve_mps2, self.p.ceiling_level_gain_per_s)
-            if self.p.ceiling_guard
-            else None
+    def _ceiling_guard(self):
+        """:func:`keep_altitude_at_ceiling` with ``deploy.flight.ceiling_*`` and the thrust map's
+        gravity bound, or None when ``deploy.flight.ceiling_guard`` is off."""
+        if not self.p.ceiling_guard:
+            return None
+        return functools.partial(
+            keep_altitude_at_ceiling,
+            gravity_mps2=self.thrust.p.gravity_mps2,
+            climb_reserve_mps2=self.p.ceiling_climb_reserve_mps2,
+            level_gain_per_s=self.p.ceiling_level_gain_per_s,
         )
-        model = FlightModel(self.make_env, controller, family, self.thrust.ceiling_mps2, guard)
+
+    def _model(self, controller, family: RefFamily) -> FlightModel:
+        model = FlightModel(self.make_env, controller, family, self.thrust.ceiling_mps2, self._ceiling_guard())
         model.act([0.0, 0.0, 0.0], [0.0, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0])  # warm-up (traces the policy)
         model.env.reset()
         controller.reset(model.env)
