@@ -5,13 +5,50 @@ import itertools
 import math
 import os
 import shutil
+import socket
 import time
 
-# One counter per test process, in a block of its own per pytest-xdist worker (gw0, gw1, ...), so
-# that parallel workers never bind each other's simulated Crazyflie; below the kernel's ephemeral
-# range (32768 on), where the radio library's own sockets are bound.
+
+def _free_ports(start: int):
+    """UDP ports from ``start`` up that no socket holds when drawn (bound as the simulated
+    Crazyflie binds: 127.0.0.1, no SO_REUSEADDR), so that test processes running side by side
+    never bind each other's vehicle: pytest-xdist workers, and the two test processes that
+    ``mutmut run --max-children 2`` forks from one server, whose counters would otherwise start
+    at the same port (the second vehicle's "Address already in use" failed its test, which
+    mutmut counted as a killed mutant)."""
+    for port in itertools.count(start):
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+            try:
+                probe.bind(("127.0.0.1", port))
+            except OSError:
+                continue
+        yield port
+
+
+# A block of its own per pytest-xdist worker (gw0, gw1, ...) and a start spread by the process id
+# within it; below the kernel's ephemeral range (32768 on), where the radio library's own sockets
+# are bound.
 _WORKER = int(os.environ.get("PYTEST_XDIST_WORKER", "gw0").removeprefix("gw") or 0)
-ports = itertools.count(19900 + 500 * _WORKER)
+
+
+class _Ports:
+    """``next(ports)``: a free port, drawn from a start fixed in the process that draws first
+    (a process forked before its first draw gets its own start)."""
+
+    def __init__(self) -> None:
+        self._pid, self._it = None, None
+
+    def __iter__(self):
+        return self
+
+    def __next__(self) -> int:
+        if self._pid != os.getpid():
+            self._pid = os.getpid()
+            self._it = _free_ports(19900 + 500 * _WORKER + 20 * (self._pid % 20))
+        return next(self._it)
+
+
+ports = _Ports()
 
 SHORT_FLIGHT = [
     "deploy.flight.takeoff_s=1.5",
