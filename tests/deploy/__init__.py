@@ -5,7 +5,6 @@ import itertools
 import math
 import os
 import shutil
-import socket
 import time
 
 
@@ -16,13 +15,9 @@ def _free_ports(start: int):
     ``mutmut run --max-children 2`` forks from one server, whose counters would otherwise start
     at the same port (the second vehicle's "Address already in use" failed its test, which
     mutmut counted as a killed mutant)."""
-    for port in itertools.count(start):
-        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
-            try:
-                probe.bind(("127.0.0.1", port))
-            except OSError:
-                continue
-        yield port
+    from datt.deploy.sim.server import udp_port_free
+
+    yield from (port for port in itertools.count(start) if udp_port_free(port))
 
 
 # A block of its own per pytest-xdist worker (gw0, gw1, ...) and a start spread by the process id

@@ -13,7 +13,6 @@ same conditions (:func:`calibrate`: the deploy procedure of docs/deploy.md). Use
 from __future__ import annotations
 
 import random
-import socket
 from pathlib import Path
 
 from datt.configuration import compose, load_option
@@ -48,15 +47,13 @@ def _free_port() -> int:
     """A UDP port nothing on this machine holds now, for one flight's simulated Crazyflie: two
     processes flying transfer flights at once (a benchmark and a test, two test workers) never
     share one. Drawn below the kernel's ephemeral range (32768 on), where cflib's own sockets go."""
+    from datt.deploy.sim.server import udp_port_free
+
     rng = random.SystemRandom()
     while True:
         port = rng.randrange(22000, 32000)  # above the test workers' blocks (tests/deploy, 19900 + 500 each)
-        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
-            try:
-                probe.bind(("127.0.0.1", port))
-            except OSError:
-                continue
-        return port
+        if udp_port_free(port):
+            return port
 
 
 # the simulated vehicle's rate loop -> the training simulator's rate model that evaluates the same loop

@@ -209,6 +209,17 @@ class SimCrazyflieParams:
     motor_time_constant_s: float = ranged(0.03, Range(0.0, 1.0))  # each motor's spin-up (an estimate; 0: instant)
 
 
+def udp_port_free(port: int, host: str = "127.0.0.1") -> bool:
+    """Nothing holds UDP ``port`` on ``host`` now: a probe binds it as :meth:`SimCrazyflie.start`
+    does (no SO_REUSEADDR) and lets it go."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+        try:
+            probe.bind((host, port))
+        except OSError:
+            return False
+    return True
+
+
 def check_server_settings(node: dict, key: str = "deploy.server") -> None:
     """``deploy.server`` (the vehicle's keys of :class:`SimCrazyflieParams` and its motors'
     :class:`~datt.deploy.sim.motors.MotorParams`): every key known, every value in its range."""
