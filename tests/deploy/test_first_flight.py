@@ -3,6 +3,7 @@ the firmware would (controller ids, flight-mode holds, write echoes, arming, the
 queue), and the host's settings refuse what would disable a check. One test (or more) per way a
 first flight went wrong when read against crazyflie-firmware 2026.08 (docs/deploy.md)."""
 
+import csv
 import json
 import math
 import os
@@ -120,6 +121,15 @@ def test_onboard_selects_the_controller_the_app_publishes(tmp_path):
     assert server.app.get("controllerId") == firmware.CONTROLLER_OOT == 6
     assert seen == {"controller": "OutOfTree", "phase": onboard.TRACK}
     assert any("stabilizer.controller = 6" in e["text"] for e in summary["events"])
+    # the upload's time is recorded and logged; the app's own errors score the track
+    uploaded = [e for e in summary["events"] if e["text"].startswith("reference uploaded: ")]
+    assert len(uploaded) == 1 and uploaded[0]["kind"] == "onboard" and summary["upload_s"] > 0
+    assert f"in {summary['upload_s']:.2f} s" in uploaded[0]["text"]
+    assert 0.0 < summary["track_error_m"] < 0.2
+    # the host computes nothing while the app flies: its TRACK rows carry no command and no compute time
+    with open(tmp_path / "flight.csv") as f:
+        track = [r for r in csv.DictReader(f) if r["phase"] == "TRACK"]
+    assert track and all((r["compute_ms"], r["thrust_cmd"], r["wx"]) == ("0.000", "0", "nan") for r in track)
 
 
 @pytest.mark.flight  # a real flight through cflib (seconds): not in the mutation-testing selection

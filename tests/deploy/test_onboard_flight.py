@@ -1,0 +1,104 @@
+"""The onboard flight's host side without a vehicle (``datt.deploy.onboard_flight.OnboardFlight``):
+the app's parameters from the flight's settings, its log read into per-step errors, and what the
+host decides from the app's phase. The flights themselves are in ``test_first_flight.py`` and
+``test_onboard.py``."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from datt.deploy import onboard
+from datt.deploy.flight_log import FlightLog
+from datt.deploy.onboard_flight import OnboardFlight
+from datt.deploy.safety import KILL, LAND, OK
+
+
+class Link:
+    """Records the parameters the host writes."""
+
+    def __init__(self) -> None:
+        self.writes: list[tuple[str, float]] = []
+
+    def set_param(self, name: str, value: float) -> None:
+        self.writes.append((name, value))
+
+
+def host(tmp_path) -> OnboardFlight:
+    """The host's bookkeeping alone: no link to a vehicle, settings that all differ."""
+    flight = OnboardFlight.__new__(OnboardFlight)
+    flight.log = FlightLog(tmp_path)
+    flight.outcome = None
+    flight.link = Link()
+    flight._app = {"samples": {}, "last": None}
+    flight._onboard_steps = 0
+    flight.p = SimpleNamespace(land_s=2.5, onboard_max_pos_std_m=0.07)
+    flight.thrust = SimpleNamespace(
+        hover_command=47123.5, slope=1.7e-4, p=SimpleNamespace(max_command=61000, max_rate_degps=[700.0, 650.0, 300.0])
+    )
+    flight.safety = SimpleNamespace(max_tilt_deg=55.0)
+    return flight
+
+
+def test_every_app_parameter_comes_from_its_own_setting(tmp_path):
+    """The origin is the takeoff point (mocap frame); the app lands to 5 cm above the floor, which
+    from a start 0.4 m up (a vehicle on a box) is 0.35 m below its origin."""
+    settings = host(tmp_path)._app_settings(np.array([1.5, -2.0, 0.4]), n_points=812, steps=600)
+    assert settings == {
+        "originX": 1.5, "originY": -2.0, "originZ": 0.4, "nPoints": 812, "trackSteps": 600,
+        "landZ": pytest.approx(-0.35), "landS": 2.5, "landHoldS": 0.5, "hoverCmd": 47123.5, "slope": 1.7e-4,
+        "maxCmd": 61000, "maxRateRoll": 700.0, "maxRatePitch": 650.0, "maxRateYaw": 300.0, "maxTiltDeg": 55.0,
+        "maxPosStdM": 0.07,
+    }  # fmt: skip
+
+
+def log_values(phase: int, step: int, err_m: float = 0.0, ref=(0.0, 0.0, 0.0)) -> dict:
+    return {
+        "datt.phase": phase, "datt.step": step, "datt.errM": err_m,
+        "datt.refX": ref[0], "datt.refY": ref[1], "datt.refZ": ref[2],
+    }  # fmt: skip
+
+
+def test_the_apps_log_gives_each_step_its_error(tmp_path):
+    """The app counts a step after flying it, so ``errM`` with ``step`` = k is step k − 1's error
+    (the first step's is sent with step 1); idle samples give none; landing and done samples
+    still do. The latest sample is kept with its reference point."""
+    flight = host(tmp_path)
+    flight._on_app_log(log_values(onboard.IDLE, 0, 9.0))
+    assert flight._app["samples"] == {}
+    for k, err in enumerate([0.11, 0.12, 0.13], start=1):
+        flight._on_app_log(log_values(onboard.TRACK, k, err, ref=(k, 2.0 * k, 1.0)))
+    flight._on_app_log(log_values(onboard.LAND, 4, 0.14))
+    flight._on_app_log(log_values(onboard.DONE, 5, 0.15))
+    assert flight._app["samples"] == {0: 0.11, 1: 0.12, 2: 0.13, 3: 0.14, 4: 0.15}
+    phase, step, ref, _ = flight._app["last"]
+    assert (phase, step, ref) == (onboard.DONE, 5, (0.0, 0.0, 0.0))
+    flight._onboard_steps = 3  # the errors of the track's steps are the flight's tracking error
+    assert flight._track_errors() == [0.11, 0.12, 0.13] and flight._received_errors() == []
+
+
+def test_what_the_host_decides_from_the_apps_phase(tmp_path):
+    """Aborted: KILL, with the outcome saying the app stopped the motors; done: OK, ``datt.run``
+    back to 0 and the log says the app landed; refused: LAND with ``datt.run`` back to 0; tracking:
+    nothing to decide."""
+    flight = host(tmp_path)
+    flight._on_app_log(log_values(onboard.TRACK, 3))
+    assert flight._app_verdict(1.0, [-1, 0.0]) is None and flight.link.writes == []
+
+    flight._on_app_log(log_values(onboard.ABORTED, 3))
+    assert flight._app_verdict(1.0, [3, 0.0]) == KILL
+    assert flight.outcome.text == "killed: the onboard app aborted (tilt or a non-finite state/action), motors stopped"
+    assert (flight.events[-1]["kind"], flight.events[-1]["text"]) == ("KILL", flight.outcome.text)
+
+    flight = host(tmp_path)
+    flight._on_app_log(log_values(onboard.DONE, 9))
+    assert flight._app_verdict(1.0, [9, 0.0]) == OK
+    assert flight.link.writes == [("datt.run", 0)]
+    assert (flight.events[-1]["kind"], flight.events[-1]["text"]) == ("onboard", "the app has landed")
+
+    flight = host(tmp_path)
+    flight._on_app_log(log_values(onboard.REFUSED, 0))
+    assert flight._app_verdict(1.0, [-1, 0.0]) == LAND
+    assert flight.link.writes == [("datt.run", 0)] and flight.events[-1]["kind"] == "LAND"
