@@ -1,4 +1,5 @@
-"""The flight log's bookkeeping from hand-built rows: what events.json and flight.csv say."""
+"""The flight log from hand-built rows: what events.json and flight.csv say, and what the runner
+reads back from the rows (the tracking error, the hover trim's window)."""
 
 from __future__ import annotations
 
@@ -287,3 +288,41 @@ def test_the_plots_show_the_track_flown_against_its_reference(tmp_path, monkeypa
     FlightLog(tmp_path / "real", rate_hz=rate_hz).write({}, track)
     for name in ("tracks_flight.png", "axes_flight.png"):
         assert (tmp_path / "real" / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+@pytest.mark.parametrize("window_s, rate_hz", [(0.5, 50.0), (0.2, 50.0), (0.5, 25.0)], ids=["default", "short", "slow"])
+def test_the_hover_trim_reads_the_last_window_of_its_phase(tmp_path, window_s, rate_hz):
+    """The trim measures the hover command over the last ``hover_trim_window_s`` of the phase
+    (window × rate ticks): the command ramps through the hover while the vehicle holds its height,
+    so the time-weighted mean the trim reports is that of exactly those ticks (fewer or more
+    ticks give another mean); the TAKEOFF rows before it are not read."""
+    from types import SimpleNamespace
+
+    from datt.deploy.outcome import Kind, Outcome
+    from datt.deploy.runner import FlightRunner
+    from datt.deploy.safety import OK
+    from datt.deploy.thrust import ThrustMap, ThrustParams, commands_acting, hover_command_from_hover
+
+    runner = FlightRunner.__new__(FlightRunner)  # the bookkeeping alone: no link, no vehicle
+    runner.log = FlightLog(tmp_path)
+    runner.outcome = Outcome(Kind.LANDED)
+    runner.link = SimpleNamespace(round_trip_s=0.04)
+    runner.p = SimpleNamespace(hover_trim_window_s=window_s, rate_hz=rate_hz, hover_trim_lag_s=0.0, hover_trim_max=0.3)
+    runner.thrust = ThrustMap(ThrustParams(hover_command=50000.0))
+    runner.configured_hover_command = 50000.0
+    dt = 1.0 / rate_hz
+    rows = [{**row(k, "TAKEOFF", 0.0, 1.0), "t_s": k * dt, "thrust_cmd": 60000} for k in range(10)]
+    rows += [{**row(k, "HOVER", 0.0, 1.0), "t_s": k * dt, "thrust_cmd": 45000 + 200 * (k - 10)} for k in range(10, 60)]
+    runner.log.rows = rows
+    assert runner._trim("HOVER", [], final=True) == OK
+    n = round(window_s * rate_hz)
+    window = rows[-n:]
+    t = [r["t_s"] for r in window]
+    expected = hover_command_from_hover(
+        t,
+        [0.0] * n,
+        commands_acting(t, [r["t_s"] for r in rows], [r["thrust_cmd"] for r in rows], 0.0),
+    )
+    trim = [e for e in runner.log.events if e["kind"] == "trim"]
+    assert len(trim) == 1 and trim[0]["hover_command"] == pytest.approx(expected, rel=1e-9)
+    assert runner.thrust.hover_command == pytest.approx(expected, rel=1e-9)

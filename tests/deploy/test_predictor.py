@@ -443,3 +443,36 @@ def test_ticks_and_slots_follow_the_vehicles_clock_for_any_tick_and_round_trip(t
         assert earliest <= slot < earliest + tick_s
         arrives = slot + p.p.compute_s + round_trip_s / 2
         assert ((arrives - anchor) / tick_s) % 1.0 == pytest.approx(0.5, abs=1e-6)
+
+
+@pytest.mark.parametrize("rate_hz", [50.0, 100.0])
+def test_the_runner_hands_the_controller_the_prediction_and_its_reference_lead(rate_hz):
+    """Behind the predictor a tick's controller sees the predicted state (relative to the origin)
+    and reads its reference window ``lead_at(now)`` ahead, in ticks of the flight's rate; the
+    measured state still goes with it (for the adaptation). Without it: the measurement, no lead."""
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from datt.deploy.runner import FlightRunner
+
+    runner = FlightRunner.__new__(FlightRunner)  # the tick's wiring alone: no link, no vehicle
+    runner.p = SimpleNamespace(rate_hz=rate_hz)
+    runner._excitation = None
+    runner.predictor = predictor(latency_s=0.07)
+    runner.predictor.round_trip_s = 0.04  # the lead is the down-link: 70 - 20 ms
+    runner.predictor.record(0.0, [12.0, 0.5, 0.0, 0.0])
+    calls = []
+    model = SimpleNamespace(d_hat=[0.0, 0.0, 0.0], act=lambda *a: calls.append(a) or np.zeros(4))
+    state = SimpleNamespace(
+        t_s=0.01, pos_m=(1.0, 2.0, 1.5), vel_mps=(0.2, 0.0, 0.0), quat=(1.0, 0.0, 0.0, 0.0), vehicle_s=None
+    )
+    origin = np.array([1.0, 1.0, 0.0])
+    runner._act(model, state, 0.03, origin, 0, predict=True)
+    pos, vel, quat, predicted, lead_steps = calls[-1]
+    assert pos.tolist() == [0.0, 1.0, 1.5] and vel == state.vel_mps and quat == state.quat
+    want = runner.predictor.predict(0.03, state.t_s, state.pos_m, state.vel_mps, state.quat, [0.0] * 3, None)
+    assert np.allclose(predicted[0], np.array(want[0]) - origin) and predicted[0][0] != pos[0]
+    assert lead_steps == pytest.approx(runner.predictor.lead_at(0.03) * rate_hz) and lead_steps > 0
+    runner._act(model, state, 0.03, origin, 0, predict=False)
+    assert calls[-1][3:] == (None, 0.0)

@@ -186,3 +186,28 @@ def test_the_stall_watch_starts_at_the_hosts_first_supervisor_request():
             time.sleep(0.2)
         time.sleep(0.1)
         assert not server.armed and server.physics_lag_max_s > 0.15
+
+
+@pytest.mark.parametrize(
+    "message, expected",
+    [
+        (None, "no answer within 3 s (vehicle off, out of range, or another channel/address?)"),
+        (
+            "Couldn't load link driver: Cannot find a Crazyradio Dongle\n\nTraceback (most recent call last):\n"
+            '  File "x.py", line 1\nException: Cannot find a Crazyradio Dongle',
+            "Couldn't load link driver: Cannot find a Crazyradio Dongle: plug in a Crazyradio and check its USB "
+            "permissions (docs/deploy.md)",
+        ),
+        ("  first line \n second line\n third line\n", "first line; second line"),
+        ("Too many packets lost", "Too many packets lost"),
+        ("\n  \nTraceback (most recent call last):\n  only a traceback", "connection failed"),
+    ],
+    ids=["silence", "no-radio", "three-lines", "one-line", "traceback-only"],
+)
+def test_a_connect_failure_is_one_line_without_cflibs_traceback(message, expected):
+    """What cflib hands the failure callback (its message, often with a traceback appended)
+    becomes one line: the first two lines of the message before any traceback, joined by "; ";
+    a missing radio says what to do; no message at all is the connect timeout's silence."""
+    from datt.deploy.link import _connect_failure
+
+    assert _connect_failure(message, 3.0) == expected
