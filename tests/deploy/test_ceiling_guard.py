@@ -224,3 +224,21 @@ def test_the_runner_binds_the_configured_reserve_gain_and_the_maps_gravity(reser
     assert keep_altitude_at_ceiling(CEILING, rates, q, CEILING, G, reserve, gain) != want  # gravity matters here
     runner.p = SimpleNamespace(**{**on, "ceiling_guard": False})
     assert runner._ceiling_guard() is None
+
+
+def test_the_flight_model_caps_only_the_thrust_at_the_maps_ceiling():
+    """The commands a flight model sends are clipped at the thrust map's ceiling in thrust and at
+    the env's bounds in the rates; an unknown ceiling (inf) leaves the env's thrust bound; a new
+    ceiling (after the hover trim) replaces the old."""
+    import torch
+
+    free = _model(math.inf, None)
+    assert torch.equal(free.command_high, free.env.command_high)
+    capped = _model(11.0, None)
+    assert capped.command_high[0].item() == pytest.approx(11.0)
+    assert torch.equal(capped.command_high[1:], capped.env.command_high[1:])
+    assert capped.env.command_high[0] > 11.0 and capped.env.command_high[1] != capped.env.command_high[0]
+    capped.set_thrust_ceiling(10.5)
+    assert capped.command_high[0].item() == pytest.approx(10.5)
+    capped.set_thrust_ceiling(math.inf)
+    assert capped.command_high[0] == capped.env.command_high[0]
