@@ -274,7 +274,10 @@ def test_preflight_refuses_an_estimate_that_ignores_mocap(tmp_path):
     drift_free = ["deploy.server.dead_reckoning_drift_mps=0", "deploy.server.start_pos_m=[1.0,0.0,0.0]"]
     summary, server = fly(tmp_path, drift_free, hook=deaf_filter)
     outcome = summary["outcome"]
-    assert outcome.startswith("preflight failed: Kalman filter not settled after 3 s"), outcome
+    assert outcome.startswith(
+        "preflight failed: Kalman filter not settled after 3 s (position variances still changing: is the "
+        "mocap stream or the positioning deck reaching the vehicle?)"
+    ), outcome
     assert "; onboard estimate 100 cm from mocap (> 5 cm;" in outcome and not server.armed
 
 
