@@ -249,6 +249,24 @@ def test_a_vehicle_that_does_not_arm_does_not_take_off(tmp_path):
     assert summary["ticks"] == 0 and server.true_state()["pos_m"][2] == 0.0
 
 
+@pytest.mark.flight  # a real flight through cflib (seconds): not in the mutation-testing selection
+def test_a_vehicle_that_stops_answering_before_arming_is_a_lost_link_and_nothing_arms(tmp_path):
+    """The preflight asks the supervisor for its state; a vehicle that never answers (the radio
+    gone after connect) ends the flight as a lost link (the vehicle's or the radio's failure, exit
+    4), with the link's own reason in the outcome and the log, and nothing armed."""
+    from datt.deploy.outcome import Kind, Outcome
+
+    def deaf_supervisor(server, runner):
+        server._on_supervisor = lambda ch, data: None
+
+    summary, server = fly(tmp_path, [], hook=deaf_supervisor)
+    reason = "preflight: the vehicle does not answer the supervisor state request (old firmware?)"
+    assert summary["outcome"] == f"link lost: {reason}", summary["outcome"]
+    assert [e["text"] for e in summary["events"] if e["kind"] == "link lost"][0] == reason
+    assert Outcome(Kind(summary["outcome_kind"]), reason).exit_code == 4
+    assert not server.armed and summary["ticks"] == 0
+
+
 def test_arming_takes_effect_at_the_supervisors_update():
     server = SimCrazyflie(SimCrazyflieParams(port=next(ports)))
     server._send = lambda data: None
