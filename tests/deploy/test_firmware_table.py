@@ -108,3 +108,64 @@ def test_the_host_types_no_firmware_number_of_its_own():
         assert not re.search(r"stabilizer\.controller\"?, *\d", text), module
         assert not re.search(r"CONTROLLER_\w+ *= *\d", text) and "KALMAN_ESTIMATOR = " not in text, module
     assert firmware.CONTROLLER_OOT == 6 and firmware.CONTROLLER_PID == 1 and firmware.FIRMWARE_VERSION == "2026.08"
+
+
+ENUM_H = """
+typedef enum {
+  ModeA = 0,  // the first; a comment with = and , in it
+  ModeB,      /* counted */
+#if defined(CONFIG_MODE_C)
+  ModeC,
+#endif
+#ifdef CONFIG_MODE_D
+  ModeD,
+#endif
+  /* a comment over two lines
+     that names NotAMember, */
+  ModeHex = 0x10,
+  ModeAfterHex,
+  ModeLast
+} Mode;
+"""
+
+
+@pytest.mark.parametrize(
+    "options, member, index",
+    [
+        ((), "ModeB", 1),
+        ((), "ModeC", None),  # behind an option the build does not enable: not a member
+        (("CONFIG_MODE_C",), "ModeC", 2),
+        (("CONFIG_MODE_D",), "ModeD", 2),
+        (("CONFIG_MODE_C", "CONFIG_MODE_D"), "ModeD", 3),
+        ((), "ModeHex", 16),  # an explicit value, in hex, restarts the count ...
+        (("CONFIG_MODE_C",), "ModeAfterHex", 17),  # ... whatever the options before it
+        ((), "ModeLast", 18),
+        ((), "NotAMember", None),
+    ],
+    ids=["plain", "option-off", "if-defined-on", "ifdef-on", "both-on", "hex", "after-hex", "last", "comment"],
+)
+def test_an_enum_is_counted_as_the_compiler_counts_it(tmp_path, options, member, index):
+    """C's rule: a member is one more than the one before unless it has its own value; members
+    behind ``#ifdef`` / ``#if defined(...)`` exist only with the option; comments are not code."""
+    (tmp_path / "m.h").write_text(ENUM_H)
+    assert read_fact(tmp_path, Fact(0, "m.h", "enum", f"Mode.{member}"), options=options) == index
+
+
+@pytest.mark.parametrize(
+    "text, value",
+    [("M2T(2000)", 2000), ("(M2T(500))", 500), ("0.25f", 0.25), ("2.0F", 2.0), ("10u", 10), ("7U", 7),
+     ("0x20", 32), ("( 3 )", 3), ("(1.5f)", 1.5)],
+)  # fmt: skip
+def test_a_c_number_is_read_as_c_writes_it(text, value):
+    """Ticks from milliseconds (``M2T``), float and unsigned suffixes of either case, hex, and
+    parentheses around any of them."""
+    value_read = firmware._number(text)
+    assert value_read == value and type(value_read) is type(value)
+
+
+def test_a_file_that_is_not_utf8_is_still_read_and_an_unknown_rule_is_refused(tmp_path):
+    (tmp_path / "s.c").write_bytes(b"// \xff\xfe a Latin-1 comment\n#define RATE 500\n")
+    assert read_fact(tmp_path, Fact(0, "s.c", "define", "RATE")) == 500
+    assert read_fact(tmp_path, Fact(0, "s.c", "regex", r"#define NOPE (\d+)")) is None
+    with pytest.raises(ValueError, match=r"^unknown rule 'table'$"):
+        read_fact(tmp_path, Fact(0, "s.c", "table", "RATE"))

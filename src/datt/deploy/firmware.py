@@ -156,7 +156,8 @@ def _enum_index(source: str, typedef: str, member: str, options: tuple[str, ...]
     if body is None:
         return None
     index, active = -1, [True]
-    for line in body.group(1).splitlines():
+    members = re.sub(r"/\*.*?\*/", " ", body.group(1), flags=re.S)  # block comments are not code
+    for line in members.splitlines():
         line = line.split("//")[0].strip()
         if line.startswith("#ifdef") or line.startswith("#if defined"):
             active.append(active[-1] and any(opt in line for opt in options))
