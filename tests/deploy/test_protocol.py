@@ -115,3 +115,18 @@ def test_tilt_is_the_angle_of_body_z_from_world_z():
     assert tilt_deg(q((0, 0, 1), 170)) == pytest.approx(0.0, abs=1e-9)
     assert tilt_deg(q((0, 1, 0), 80)) == pytest.approx(80.0)
     assert tilt_deg(q((1, 0, 0), -30)) == pytest.approx(30.0)
+
+
+def test_a_packet_without_data_is_its_header_alone():
+    assert crtp.packet(crtp.PORT_PARAM, 1) == bytes([crtp.header(crtp.PORT_PARAM, 1)])
+    assert crtp.split(crtp.packet(crtp.PORT_LOG, 2)) == (crtp.PORT_LOG, 2, b"")
+
+
+def test_a_toc_item_packs_its_identifier_and_type_unsigned():
+    """TOC items as the firmware sends them (``CMD_TOC_ITEM_V2``: a uint16 identifier, a uint8
+    type): an identifier past 32767 and a type past 127 (cflib's group-flag bit) fit as they are."""
+    item = crtp.toc_item(crtp.PORT_PARAM, 40000, 0x88, "stabilizer", "controller")
+    port, channel, data = crtp.split(item)
+    assert (port, channel) == (crtp.PORT_PARAM, 0)
+    assert struct.unpack("<BHB", data[:4]) == (2, 40000, 0x88)
+    assert data[4:] == b"stabilizer\0controller\0"
