@@ -470,6 +470,8 @@ def test_a_track_longer_than_the_app_holds_is_refused_before_arming(tmp_path):
         "preflight failed: deploy.flight.track_s: the app holds 1024 reference points (19.9 s of track at 50 Hz); "
         "this track needs 1501"
     )
+    # a setting refused the flight: the user's to change (exit 2), not the vehicle's failure (4)
+    assert summary["outcome_kind"] == "refused_setting"
 
 
 def test_only_an_acknowledgement_is_read_as_one():

@@ -5,6 +5,7 @@ host decides from the app's phase. The flights themselves are in ``test_first_fl
 
 from __future__ import annotations
 
+import math
 from types import SimpleNamespace
 
 import numpy as np
@@ -17,13 +18,17 @@ from datt.deploy.safety import KILL, LAND, OK
 
 
 class Link:
-    """Records the parameters the host writes."""
+    """Records the parameters the host writes and an emergency stop."""
 
     def __init__(self) -> None:
         self.writes: list[tuple[str, float]] = []
+        self.stopped = False
 
     def set_param(self, name: str, value: float) -> None:
         self.writes.append((name, value))
+
+    def emergency_stop(self) -> None:
+        self.stopped = True
 
 
 def host(tmp_path) -> OnboardFlight:
@@ -102,3 +107,79 @@ def test_what_the_host_decides_from_the_apps_phase(tmp_path):
     flight._on_app_log(log_values(onboard.REFUSED, 0))
     assert flight._app_verdict(1.0, [-1, 0.0]) == LAND
     assert flight.link.writes == [("datt.run", 0)] and flight.events[-1]["kind"] == "LAND"
+
+
+def watching(tmp_path, app_phase: int | None) -> OnboardFlight:
+    """A host watching the app fly, with the configured safety limits (the floor at 5 cm)."""
+    import threading
+
+    from datt.configuration import compose
+    from datt.deploy.safety import BatteryFilter
+    from datt.deploy.schema import deploy_params
+
+    flight = host(tmp_path)
+    flight.safety = deploy_params(compose("deploy").deploy)[2]
+    flight.p.rate_hz = 50.0
+    flight.battery = BatteryFilter(0.0)
+    flight.estop = threading.Event()
+    flight._mocap_age = lambda: None  # no mocap source
+    if app_phase is not None:
+        flight._on_app_log(log_values(app_phase, 7, ref=(0.5, 0.0, 1.0)))
+    return flight
+
+
+def state_at(z_m: float, now_s: float, vx_mps: float = 0.0):
+    from datt.deploy.link import StateSample
+
+    return StateSample(
+        t_s=now_s, pos_m=(0.0, 0.0, z_m), vel_mps=(vx_mps, 0.0, 0.0), quat=(1.0, 0.0, 0.0, 0.0), vbat_v=4.0
+    )
+
+
+def test_the_host_kills_a_vehicle_on_the_floor_only_while_the_app_tracks(tmp_path):
+    """The floor limit (``track_floor_m``) applies while the app tracks: at 2 cm in TRACK the host
+    KILLs; the same height before the app reports tracking (it is still on the ground) is logged
+    as a TRACK row with the app's reference and no host command."""
+    import time
+
+    now = time.monotonic()
+    tracking = watching(tmp_path, onboard.TRACK)
+    assert tracking.safety.track_floor_m == 0.05
+    assert tracking._watch_step(state_at(0.02, now), now, 0.0, np.zeros(3)) == KILL
+    assert tracking.link.stopped and tracking.outcome.text.startswith("killed: on the floor while tracking")
+
+    waiting = watching(tmp_path, None)
+    assert waiting._watch_step(state_at(0.02, now), now, 1.5, np.array([1.0, 2.0, 0.0])) is None
+    assert not waiting.link.stopped and waiting.outcome is None
+    (row,) = waiting.rows
+    assert row["phase"] == "TRACK" and row["jitter_ms"] == 1.5 and row["compute_ms"] == 0.0
+    assert all(math.isnan(v) for v in row["ref"] + row["action"] + row["d_hat"]) and row["thrust_cmd"] == 0
+
+    landing = watching(tmp_path, onboard.LAND)
+    assert landing._watch_step(state_at(1.0, now), now, 0.0, np.array([1.0, 2.0, 0.0])) is None
+    assert landing.rows[-1]["phase"] == "LAND" and landing.rows[-1]["ref"] == [1.5, 2.0, 1.0]
+
+
+def test_a_land_decision_hands_the_commander_back_and_says_why(tmp_path):
+    """Too fast (4 m/s is the limit): the host decides LAND, writes ``datt.run = 0`` (the app hands
+    the commander back to the radio's setpoints) and logs the reason as a LAND event."""
+    import time
+
+    now = time.monotonic()
+    flight = watching(tmp_path, onboard.TRACK)
+    assert flight._watch_step(state_at(1.0, now, vx_mps=5.0), now, 0.0, np.zeros(3)) == LAND
+    assert flight.link.writes == [("datt.run", 0)] and not flight.link.stopped
+    assert (flight.events[-1]["kind"], flight.events[-1]["text"]) == ("LAND", "speed 5.0 m/s > 4.0 m/s")
+
+
+def test_the_host_waits_for_the_apps_track_landing_and_hold_and_a_margin(tmp_path):
+    """150 steps at 50 Hz (3 s), a 2.5 s landing ramp, the app's hold (the one its parameters
+    carry) and the margin: after that, the host stops waiting for the app to report landing."""
+    from datt.deploy.onboard_flight import APP_LAND_HOLD_S, APP_LANDED_MARGIN_S
+
+    flight = host(tmp_path)
+    flight.p.rate_hz, flight._onboard_steps = 50.0, 150
+    assert flight._app_budget_s() == pytest.approx(3.0 + 2.5 + APP_LAND_HOLD_S + APP_LANDED_MARGIN_S)
+    assert flight._app_settings(np.zeros(3), 200, 150)["landHoldS"] == APP_LAND_HOLD_S == 0.5
+    flight.p.rate_hz = 100.0
+    assert flight._app_budget_s() == pytest.approx(1.5 + 2.5 + 0.5 + 2.0)

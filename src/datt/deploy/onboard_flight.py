@@ -27,6 +27,11 @@ APP_STALL_S = 0.3  # the app's step counter still this long while it should fly 
 LINK_LOST = "LINK_LOST"  # the host lost the vehicle while the app flew on
 
 
+APP_LAND_HOLD_S = 0.5  # the app holds at its landing height this long before it stops the motors
+# beyond the app's own time (its track, landing ramp and hold) the host waits this long for "done"
+APP_LANDED_MARGIN_S = 2.0
+
+
 class OnboardFlight(FlightRunner):
     sends_estop_watchdog = False  # a lost link must not stop the app's flight
 
@@ -111,7 +116,7 @@ class OnboardFlight(FlightRunner):
             "trackSteps": steps,
             "landZ": -origin[2] + 0.05,
             "landS": self.p.land_s,
-            "landHoldS": 0.5,
+            "landHoldS": APP_LAND_HOLD_S,
             "hoverCmd": self.thrust.hover_command,
             "slope": self.thrust.slope,
             "maxCmd": self.thrust.p.max_command,
@@ -173,7 +178,7 @@ class OnboardFlight(FlightRunner):
             self.link.set_param("datt.run", 0)
             return LAND
         dt = 1.0 / self.p.rate_hz
-        budget_s = self._onboard_steps * dt + self.p.land_s + 0.5 + 2.0
+        budget_s = self._app_budget_s()
         deadline = time.monotonic() + budget_s
         quiet = False
         stepping = [-1, time.monotonic()]  # the app's last step seen, and when it changed
@@ -207,6 +212,11 @@ class OnboardFlight(FlightRunner):
         self._event("LAND", f"the app did not report landing within {budget_s:.1f} s")
         self.link.set_param("datt.run", 0)
         return LAND
+
+    def _app_budget_s(self) -> float:
+        """How long the host waits for the app to report landing: its track steps at the flight's
+        rate, the landing ramp (``land_s``) and hold, and :data:`APP_LANDED_MARGIN_S`."""
+        return self._onboard_steps / self.p.rate_hz + self.p.land_s + APP_LAND_HOLD_S + APP_LANDED_MARGIN_S
 
     def _app_verdict(self, now: float, stepping: list) -> str | None:
         """What the app's own log says about the flight: OK (landed), LAND (refused to start or
