@@ -113,18 +113,23 @@ def test_the_host_types_no_firmware_number_of_its_own():
 ENUM_H = """
 typedef enum {
   ModeA = 0,  // the first; a comment with = and , in it
+  /* a comment over two lines
+     that names NotAMember, */
   ModeB,      /* counted */
 #if defined(CONFIG_MODE_C)
   ModeC,
 #endif
 #ifdef CONFIG_MODE_D
   ModeD,
+#else
+  ModeNotD,
 #endif
-  /* a comment over two lines
-     that names NotAMember, */
+#ifndef CONFIG_MODE_C
+  ModeNotC,
+#endif
   ModeHex = 0x10,
   ModeAfterHex,
-  ModeLast
+  ModeMAX
 } Mode;
 """
 
@@ -137,13 +142,18 @@ typedef enum {
         (("CONFIG_MODE_C",), "ModeC", 2),
         (("CONFIG_MODE_D",), "ModeD", 2),
         (("CONFIG_MODE_C", "CONFIG_MODE_D"), "ModeD", 3),
+        (("CONFIG_MODE_D",), "ModeNotD", None),  # the #else branch of an enabled option
+        ((), "ModeNotD", 2),
+        ((), "ModeNotC", 3),  # #ifndef: there without the option ...
+        (("CONFIG_MODE_C",), "ModeNotC", None),  # ... not with it
         ((), "ModeHex", 16),  # an explicit value, in hex, restarts the count ...
         (("CONFIG_MODE_C",), "ModeAfterHex", 17),  # ... whatever the options before it
-        ((), "ModeLast", 18),
+        ((), "ModeMAX", 18),  # the last member, without a comma
         ((), "NotAMember", None),
     ],
-    ids=["plain", "option-off", "if-defined-on", "ifdef-on", "both-on", "hex", "after-hex", "last", "comment"],
-)
+    ids=["plain", "option-off", "if-defined-on", "ifdef-on", "both-on", "else-off", "else-on", "ifndef-on",
+         "ifndef-off", "hex", "after-hex", "last", "comment"],
+)  # fmt: skip
 def test_an_enum_is_counted_as_the_compiler_counts_it(tmp_path, options, member, index):
     """C's rule: a member is one more than the one before unless it has its own value; members
     behind ``#ifdef`` / ``#if defined(...)`` exist only with the option; comments are not code."""
@@ -153,8 +163,8 @@ def test_an_enum_is_counted_as_the_compiler_counts_it(tmp_path, options, member,
 
 @pytest.mark.parametrize(
     "text, value",
-    [("M2T(2000)", 2000), ("(M2T(500))", 500), ("0.25f", 0.25), ("2.0F", 2.0), ("10u", 10), ("7U", 7),
-     ("0x20", 32), ("( 3 )", 3), ("(1.5f)", 1.5)],
+    [("M2T(2000)", 2000), ("(M2T(500))", 500), ("M2T((100))", 100), ("0.25f", 0.25), ("2.0F", 2.0),
+     ("10u", 10), ("7U", 7), ("0x20", 32), ("( 3 )", 3), ("(1.5f)", 1.5)],
 )  # fmt: skip
 def test_a_c_number_is_read_as_c_writes_it(text, value):
     """Ticks from milliseconds (``M2T``), float and unsigned suffixes of either case, hex, and
@@ -167,5 +177,6 @@ def test_a_file_that_is_not_utf8_is_still_read_and_an_unknown_rule_is_refused(tm
     (tmp_path / "s.c").write_bytes(b"// \xff\xfe a Latin-1 comment\n#define RATE 500\n")
     assert read_fact(tmp_path, Fact(0, "s.c", "define", "RATE")) == 500
     assert read_fact(tmp_path, Fact(0, "s.c", "regex", r"#define NOPE (\d+)")) is None
+    assert read_fact(tmp_path, Fact(0, "s.c", "define", "NOPE")) is None
     with pytest.raises(ValueError, match=r"^unknown rule 'table'$"):
         read_fact(tmp_path, Fact(0, "s.c", "table", "RATE"))

@@ -155,15 +155,18 @@ def _enum_index(source: str, typedef: str, member: str, options: tuple[str, ...]
     body = re.search(r"typedef enum\s*\{(.*?)\}\s*" + re.escape(typedef) + r"\s*;", source, re.S)
     if body is None:
         return None
-    index, active = -1, [True]
+    index, conditions = -1, []  # the #ifdef / #ifndef conditions around the current line
     members = re.sub(r"/\*.*?\*/", " ", body.group(1), flags=re.S)  # block comments are not code
     for line in members.splitlines():
         line = line.split("//")[0].strip()
-        if line.startswith("#ifdef") or line.startswith("#if defined"):
-            active.append(active[-1] and any(opt in line for opt in options))
+        if line.startswith(("#ifdef", "#if defined", "#ifndef")):
+            enabled = any(opt in line for opt in options)
+            conditions.append(not enabled if line.startswith("#ifndef") else enabled)
+        elif line.startswith("#else"):
+            conditions[-1] = not conditions[-1]
         elif line.startswith("#endif"):
-            active.pop()
-        elif line and not line.startswith("#") and active[-1]:
+            conditions.pop()
+        elif line and not line.startswith("#") and all(conditions):
             name, _, value = line.rstrip(",").partition("=")
             index = int(value, 0) if value.strip() else index + 1
             if name.strip() == member:
