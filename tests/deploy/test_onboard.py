@@ -339,6 +339,11 @@ def test_link_loss_mid_track_the_app_finishes_and_lands(tmp_path):
     assert np.linalg.norm(landed - (np.array(end.ref_m[:2]))) < 0.15  # where the reference ended
     # the host sent nothing past the cut, and the vehicle got no e-stop watchdog at all
     assert server.estop_watchdog_t is None
+    # it said once that the app flies on by itself (not once per tick of the silence)
+    flies_on = [
+        e for e in summary["events"] if e["text"] == "no fresh state from the vehicle: the onboard app flies on"
+    ]
+    assert [e["kind"] for e in flies_on] == ["warning"]
 
 
 @pytest.mark.flight
