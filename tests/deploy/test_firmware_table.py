@@ -124,6 +124,10 @@ typedef enum {
 #else
   ModeNotD,
 #endif
+#if 0
+  ModeDead,
+#endif
+#pragma GCC diagnostic push
 #ifndef CONFIG_MODE_C
   ModeNotC,
 #endif
@@ -150,9 +154,10 @@ typedef enum {
         (("CONFIG_MODE_C",), "ModeAfterHex", 17),  # ... whatever the options before it
         ((), "ModeMAX", 18),  # the last member, without a comma
         ((), "NotAMember", None),
+        (("CONFIG_MODE_C", "CONFIG_MODE_D"), "ModeDead", None),  # #if 0: never; other directives: not members
     ],
     ids=["plain", "option-off", "if-defined-on", "ifdef-on", "both-on", "else-off", "else-on", "ifndef-on",
-         "ifndef-off", "hex", "after-hex", "last", "comment"],
+         "ifndef-off", "hex", "after-hex", "last", "comment", "if-0"],
 )  # fmt: skip
 def test_an_enum_is_counted_as_the_compiler_counts_it(tmp_path, options, member, index):
     """C's rule: a member is one more than the one before unless it has its own value; members

@@ -479,6 +479,23 @@ def test_a_track_longer_than_the_app_holds_is_refused_before_arming(tmp_path):
     assert summary["outcome_kind"] == "refused_setting"
 
 
+@pytest.mark.flight
+def test_the_references_whole_episode_is_checked_against_the_app_too(tmp_path):
+    """``deploy.flight.track_s: null`` (the default) flies the reference's episode: 22 s of it
+    (1100 steps) do not fit the app's table either, and the refusal says how many points it needs."""
+    pytest.importorskip("cflib")
+    from datt.tasks.deploy import run_deploy
+
+    overrides = ["deploy.onboard=true", "deploy.flight.track_s=null", "env.episode_steps=1100"]
+    cfg = compose("deploy", [f"deploy.uri=udp://127.0.0.1:{next(ports)}", *overrides])
+    summary = run_deploy(cfg, run_dir=tmp_path)
+    assert summary["outcome"].startswith(
+        "preflight failed: deploy.flight.track_s: the app holds 1024 reference points (19.9 s of track at 50 Hz); "
+        "this track needs 11"
+    ), summary["outcome"]
+    assert summary["outcome_kind"] == "refused_setting"
+
+
 def test_only_an_acknowledgement_is_read_as_one():
     """parse_ack: type byte PKT_ACK and at least index (2 bytes) and status; an upload packet,
     another type or a short ACK is not an acknowledgement (the host must not drop a pending point)."""

@@ -159,8 +159,9 @@ def _enum_index(source: str, typedef: str, member: str, options: tuple[str, ...]
     members = re.sub(r"/\*.*?\*/", " ", body.group(1), flags=re.S)  # block comments are not code
     for line in members.splitlines():
         line = line.split("//")[0].strip()
-        if line.startswith(("#ifdef", "#if defined", "#ifndef")):
-            enabled = any(opt in line for opt in options)
+        if line.startswith("#if"):  # #ifdef X, #if defined(X), #ifndef X, #if 0 / #if 1
+            constant = re.fullmatch(r"#if\s+([01])", line)
+            enabled = constant.group(1) == "1" if constant else any(opt in line for opt in options)
             conditions.append(not enabled if line.startswith("#ifndef") else enabled)
         elif line.startswith("#else"):
             conditions[-1] = not conditions[-1]
