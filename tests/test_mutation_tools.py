@@ -140,3 +140,25 @@ def test_check_by_hand_says_what_it_needs_without_mutmuts_directory(tmp_path, mo
     assert capsys.readouterr().err == (
         "check_by_hand: needs mutmut on PATH and its mutants/ directory here (docs/mutation.md)\n"
     )
+
+
+@pytest.mark.parametrize(
+    "code, stdout, verdict",
+    [
+        (1, "F\n1 failed", None),
+        (0, ". 1 passed", "the test passes on the mutant"),
+        (4, "ERROR tests/a/test_b.py - TypeError: unsupported operand\nERROR: found no collectors for x", None),
+        (
+            4,
+            "ERROR tests/a/test_other.py - TypeError: x\nERROR: found no collectors",
+            "pytest exit 4: ERROR: found no collectors",
+        ),
+        (2, "usage: pytest", "pytest exit 2: usage: pytest"),
+    ],
+    ids=["assertion", "passes", "module-does-not-import", "another-module", "usage"],
+)
+def test_a_test_fails_on_a_mutant_by_an_assertion_or_by_its_module_no_longer_importing(code, stdout, verdict):
+    import subprocess
+
+    run = subprocess.CompletedProcess([], code, stdout=stdout, stderr="")
+    assert check_by_hand.verdict(run, "tests/a/test_b.py::test_c") == verdict

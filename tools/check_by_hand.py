@@ -103,10 +103,20 @@ def check(entry: Entry, tree: Path, work: Path) -> str | None:
         return f"not applied: {exc}"
     finally:
         target.write_text(original)
+    return verdict(run, entry.test)
+
+
+def verdict(run: subprocess.CompletedProcess, test: str) -> str | None:
+    """None when ``test`` failed on the mutant: an assertion (exit 1), or its module no longer
+    imports (pytest reports ``ERROR <file> - <exception>`` while collecting it: every test that
+    imports the mutated module errors, a mutant evaluated at import time such as a module-level
+    table's); otherwise what happened."""
     if run.returncode == 1:
         return None
     if run.returncode == 0:
         return "the test passes on the mutant"
+    if f"ERROR {test.split('::')[0]} - " in run.stdout:
+        return None
     return f"pytest exit {run.returncode}: {run.stdout.strip().splitlines()[-1] if run.stdout.strip() else ''}"
 
 

@@ -128,6 +128,9 @@ typedef enum {
   ModeDead,
 #endif
 #pragma GCC diagnostic push
+#if 1
+  ModeAlways,
+#endif
 #ifndef CONFIG_MODE_C
   ModeNotC,
 #endif
@@ -148,7 +151,8 @@ typedef enum {
         (("CONFIG_MODE_C", "CONFIG_MODE_D"), "ModeD", 3),
         (("CONFIG_MODE_D",), "ModeNotD", None),  # the #else branch of an enabled option
         ((), "ModeNotD", 2),
-        ((), "ModeNotC", 3),  # #ifndef: there without the option ...
+        ((), "ModeAlways", 3),  # #if 1: always
+        ((), "ModeNotC", 4),  # #ifndef: there without the option ...
         (("CONFIG_MODE_C",), "ModeNotC", None),  # ... not with it
         ((), "ModeHex", 16),  # an explicit value, in hex, restarts the count ...
         (("CONFIG_MODE_C",), "ModeAfterHex", 17),  # ... whatever the options before it
@@ -156,8 +160,8 @@ typedef enum {
         ((), "NotAMember", None),
         (("CONFIG_MODE_C", "CONFIG_MODE_D"), "ModeDead", None),  # #if 0: never; other directives: not members
     ],
-    ids=["plain", "option-off", "if-defined-on", "ifdef-on", "both-on", "else-off", "else-on", "ifndef-on",
-         "ifndef-off", "hex", "after-hex", "last", "comment", "if-0"],
+    ids=["plain", "option-off", "if-defined-on", "ifdef-on", "both-on", "else-off", "else-on", "if-1",
+         "ifndef-on", "ifndef-off", "hex", "after-hex", "last", "comment", "if-0"],
 )  # fmt: skip
 def test_an_enum_is_counted_as_the_compiler_counts_it(tmp_path, options, member, index):
     """C's rule: a member is one more than the one before unless it has its own value; members
