@@ -6,8 +6,9 @@ or renames a parameter fails a test instead of a flight.
 
 A fact is located in its file by one of four rules (:func:`read_fact`):
 
-* ``enum``: the position of a member in a ``typedef enum``, counting the members behind
-  ``#ifdef CONFIG_...`` only for the options the build enables (:data:`BUILD_OPTIONS`);
+* ``enum``: the position of a member in a ``typedef enum`` as the compiler counts it (explicit
+  values, comments left out), the members behind ``#ifdef`` / ``#if defined`` / ``#ifndef`` /
+  ``#else`` counted only as the options the build enables (:data:`BUILD_OPTIONS`) select them;
 * ``define``: a ``#define`` (``M2T(...)`` and a float suffix stripped);
 * ``regex``: the first group of a regular expression;
 * ``param`` / ``log``: a parameter or log variable ``group.name`` declared in the file.
