@@ -37,6 +37,10 @@ def test_the_simulated_firmware_models_the_same_firmware():
         FACTS["setpoint_watchdog_level_ms"].value,
         FACTS["setpoint_watchdog_off_ms"].value,
     )
+    assert (server.RPYT_MIN_THRUST, server.RPYT_MAX_THRUST) == (
+        FACTS["rpyt_min_thrust"].value,
+        FACTS["rpyt_max_thrust"].value,
+    )
     from datt.deploy.sim import stabilizer as st
 
     assert st.ATTITUDE_RATE_HZ == FACTS["attitude_rate_hz"].value

@@ -10,6 +10,7 @@ import gc
 import json
 import math
 import re
+import struct
 import threading
 import time
 from collections import Counter
@@ -487,6 +488,51 @@ def test_a_hover_trim_beyond_its_limit_lands_without_tracking(tmp_path):
     assert first["hover_command"] == pytest.approx(ThrustMap().hover_command * 1.1, rel=1e-9)
     phases = {r["phase"] for r in csv.DictReader((tmp_path / "flight.csv").open())}
     assert phases == {"TAKEOFF", "HOVER", "LAND"}
+
+
+def _drop_unlocks(count):
+    """A server hook: the radio loses the first ``count`` setpoints with thrust 0 after arming
+    (``math.inf``: every one), the packets that unlock the firmware's thrust lock."""
+
+    def hook(server, runner):
+        on_commander, lost = server._on_commander, []
+
+        def on_setpoint(ch, data):
+            if server.armed and len(data) >= 14 and struct.unpack("<fffH", data[:14])[3] == 0 and len(lost) < count:
+                lost.append(server.sim_time_s)
+                return
+            on_commander(ch, data)
+
+        server._on_commander = on_setpoint
+
+    return hook
+
+
+def test_a_lost_unlock_setpoint_does_not_keep_the_vehicle_on_the_ground(tmp_path):
+    """The firmware flies thrust 0 until a setpoint with thrust 0 arrives after arming
+    (``crtp_commander_rpyt.c``). The runner sent one; when the radio lost it, the vehicle sat
+    on the ground at the ceiling through the takeoff and the hover trim blamed the map ("the
+    hover needed command 60036 ..."; 1 flight in 6-9 of the transfer test). Four of them lost:
+    it still takes off and tracks."""
+    summary, server = fly(tmp_path, SHORT, hook=_drop_unlocks(4))
+    assert summary["outcome"] == "landed", summary["outcome"]
+    assert not server.thrust_locked and summary["track_steps"] > 100
+    assert any(text == "thrust unlocked" for _, text in server.events)
+
+
+def test_a_vehicle_that_never_lifts_off_lands_saying_so_not_blaming_the_thrust_map(tmp_path):
+    """Every unlock lost: the thrust stays locked, the vehicle never leaves the ground. The
+    takeoff's end finds it on the floor and lands (disarms) with that reason, before any hover
+    trim: nothing tracks."""
+    summary, server = fly(tmp_path, SHORT, hook=_drop_unlocks(math.inf))
+    assert max(pos[2] for _, pos in server.truth) == 0.0  # never off the ground
+    assert summary["outcome"].startswith("landed early: the vehicle did not lift off: the takeoff ended at z 0.0"), (
+        summary["outcome"]
+    )
+    assert "(hover at 1 m) with commands up to 60000; the firmware's thrust lock" in summary["outcome"]
+    assert not [e for e in summary["events"] if e["kind"] == "trim"]
+    phases = {r["phase"] for r in csv.DictReader((tmp_path / "flight.csv").open())}
+    assert phases == {"TAKEOFF", "LAND"}
 
 
 def test_without_a_hover_phase_the_takeoffs_trim_is_final_and_lands_beyond_the_limit(tmp_path):

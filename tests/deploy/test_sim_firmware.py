@@ -1,6 +1,7 @@
 """Firmware behaviour of the simulated Crazyflie, driven through real cflib: thrust lock, setpoint
 watchdog (level after 0.5 s, motors off after 2 s), emergency stop, log block size limit."""
 
+import math
 import time
 
 import pytest
@@ -40,6 +41,26 @@ def test_thrust_lock_until_a_zero_setpoint(vehicle):
     hold(link, 0.1, 0)
     hold(link, 0.5, climb)
     assert server.cmd[3] == climb and server.true_state()["pos_m"][2] > 0.05
+
+
+def test_the_legacy_commander_clamps_the_thrust_and_a_locked_setpoint_still_sets_the_rates(vehicle):
+    """``crtp_commander_rpyt.c``: while locked a setpoint flies thrust 0 but its rates; after the
+    unlock a thrust under MIN_THRUST (1000) flies 0 and one above MAX_THRUST (60000) flies 60000."""
+    server, link = vehicle
+    link.arm(True)
+    hold(link, 0.1, 50000, roll=30.0)
+    assert server.thrust_locked and server.cmd[3] == 0 and server.cmd[0] == pytest.approx(math.radians(30.0))
+    hold(link, 0.1, 0)
+    hold(link, 0.1, 999)
+    assert server.cmd[3] == 0
+    hold(link, 0.1, 1000)
+    assert server.cmd[3] == 1000
+    hold(link, 0.1, 65535)
+    assert server.cmd[3] == 60000
+    hold(link, 0.1, 60001)
+    assert server.cmd[3] == 60000
+    hold(link, 0.1, 59999)
+    assert server.cmd[3] == 59999
 
 
 def test_setpoint_watchdog_levels_then_cuts_the_motors(vehicle):

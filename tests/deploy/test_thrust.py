@@ -66,7 +66,7 @@ def test_commands_out_of_range():
     assert tm.command(0.0) == 0 and tm.command(-3.0) == 0
     assert tm.command(float("nan")) == 0 and tm.command(float("inf")) == 0  # motors off, never full power
     assert tm.command(25.0) == 60000 and tm.thrust_mps2(60000) < 25.0  # the policy may ask g + 30
-    assert ThrustMap(ThrustParams(max_command=65535)).command(1000.0) == 65535
+    assert ThrustMap(ThrustParams(max_command=50000)).command(1000.0) == 50000
     assert tm.thrust_mps2(0) == 0.0 and tm.thrust_mps2(-5) == 0.0
 
 
@@ -86,13 +86,22 @@ def test_thrust_params_are_the_deploy_config_defaults():
     assert asdict(from_yaml) == asdict(deploy_params(compose("deploy", ["deploy=crazyflie"]).deploy)[3])
 
 
+CLAMP = " (the firmware clamps a legacy setpoint's thrust to MAX_THRUST 60000: crtp_commander_rpyt.c, 2026.08)"
+
+
 @pytest.mark.parametrize(
     "kwargs, message",
     [
         ({"mass_kg": 0.0}, "deploy.thrust.mass_kg: must be a finite number > 0, got 0.0"),
         ({"thrust_max_n": 0.0}, "deploy.thrust.thrust_max_n: must be a finite number > 0, got 0.0"),
-        ({"max_command": 0}, "deploy.thrust.max_command: must be in (0, 65535], got 0"),
-        ({"max_command": 65536}, "deploy.thrust.max_command: must be in (0, 65535], got 65536"),
+        (
+            {"max_command": 0},
+            "deploy.thrust.max_command: must be in (0, 60000], got 0" + CLAMP,
+        ),
+        (
+            {"max_command": 60001},
+            "deploy.thrust.max_command: must be in (0, 60000], got 60001" + CLAMP,
+        ),
         ({"hover_command": 0.0}, "deploy.thrust.hover_command: must be a finite number > 0 or null, got 0.0"),
         ({"mass_kg": float("inf")}, "deploy.thrust.mass_kg: must be a finite number > 0, got inf"),
         ({"hover_command": 60000.0}, "deploy.thrust.hover_command: must be in (0, max_command), got 60000.0"),
@@ -412,14 +421,21 @@ def test_what_is_sent_is_the_clipped_command_in_si():
 
 
 def test_the_thrust_settings_take_their_bounds_exactly():
-    """``max_command`` in (0, 65535]: 1 is a ceiling (0 is not); ``hover_command`` in (0,
+    """``max_command`` in (0, 60000] (the legacy commander's MAX_THRUST): 1 and 60000 are ceilings
+    (0 and 60001 are not); ``hover_command`` in (0,
     max_command): 1 is a hover command, 0 and max_command are not (the map refuses a hover at
     its ceiling too)."""
     from datt.errors import ConfigError
 
     ThrustParams(max_command=1).validate()
+    ThrustParams(max_command=60000).validate()
     ThrustParams(hover_command=1.0).validate()
-    for bad in ({"max_command": 0}, {"hover_command": 0.0}, {"hover_command": 60000.0, "max_command": 60000}):
+    for bad in (
+        {"max_command": 0},
+        {"max_command": 60001},
+        {"hover_command": 0.0},
+        {"hover_command": 60000.0, "max_command": 60000},
+    ):
         with pytest.raises(ConfigError, match="^deploy.thrust."):
             ThrustParams(**bad).validate()
     with pytest.raises(ConfigError, match="deploy.thrust"):

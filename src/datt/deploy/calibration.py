@@ -71,6 +71,9 @@ class CalibrationFlight(FlightRunner):
             self._set_phase(name)
             if self._fly_phase(takeoff, duration, origin) != OK:
                 return
+            if not self._lifted_off(name):
+                self._land(origin)
+                return
             self._set_phase("CALIBRATE")
             half_period = excitation_half_period(self.p.rate_hz)
             self._excitation = lambda k: self.excitation_mps2 * square_wave(k, half_period)

@@ -78,6 +78,7 @@ class Ramp(RefFamily):
 
 
 PRE_ARM_PHASES = ("CONNECT", "PREFLIGHT")  # a stop here ends the flight with nothing armed
+UNLOCK_TICKS = 5  # setpoints with thrust 0 sent after arming, one per control tick (FlightRunner._arm)
 
 
 class FlightModel:
@@ -431,7 +432,14 @@ class FlightRunner:
             self._event("arming failed", self.outcome.text)
             raise _Abort(self.outcome.text)
         self._event("armed", "the supervisor reports the vehicle armed")
-        self.link.send_rates(0.0, 0.0, 0.0, 0)  # unlocks the firmware's thrust lock
+        # crtp_commander_rpyt.c: the thrust stays locked (motors at 0) until a setpoint with thrust
+        # 0 arrives. One such packet lost on the radio left the vehicle on the ground at full
+        # command for the whole takeoff, so the unlock goes out once per control tick for
+        # UNLOCK_TICKS ticks: all of them lost on a link that drops 2 % is ~3e-9.
+        period_s = 1.0 / self.p.rate_hz
+        for _ in range(UNLOCK_TICKS):
+            self.link.send_rates(0.0, 0.0, 0.0, 0)
+            time.sleep(period_s)
 
     def _takeoff(self, start_rel: np.ndarray) -> tuple:
         model = self._model(self.pid_factory(), Ramp(start_rel, [0.0, 0.0, 0.0], self.p.takeoff_s))
@@ -451,6 +459,9 @@ class FlightRunner:
         result = self._fly_phase(model, duration, origin)
         if result != OK:
             return result
+        if not self._lifted_off(name):
+            self._land(origin)
+            return LAND
         if not self.p.hover_trim:
             return OK
         # two passes: the takeoff's hover on the configured map (its PID may be saturated, its
@@ -700,6 +711,23 @@ class FlightRunner:
                 "compute_ms": (time.monotonic() - now) * 1e3,
             }
         )
+
+    def _lifted_off(self, phase: str) -> bool:
+        """Whether the takeoff ``phase`` ended at least half of ``takeoff_height_m`` up (the
+        ground is z = 0); if not, a LAND event says so. A vehicle still on the ground would
+        otherwise have the hover trim read the ceiling as its hover command and blame the map."""
+        rows = [r for r in self.rows if r["phase"] == phase]
+        height_m = rows[-1]["pos"][2] if rows else 0.0
+        if height_m >= 0.5 * self.p.takeoff_height_m:
+            return True
+        top = max((r["thrust_cmd"] for r in rows), default=0)
+        self._event(
+            "LAND",
+            f"the vehicle did not lift off: the takeoff ended at z {round(height_m, 2) + 0.0:.2f} m "  # + 0.0: no -0.00
+            f"(hover at {self.p.takeoff_height_m:g} m) with commands up to {top}; the firmware's thrust lock "
+            "(no setpoint with thrust 0 arrived after arming), or motors and propellers",
+        )
+        return False
 
     def _trim(self, phase: str, models: list[FlightModel], final: bool) -> str:
         """Hover trim (``deploy.flight.hover_trim``): rescale the thrust map so that it passes

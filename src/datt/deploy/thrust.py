@@ -10,8 +10,10 @@ kit. So a vehicle of mass ``m`` gets ``a = k c`` with ``k = 4 THRUST_MAX / (6553
 command unit, hovers at ``g / k`` and tops out at ``k * max_command`` (34 g, 0.12 N, 60000: 12.9
 m/s²). A calibration flight (:func:`fit_hover`) measures the real vehicle's hover command and
 slope; the map then runs through the measured hover point with the measured slope:
-``c(a) = c_h + (a - g) / k``. Commands are clipped to ``[0, max_command]`` (the headroom above is
-left to the rate controller's mixing).
+``c(a) = c_h + (a - g) / k``. Commands are clipped to ``[0, max_command]``; ``max_command`` is at
+most the legacy commander's ``MAX_THRUST`` (60000, ``crtp_commander_rpyt.c``), to which the
+firmware itself clamps every off-board setpoint (the headroom above is the rate controller's, for
+its mixing).
 
 Rate conventions (FLU body frame, as the simulator and the policy): the legacy RPYT packet in
 rate mode carries roll rate ``deg(ωx)``, pitch ``deg(ωy)`` (cflib negates it on the wire and the
@@ -29,6 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from datt.configuration import POSITIVE, POSITIVE_OR_NONE, check_ranges, ranged
+from datt.deploy.firmware import FIRMWARE_VERSION, fact
 
 UINT16_MAX = 65535
 
@@ -51,8 +54,12 @@ class ThrustParams:
         from datt.errors import ConfigError
 
         check_ranges(self, "deploy.thrust")  # mass, gravity, THRUST_MAX, hover, slope, rate limits
-        if not 0 < self.max_command <= UINT16_MAX:
-            raise ConfigError(f"deploy.thrust.max_command: must be in (0, 65535], got {self.max_command}")
+        top = int(fact("rpyt_max_thrust"))
+        if not 0 < self.max_command <= top:
+            raise ConfigError(
+                f"deploy.thrust.max_command: must be in (0, {top}], got {self.max_command} (the firmware clamps "
+                f"a legacy setpoint's thrust to MAX_THRUST {top}: crtp_commander_rpyt.c, {FIRMWARE_VERSION})"
+            )
         if self.hover_command is not None and not 0 < self.hover_command < self.max_command:
             raise ConfigError(f"deploy.thrust.hover_command: must be in (0, max_command), got {self.hover_command}")
 

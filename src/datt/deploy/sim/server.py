@@ -8,8 +8,10 @@ localization (external position), supervisor (arm, emergency stop). Behind it on
 
 Firmware behaviour that matters for safety is emulated:
 
-* **thrust lock**: after start-up (and after an emergency stop is cleared by a restart) setpoints
-  with thrust > 0 are ignored until one with thrust 0 arrives;
+* **the legacy commander's thrust** (``crtp_commander_rpyt.c``): after start-up (and after an
+  emergency stop is cleared by a restart) the thrust is locked, every setpoint flies thrust 0 (its
+  rates still apply) until one with thrust 0 arrives; a thrust under ``MIN_THRUST`` (1000) flies 0,
+  one above ``MAX_THRUST`` (60000) flies 60000;
 * **setpoint watchdog**: 0.5 s without a setpoint -> level attitude at the last thrust; 2 s ->
   motors off and the supervisor **locked** (latched: later setpoints are ignored until the
   server restarts), as ``supervisor.c`` does in flight;
@@ -132,6 +134,8 @@ TUMBLE_ACCZ_G, TUMBLE_S, UPSIDE_DOWN_ACCZ_G, UPSIDE_DOWN_S, FREE_FALL_G = 0.5, 1
 APP_CHANNEL = 2  # platform port channel of the app channel (app_channel.c)
 EXT_POSE = 8  # localization generic channel message type (cflib Localization.EXT_POSE)
 WATCHDOG_LEVEL_S, WATCHDOG_OFF_S = 0.5, 2.0
+# crtp_commander_rpyt.c: a legacy setpoint's thrust under MIN_THRUST is 0, above MAX_THRUST it is MAX_THRUST
+RPYT_MIN_THRUST, RPYT_MAX_THRUST = 1000, 60000
 ESTOP_WATCHDOG_S = 1.0  # supervisor.c: DEFAULT_EMERGENCY_STOP_WATCHDOG_TIMEOUT
 CMD_ARM, CMD_ESTOP, CMD_ESTOP_WATCHDOG, CMD_GET_STATE_BITFIELD = 1, 3, 4, 12  # crtp_supervisor.c
 BIT_CAN_BE_ARMED, BIT_ARMED, BIT_CAN_FLY, BIT_FLYING, BIT_TUMBLED, BIT_LOCKED, BIT_CRASHED = 0, 1, 3, 4, 5, 6, 7
@@ -898,16 +902,16 @@ class SimCrazyflie:
             return  # while the app holds the commander, lower-priority setpoints are dropped
         roll, pitch_wire, yaw, thrust = struct.unpack("<fffH", data[:14])
         self.last_setpoint_t = self.sim_time_s
-        if self.thrust_locked:
-            if thrust == 0:
-                self.thrust_locked = False
-                self._event("thrust unlocked")
-            return
+        if thrust == 0 and self.thrust_locked:
+            self.thrust_locked = False
+            self._event("thrust unlocked")
         if self.params["flightmode.stabModeRoll"] != 0 or self.params["flightmode.stabModePitch"] != 0:
             self._event("setpoint ignored: not in rate mode (flightmode.stabModeRoll/Pitch must be 0)")
             return
+        if self.thrust_locked or thrust < RPYT_MIN_THRUST:
+            thrust = 0  # a locked commander's setpoint still holds the vehicle: motors at zero
         wx, wy, wz = ThrustMap.body_rates_from_wire(roll, pitch_wire, yaw)
-        self.cmd = (wx, wy, wz, int(thrust))
+        self.cmd = (wx, wy, wz, min(int(thrust), RPYT_MAX_THRUST))
 
     def _on_generic_commander(self, ch: int, data: bytes) -> None:
         if ch == 0 and data and data[0] == 0 and not self.app_priority:  # stop setpoint
