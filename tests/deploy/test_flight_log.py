@@ -6,6 +6,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -326,3 +327,33 @@ def test_the_hover_trim_reads_the_last_window_of_its_phase(tmp_path, window_s, r
     trim = [e for e in runner.log.events if e["kind"] == "trim"]
     assert len(trim) == 1 and trim[0]["hover_command"] == pytest.approx(expected, rel=1e-9)
     assert runner.thrust.hover_command == pytest.approx(expected, rel=1e-9)
+
+
+@pytest.mark.parametrize("end_z, lifted", [(0.25, True), (0.2499, False), (-0.004, False), (0.9, True)])
+def test_a_takeoff_has_lifted_off_when_it_ends_at_least_half_its_height_up(tmp_path, end_z, lifted):
+    """``_lifted_off``: the takeoff phase's last estimate at least half of ``takeoff_height_m``
+    (0.5 m here: 0.25 m) above the ground; the rows of other phases are not read. Below it, one
+    LAND event with the height (no "-0.00"), the hover height and the largest command of the phase."""
+    from datt.deploy.runner import FlightRunner
+
+    runner = FlightRunner.__new__(FlightRunner)  # the bookkeeping alone: no link, no vehicle
+    runner.log = FlightLog(tmp_path)
+    runner.p = SimpleNamespace(takeoff_height_m=0.5)
+    rows = [{**row(k, "TAKEOFF", 0.0, 1.0), "thrust_cmd": 50000 + 100 * k} for k in range(5)]
+    rows[-1]["pos"] = [0.0, 0.0, end_z]
+    rows += [{**row(k, "HOVER", 0.0, 1.0), "pos": [0.0, 0.0, 0.5], "thrust_cmd": 65000} for k in range(5, 8)]
+    runner.log.rows = rows
+    assert runner._lifted_off("TAKEOFF") is lifted
+    events = [(e["kind"], e["text"]) for e in runner.log.events]
+    if lifted:
+        assert events == []
+    else:
+        shown = f"{end_z:.2f}".replace("-0.00", "0.00")
+        assert events == [
+            (
+                "LAND",
+                f"the vehicle did not lift off: the takeoff ended at z {shown} m (hover at 0.5 m) with commands "
+                "up to 50400; the firmware's thrust lock (no setpoint with thrust 0 arrived after arming), "
+                "or motors and propellers",
+            )
+        ]
