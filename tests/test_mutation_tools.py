@@ -162,3 +162,29 @@ def test_a_test_fails_on_a_mutant_by_an_assertion_or_by_its_module_no_longer_imp
 
     run = subprocess.CompletedProcess([], code, stdout=stdout, stderr="")
     assert check_by_hand.verdict(run, "tests/a/test_b.py::test_c") == verdict
+
+
+def test_a_run_of_some_functions_replaces_only_the_functions_it_checked():
+    """A run named the mutants of two functions of the current code: their earlier results go
+    (other numbers of the same function too), the run's own unchecked mutants of a function it
+    checked count as unchecked, and every function it did not check keeps its earlier results."""
+    found = {
+        "datt.deploy.runner.xǁFlightRunnerǁ_arm__mutmut_1": "killed",
+        "datt.deploy.runner.xǁFlightRunnerǁ_arm__mutmut_60": "survived",
+        "datt.deploy.runner.xǁFlightRunnerǁ_trim__mutmut_3": "killed",
+        "datt.deploy.thrust.xǁThrustMapǁcommand__mutmut_2": "killed",
+    }
+    run = {
+        "datt.deploy.runner.xǁFlightRunnerǁ_arm__mutmut_1": "survived",
+        "datt.deploy.runner.xǁFlightRunnerǁ_arm__mutmut_2": "not checked",
+        "datt.deploy.runner.xǁFlightRunnerǁ_lifted_off__mutmut_1": "killed",
+        "datt.deploy.runner.xǁFlightRunnerǁ_trim__mutmut_3": "not checked",
+        "datt.deploy.thrust.xǁThrustMapǁcommand__mutmut_2": "not checked",
+    }
+    assert mutation_report.functions_refreshed(found, run) == {
+        "datt.deploy.runner.xǁFlightRunnerǁ_arm__mutmut_1": "survived",
+        "datt.deploy.runner.xǁFlightRunnerǁ_arm__mutmut_2": "not checked",
+        "datt.deploy.runner.xǁFlightRunnerǁ_lifted_off__mutmut_1": "killed",
+        "datt.deploy.runner.xǁFlightRunnerǁ_trim__mutmut_3": "killed",
+        "datt.deploy.thrust.xǁThrustMapǁcommand__mutmut_2": "killed",
+    }

@@ -8,6 +8,8 @@ Run from the repository root after ``mutmut run`` (see docs/mutation.md):
                                                            # outputs instead, later files win
     python tools/mutation_report.py --results a.txt --fresh c.txt  # c.txt is a complete re-run of
                                                            # its modules: it replaces their results
+    python tools/mutation_report.py ... --functions d.txt  # d.txt ran some functions' mutants: it
+                                                           # replaces those functions' results
 
 Mutants listed in ``docs/mutation-equivalent.txt`` (``<mutant name>  # reason``) are equivalent:
 no test can tell them from the original, so the score leaves them out (also when a loaded machine
@@ -68,6 +70,19 @@ def refreshed(found: dict[str, str], fresh: dict[str, str]) -> dict[str, str]:
     return {**kept, **fresh}
 
 
+def functions_refreshed(found: dict[str, str], run: dict[str, str]) -> dict[str, str]:
+    """``found`` with every function of which ``run`` checked a mutant replaced by ``run``'s
+    results for it (its checked and unchecked mutants alike: a function whose code changed is
+    numbered anew); the functions ``run`` did not check keep their earlier results."""
+    checked = {function_of(name) for name, status in run.items() if status != "not checked"}
+    kept = {name: status for name, status in found.items() if function_of(name) not in checked}
+    return {**kept, **{name: status for name, status in run.items() if function_of(name) in checked}}
+
+
+def function_of(mutant: str) -> str:
+    return mutant.rsplit("__mutmut_", 1)[0]
+
+
 def module_of(mutant: str) -> str:
     return re.split(r"\.x[_ǁ]", mutant, maxsplit=1)[0]
 
@@ -123,10 +138,19 @@ def main() -> int:
     parser.add_argument(
         "--fresh", nargs="+", type=Path, default=[], help="saved outputs of complete re-runs: each replaces its modules"
     )
+    parser.add_argument(
+        "--functions",
+        nargs="+",
+        type=Path,
+        default=[],
+        help="saved outputs of runs of some functions' mutants, read last: each replaces the functions it checked",
+    )
     args = parser.parse_args()
     found = results(args.results)
     for path in args.fresh:
         found = refreshed(found, parse(path.read_text()))
+    for path in args.functions:
+        found = functions_refreshed(found, parse(path.read_text()))
     if not found:
         print("no mutmut results: run `mutmut run` first (docs/mutation.md)", file=sys.stderr)
         return 2

@@ -329,7 +329,7 @@ def test_the_hover_trim_reads_the_last_window_of_its_phase(tmp_path, window_s, r
     assert runner.thrust.hover_command == pytest.approx(expected, rel=1e-9)
 
 
-@pytest.mark.parametrize("end_z, lifted", [(0.25, True), (0.2499, False), (-0.004, False), (0.9, True)])
+@pytest.mark.parametrize("end_z, lifted", [(0.25, True), (0.2499, False), (-0.004, False), (0.9, True), (None, False)])
 def test_a_takeoff_has_lifted_off_when_it_ends_at_least_half_its_height_up(tmp_path, end_z, lifted):
     """``_lifted_off``: the takeoff phase's last estimate at least half of ``takeoff_height_m``
     (0.5 m here: 0.25 m) above the ground; the rows of other phases are not read. Below it, one
@@ -341,6 +341,8 @@ def test_a_takeoff_has_lifted_off_when_it_ends_at_least_half_its_height_up(tmp_p
     runner.p = SimpleNamespace(takeoff_height_m=0.5)
     rows = [{**row(k, "TAKEOFF", 0.0, 1.0), "thrust_cmd": 50000 + 100 * k} for k in range(5)]
     rows[-1]["pos"] = [0.0, 0.0, end_z]
+    if end_z is None:  # a takeoff that logged no tick: on the ground, no command sent
+        rows, end_z = [], 0.0
     rows += [{**row(k, "HOVER", 0.0, 1.0), "pos": [0.0, 0.0, 0.5], "thrust_cmd": 65000} for k in range(5, 8)]
     runner.log.rows = rows
     assert runner._lifted_off("TAKEOFF") is lifted
@@ -349,11 +351,42 @@ def test_a_takeoff_has_lifted_off_when_it_ends_at_least_half_its_height_up(tmp_p
         assert events == []
     else:
         shown = f"{end_z:.2f}".replace("-0.00", "0.00")
+        top = 50400 if any(r["phase"] == "TAKEOFF" for r in rows) else 0
         assert events == [
             (
                 "LAND",
                 f"the vehicle did not lift off: the takeoff ended at z {shown} m (hover at 0.5 m) with commands "
-                "up to 50400; the firmware's thrust lock (no setpoint with thrust 0 arrived after arming), "
+                f"up to {top}; the firmware's thrust lock (no setpoint with thrust 0 arrived after arming), "
                 "or motors and propellers",
             )
         ]
+
+
+def test_a_link_lost_while_waiting_for_arming_disarms_and_flies_nothing(tmp_path):
+    """``_arm``: the supervisor's armed bit never read because the link failed while waiting:
+    not armed, the disarm request sent, the outcome ARMING_FAILED with the link's own words, and
+    the flight aborted before any zero-thrust (unlocking) setpoint."""
+    from datt.deploy.link import LinkError
+    from datt.deploy.outcome import Kind
+    from datt.deploy.runner import FlightRunner, _Abort
+
+    sent = []
+
+    def wait_armed(timeout_s):
+        raise LinkError("link lost: no answer from the vehicle")
+
+    runner = FlightRunner.__new__(FlightRunner)  # the bookkeeping alone: no vehicle
+    runner.log = FlightLog(tmp_path)
+    runner.p = SimpleNamespace(arm_timeout_s=1.0, rate_hz=50.0)
+    runner.link = SimpleNamespace(
+        arm=lambda on: sent.append(("arm", on)),
+        wait_armed=wait_armed,
+        send_rates=lambda *a: sent.append(("rates", a)),
+    )
+    with pytest.raises(_Abort):
+        runner._arm()
+    assert sent == [("arm", True), ("arm", False)]
+    assert runner.outcome.kind is Kind.ARMING_FAILED
+    assert runner.outcome.text == "arming failed: link lost: no answer from the vehicle (supervisor.info); nothing flew"
+    events = [(e["kind"], e["text"]) for e in runner.log.events]
+    assert events == [("phase", "ARM"), ("arming failed", runner.outcome.text)]
