@@ -35,6 +35,18 @@ def row(k: int, phase: str, jitter_ms: float, compute_ms: float, err_m: float = 
     }
 
 
+def bookkeeping_runner(tmp_path, **attrs):
+    """A FlightRunner with its flight log in ``tmp_path`` and ``attrs`` set, nothing else: the
+    bookkeeping alone, no link or vehicle unless a test hands in a stand-in."""
+    from datt.deploy.runner import FlightRunner
+
+    runner = FlightRunner.__new__(FlightRunner)
+    runner.log = FlightLog(tmp_path)
+    for name, value in attrs.items():
+        setattr(runner, name, value)
+    return runner
+
+
 def test_timing_summary_counts_late_ticks_strictly_and_takes_absolute_jitter(tmp_path):
     """late_ticks counts jitter > late_tick_ms (not ≥, not |jitter|); the jitter statistics are
     of |jitter| (an early tick is as far off as a late one); compute is taken as it is."""
@@ -70,16 +82,14 @@ def test_the_runner_scores_only_the_track_ticks(tmp_path):
     """track_error_m is the mean |pos − ref| over the TRACK rows only (takeoff and landing rows
     are logged but not scored), track_steps their count; with a reference that stands still the
     reference when measured is the tick's own, so track_error_received_m is the same."""
-    from types import SimpleNamespace
-
     from datt.deploy.outcome import Kind, Outcome
-    from datt.deploy.runner import FlightRunner
 
-    runner = FlightRunner.__new__(FlightRunner)  # the bookkeeping alone: no link, no vehicle
-    runner.log = FlightLog(tmp_path)
-    runner.outcome = Outcome(Kind.LANDED)
-    runner.summary_extra = {"controller": "datt"}
-    runner.link = SimpleNamespace(round_trip_s=0.04)
+    runner = bookkeeping_runner(
+        tmp_path,
+        outcome=Outcome(Kind.LANDED),
+        summary_extra={"controller": "datt"},
+        link=SimpleNamespace(round_trip_s=0.04),
+    )
     errors = [0.3, 0.1, 0.2, 0.4]
     runner.log.rows = [row(0, "TAKEOFF", 0.0, 1.0, 2.0)]
     runner.log.rows += [row(k + 1, "TRACK", 0.0, 1.0, e) for k, e in enumerate(errors)]
@@ -297,18 +307,16 @@ def test_the_hover_trim_reads_the_last_window_of_its_phase(tmp_path, window_s, r
     (window × rate ticks): the command ramps through the hover while the vehicle holds its height,
     so the time-weighted mean the trim reports is that of exactly those ticks (fewer or more
     ticks give another mean); the TAKEOFF rows before it are not read."""
-    from types import SimpleNamespace
-
     from datt.deploy.outcome import Kind, Outcome
-    from datt.deploy.runner import FlightRunner
     from datt.deploy.safety import OK
     from datt.deploy.thrust import ThrustMap, ThrustParams, commands_acting, hover_command_from_hover
 
-    runner = FlightRunner.__new__(FlightRunner)  # the bookkeeping alone: no link, no vehicle
-    runner.log = FlightLog(tmp_path)
-    runner.outcome = Outcome(Kind.LANDED)
-    runner.link = SimpleNamespace(round_trip_s=0.04)
-    runner.p = SimpleNamespace(hover_trim_window_s=window_s, rate_hz=rate_hz, hover_trim_lag_s=0.0, hover_trim_max=0.3)
+    runner = bookkeeping_runner(
+        tmp_path,
+        outcome=Outcome(Kind.LANDED),
+        link=SimpleNamespace(round_trip_s=0.04),
+        p=SimpleNamespace(hover_trim_window_s=window_s, rate_hz=rate_hz, hover_trim_lag_s=0.0, hover_trim_max=0.3),
+    )
     runner.thrust = ThrustMap(ThrustParams(hover_command=50000.0))
     runner.configured_hover_command = 50000.0
     dt = 1.0 / rate_hz
@@ -334,11 +342,8 @@ def test_a_takeoff_has_lifted_off_when_it_ends_at_least_half_its_height_up(tmp_p
     """``_lifted_off``: the takeoff phase's last estimate at least half of ``takeoff_height_m``
     (0.5 m here: 0.25 m) above the ground; the rows of other phases are not read. Below it, one
     LAND event with the height (no "-0.00"), the hover height and the largest command of the phase."""
-    from datt.deploy.runner import FlightRunner
 
-    runner = FlightRunner.__new__(FlightRunner)  # the bookkeeping alone: no link, no vehicle
-    runner.log = FlightLog(tmp_path)
-    runner.p = SimpleNamespace(takeoff_height_m=0.5)
+    runner = bookkeeping_runner(tmp_path, p=SimpleNamespace(takeoff_height_m=0.5))
     rows = [{**row(k, "TAKEOFF", 0.0, 1.0), "thrust_cmd": 50000 + 100 * k} for k in range(5)]
     rows[-1]["pos"] = [0.0, 0.0, end_z]
     if end_z is None:  # a takeoff that logged no tick: on the ground, no command sent
@@ -368,21 +373,19 @@ def test_a_link_lost_while_waiting_for_arming_disarms_and_flies_nothing(tmp_path
     the flight aborted before any zero-thrust (unlocking) setpoint."""
     from datt.deploy.link import LinkError
     from datt.deploy.outcome import Kind
-    from datt.deploy.runner import FlightRunner, _Abort
+    from datt.deploy.runner import _Abort
 
     sent = []
 
     def wait_armed(timeout_s):
         raise LinkError("link lost: no answer from the vehicle")
 
-    runner = FlightRunner.__new__(FlightRunner)  # the bookkeeping alone: no vehicle
-    runner.log = FlightLog(tmp_path)
-    runner.p = SimpleNamespace(arm_timeout_s=1.0, rate_hz=50.0)
-    runner.link = SimpleNamespace(
+    link = SimpleNamespace(
         arm=lambda on: sent.append(("arm", on)),
         wait_armed=wait_armed,
         send_rates=lambda *a: sent.append(("rates", a)),
     )
+    runner = bookkeeping_runner(tmp_path, p=SimpleNamespace(arm_timeout_s=1.0, rate_hz=50.0), link=link)
     with pytest.raises(_Abort):
         runner._arm()
     assert sent == [("arm", True), ("arm", False)]

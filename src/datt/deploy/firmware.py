@@ -84,11 +84,11 @@ FACTS: dict[str, Fact] = {
     "setpoint_watchdog_level_ms": Fact(500, _SUPERVISOR_C, "define", "COMMANDER_WDT_TIMEOUT_STABILIZE"),
     "setpoint_watchdog_off_ms": Fact(2000, _SUPERVISOR_C, "define", "COMMANDER_WDT_TIMEOUT_SHUTDOWN"),
     "estop_watchdog_ms": Fact(1000, _SUPERVISOR_C, "define", "DEFAULT_EMERGENCY_STOP_WATCHDOG_TIMEOUT"),
-    # parameters the host sets, verifies and restores
     # the legacy commander (the off-board setpoints): a thrust under MIN_THRUST flies 0, above
     # MAX_THRUST it flies MAX_THRUST (the host's deploy.thrust.max_command is at most this)
     "rpyt_min_thrust": Fact(1000, _RPYT_C, "define", "MIN_THRUST"),
     "rpyt_max_thrust": Fact(60000, _RPYT_C, "define", "MAX_THRUST"),
+    # parameters the host sets, verifies and restores
     "param_controller": Fact("stabilizer.controller", "src/modules/src/stabilizer.c", "param", ""),
     "param_estimator": Fact("stabilizer.estimator", "src/modules/src/stabilizer.c", "param", ""),
     "param_stab_mode_roll": Fact("flightmode.stabModeRoll", _RPYT_C, "param", ""),
