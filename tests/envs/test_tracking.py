@@ -476,6 +476,48 @@ def test_reward_matches_hand_computed_value(make_tracking_env):
     assert step["next", "reward"].item() == pytest.approx(-(err + 0.5 * 3.0 + 0.1 * speed), abs=1e-5)
 
 
+def test_the_rate_change_cost_is_the_body_rate_commands_step_to_step_change(make_tracking_env):
+    """``reward.rate_change`` = w adds w ‖ω_cmd(t) − ω_cmd(t − 1)‖ to the cost: two envs that differ
+    only in w fly the same commands (a rate step at one instant, a command beyond the bounds, a
+    repeat) and their rewards differ by exactly that; the first step after a reset is measured
+    against hover's zero rates, the thrust's change costs nothing."""
+    base = ["traj=fixed", "env.init_pos_range_m=0", "env.quad.latency_steps=0"]
+    plain = make_tracking_env(base, n=2)
+    smooth = make_tracking_env([*base, "env.reward.rate_change=0.5"], n=2)
+    low, high = plain.action_low[1:].tolist(), plain.action_high[1:].tolist()
+    commands = [
+        [[9.81, 0.0, 0.0, 0.0], [12.0, 1.0, -2.0, 2.0]],  # drone 1: a step from hover at t = 0
+        [[9.81, 0.0, 0.0, 0.0], [12.0, 1.0, -2.0, 2.0]],  # held: no change
+        [[5.0, 0.0, 3.0, 0.0], [9.81, 1.0, -1000.0, 1.0]],  # a step in pitch; a pitch rate beyond the bound
+    ]
+    applied = [[0.0, 0.0, 0.0], [0.0, 0.0, 0.0]]
+    tds = [plain.reset(), smooth.reset()]
+    for cmd in commands:
+        action = torch.tensor(cmd)
+        expected = []
+        for i in range(2):
+            now = [min(max(float(c), lo), hi) for c, lo, hi in zip(cmd[i][1:], low, high)]
+            expected.append(0.5 * math.dist(now, applied[i]))
+            applied[i] = now
+        steps = []
+        for env, td in zip((plain, smooth), tds):
+            td["action"] = action.clone()
+            steps.append(env.step(td))
+        diff = (steps[0]["next", "reward"] - steps[1]["next", "reward"])[:, 0]
+        assert diff.tolist() == pytest.approx(expected, abs=1e-5)
+        tds = [s["next"].clone() for s in steps]
+    assert expected[1] > 0 and applied[1][1] == low[1] > -1000  # the clipped pitch rate was charged as sent
+    for env in (plain, smooth):  # a reset measures the next step against hover again
+        env.reset()
+    action = torch.tensor([[9.81, 0.0, 0.0, 1.0]] * 2)
+    rewards = []
+    for env in (plain, smooth):
+        td = env.reset()
+        td["action"] = action.clone()
+        rewards.append(env.step(td)["next", "reward"][:, 0])
+    assert (rewards[0] - rewards[1]).tolist() == pytest.approx([0.5, 0.5], abs=1e-5)
+
+
 def test_actions_are_clipped_to_bounds(make_tracking_env):
     env = make_tracking_env(["env.quad.latency_steps=0", "env.quad.k_rate=1.0"], n=1)
     td = env.reset()

@@ -20,13 +20,19 @@ class RewardParams:
     (paper §3.1 / authors' code, ψ_ref = 0). A termination (crash) adds ``-crash_penalty``: a drone
     that leaves the box must not be better off than one that keeps flying badly; 300 ≈ the
     discounted cost of staying 3 m off for the rest of an episode at γ = 0.99 (five times it at
-    the training default γ = 0.95)."""
+    the training default γ = 0.95).
+
+    ``rate_change`` (not in the paper; 0 = the paper's reward): adds ``rate_change ‖ω_cmd(t) −
+    ω_cmd(t − 1)‖`` per step, the body-rate command's change from the previous step's (rad/s;
+    after the action bounds; the first step of an episode against hover's zero rates). A
+    smoothness cost for a policy that flies a longer real loop than it trained on (docs/deploy.md)."""
 
     pos: float = ranged(1.0, NON_NEGATIVE)
     yaw: float = ranged(0.5, NON_NEGATIVE)
     vel: float = ranged(0.1, NON_NEGATIVE)
     vel_cap_mps: float = ranged(1.0, NON_NEGATIVE)
     crash_penalty: float = ranged(300.0, NON_NEGATIVE)
+    rate_change: float = ranged(0.0, NON_NEGATIVE)  # per rad/s of body-rate command change per step
 
 
 # ObsParams keys that shape what a policy reads (a checkpoint carries them to eval and deploy)

@@ -120,6 +120,7 @@ class TrackingEnv(EnvBase):
         self.action_center, self.action_half = action_center_half(self.action_low, self.action_high)
         self.state_dim = state_width(params.obs)
         self.cmd_history = torch.zeros(num_envs, params.obs.action_history, 4, **kw)
+        self.prev_cmd = torch.zeros(num_envs, 4, **kw)  # the last command applied (reward.rate_change)
         self.box_m = torch.tensor(params.safety_box_m, **kw)
         self._make_specs()
         self._all_idx = torch.arange(num_envs, device=device)
@@ -202,6 +203,7 @@ class TrackingEnv(EnvBase):
         self.adaptation.reset(idx, self.disturbance.current_mps2, self.sim.state)
         if self.cmd_history.shape[1]:
             self.cmd_history[idx] = self.scaled_command(self.hover_action[idx]).unsqueeze(1)
+        self.prev_cmd[idx] = self.hover_action[idx]
 
     def seed_starts(self, seed: int) -> None:
         """Draw the start positions of later resets from their own generator seeded at ``seed``
@@ -483,6 +485,10 @@ class TrackingEnv(EnvBase):
             terminated |= err_m > float(self.params.max_tracking_error_m)
         truncated = (self.step_idx >= self.episode_len).unsqueeze(-1)
         penalty = self.params.reward.crash_penalty * terminated.to(self.dtype)
+        if self.params.reward.rate_change:
+            change = torch.linalg.vector_norm(cmd[:, 1:] - self.prev_cmd[:, 1:], dim=-1, keepdim=True)
+            cost = cost + self.params.reward.rate_change * change
+        self.prev_cmd = cmd.clone()  # a reset writes into it; cmd is also the simulator's
         reward = -torch.nan_to_num(cost, nan=0.0, posinf=0.0) - penalty
         out.update({"reward": reward, "done": terminated | truncated, "terminated": terminated, "truncated": truncated})
         return out
