@@ -249,24 +249,34 @@ def test_the_predictor_switch_takes_true_false_or_null_only(value):
     assert str(info.value) == f"deploy.predictor.enabled: must be true, false or null, got {value!r}"
 
 
-def test_the_shipped_default_flies_the_predictor_policy_behind_the_predictor():
-    """``python deploy.py`` at its defaults: the policy trained behind the predictor, which the
-    null switch then turns on (off-board); the export builds the same policy for the app."""
+def test_the_default_policy_is_the_modes_own_and_off_board_it_flies_behind_the_predictor():
+    """``python deploy.py`` at its defaults (``checkpoint: null``): off-board the smooth predictor
+    policy, which the null switch then flies behind the predictor; onboard the firmware-grade
+    policy, which the export builds for the app by default; a checkpoint given is kept."""
     from datt.configuration import compose
     from datt.control.factory import build_controller
     from datt.deploy.schema import deploy_params
-    from datt.tasks.deploy import resolve_predictor
+    from datt.tasks.deploy import resolve_checkpoint, resolve_predictor
 
     cfg = compose("deploy", [])
-    assert cfg.checkpoint == compose("export", []).checkpoint == "checkpoints/datt_h10_predictor.pt"
+    assert cfg.checkpoint is None
+    resolve_checkpoint(cfg)
+    assert cfg.checkpoint == "checkpoints/datt_h10_smooth.pt"
     params = deploy_params(cfg.deploy)[0]
     assert params.predictor.enabled is None
     _, merged, labels = build_controller(cfg)
     assert labels["predict_latency"] is True  # read from the checkpoint's training config
     resolve_predictor(params, labels["predict_latency"])
     assert params.predictor.enabled is True
-    firmware_grade = compose("deploy", ["checkpoint=checkpoints/datt_h10_firmware.pt"])
-    assert build_controller(firmware_grade)[2]["predict_latency"] is False
+
+    onboard = compose("deploy", ["deploy.onboard=true"])
+    resolve_checkpoint(onboard)
+    assert onboard.checkpoint == compose("export", []).checkpoint == "checkpoints/datt_h10_firmware.pt"
+    assert build_controller(onboard)[2]["predict_latency"] is False
+    for mode in ("deploy.onboard=true", "deploy.onboard=false"):
+        given = compose("deploy", ["checkpoint=checkpoints/datt_h10_predictor.pt", mode])
+        resolve_checkpoint(given)
+        assert given.checkpoint == "checkpoints/datt_h10_predictor.pt"
 
 
 def ticked(tick_s=0.02, latency_s=0.06, round_trip_s=0.04, policy_delay_s=0.02) -> StatePredictor:

@@ -42,6 +42,8 @@ ADDED_SINCE: dict[str, tuple] = {
     # the thrust map trimmed to the vehicle (experiment=deploy_trimmed): off, and its error unused then
     "env.quad.thrust_map_trimmed": (False,),
     "env.quad.trim_error_spread": (0.0,),
+    # the cost on the rate command's change (experiment=deploy_smooth): the paper's reward without it
+    "env.reward.rate_change": (0.0,),
 }
 
 
@@ -66,6 +68,7 @@ def drop_added_keys(trained: dict, expected: dict) -> None:
         ("deploy", "checkpoints/datt_h10_deploy.pt", "checkpoints/datt_h10_train_mix.pt"),
         ("deploy_firmware", "checkpoints/datt_h10_firmware.pt", "checkpoints/datt_h10_deploy.pt"),
         ("deploy_predictor", "checkpoints/datt_h10_predictor.pt", "checkpoints/datt_h10_firmware.pt"),
+        ("deploy_smooth", "checkpoints/datt_h10_smooth.pt", "checkpoints/datt_h10_predictor.pt"),
     ],
 )
 def test_deploy_grade_checkpoint_is_the_output_of_its_experiment(experiment, checkpoint, parent):

@@ -7,7 +7,7 @@ import signal
 from pathlib import Path
 from urllib.parse import urlparse
 
-from omegaconf import DictConfig
+from omegaconf import DictConfig, OmegaConf
 
 from datt.configuration import instantiate_option, with_options
 from datt.control.factory import build_controller, require_current_state_timing
@@ -25,6 +25,21 @@ from datt.envs.factory import make_env
 from datt.errors import ConfigError, FlightAborted, FlightStopped
 from datt.runs import StopRequest, stop_signals
 from datt.tasks.common import console, hydra_run_dir, set_threads
+
+# the policy ``checkpoint: null`` flies, per mode: the one that transfers best there (docs/deploy.md,
+# "A cost on the rate command's change"): off-board the predictor policy fine-tuned with the cost
+# (experiment=deploy_smooth), flown behind the state predictor; onboard the firmware-grade policy
+# (experiment=deploy_firmware), which the app answers with the newest estimate
+DEFAULT_CHECKPOINTS = {"off-board": "checkpoints/datt_h10_smooth.pt", "onboard": "checkpoints/datt_h10_firmware.pt"}
+
+
+def resolve_checkpoint(cfg: DictConfig) -> None:
+    """``checkpoint: null`` (the default) becomes the mode's policy of :data:`DEFAULT_CHECKPOINTS`
+    (``deploy.onboard`` true: onboard); a checkpoint given is kept. The flight's summary names
+    the one that flew (``controller.checkpoint``)."""
+    if cfg.get("checkpoint") is None:
+        onboard = OmegaConf.select(cfg, "deploy.onboard", default=False) is True
+        cfg.checkpoint = DEFAULT_CHECKPOINTS["onboard" if onboard else "off-board"]
 
 
 def _onboard_app(cfg: DictConfig, run_dir: Path, simulated: bool) -> tuple[int, str | None]:
@@ -167,6 +182,7 @@ def run_deploy(cfg: DictConfig, run_dir: Path | None = None, estop=None, server_
     ``server_hook(server, runner)`` lets tests inject faults once the flight objects exist."""
     from datt.tasks.validation import validate_config
 
+    resolve_checkpoint(cfg)
     validate_config("deploy", cfg)
     params, flight, safety, thrust = deploy_params(cfg.deploy)
     run_dir = run_dir or hydra_run_dir()
