@@ -251,8 +251,9 @@ def test_the_predictor_switch_takes_true_false_or_null_only(value):
 
 def test_the_default_policy_is_the_modes_own_and_off_board_it_flies_behind_the_predictor():
     """``python deploy.py`` at its defaults (``checkpoint: null``): off-board the smooth predictor
-    policy, which the null switch then flies behind the predictor; onboard the firmware-grade
-    policy, which the export builds for the app by default; a checkpoint given is kept."""
+    policy, which the null switch then flies behind the predictor; onboard the predictor policy
+    (the predictor off there), which the export builds for the app by default; a checkpoint
+    given is kept."""
     from datt.configuration import compose
     from datt.control.factory import build_controller
     from datt.deploy.schema import deploy_params
@@ -271,12 +272,14 @@ def test_the_default_policy_is_the_modes_own_and_off_board_it_flies_behind_the_p
 
     onboard = compose("deploy", ["deploy.onboard=true"])
     resolve_checkpoint(onboard)
-    assert onboard.checkpoint == compose("export", []).checkpoint == "checkpoints/datt_h10_firmware.pt"
-    assert build_controller(onboard)[2]["predict_latency"] is False
+    assert onboard.checkpoint == compose("export", []).checkpoint == "checkpoints/datt_h10_predictor.pt"
+    onboard_params = deploy_params(onboard.deploy)[0]
+    resolve_predictor(onboard_params, build_controller(onboard)[2]["predict_latency"])
+    assert onboard_params.predictor.enabled is False
     for mode in ("deploy.onboard=true", "deploy.onboard=false"):
-        given = compose("deploy", ["checkpoint=checkpoints/datt_h10_predictor.pt", mode])
+        given = compose("deploy", ["checkpoint=checkpoints/datt_h10_firmware.pt", mode])
         resolve_checkpoint(given)
-        assert given.checkpoint == "checkpoints/datt_h10_predictor.pt"
+        assert given.checkpoint == "checkpoints/datt_h10_firmware.pt"
 
 
 def ticked(tick_s=0.02, latency_s=0.06, round_trip_s=0.04, policy_delay_s=0.02) -> StatePredictor:

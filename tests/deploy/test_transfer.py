@@ -4,9 +4,8 @@ error for the same policy. Real time (~25 s a flight): slow.
 
 What they pin (docs/deploy.md has the figures of benchmarks/transfer.py, on the simulated
 vehicle's real timing; a flight's error is eval.py's, each estimate against the reference when
-it was measured): the predictor policy (what ``deploy.py`` flies) lands off-board behind the
-state predictor within 2x of its eval error (1.14-1.59x landed; 1 flight in 3-6 sinks at the
-thrust ceiling, so 3 of 3 within 1.5x is not met); the firmware-grade
+it was measured): the smooth policy (what ``deploy.py`` flies off-board) lands behind the state
+predictor within 1.5x of its eval error; the firmware-grade
 policy lands off-board without it (its error there varies too much to pin) and flies onboard
 within 1.3x of its eval error without a calibration flight (the hover trim: 1.20-1.31x measured)
 and within 2x after one; the deploy-grade and the shipped policy land onboard after a
@@ -30,15 +29,15 @@ def test_the_firmware_grade_policy_lands_off_board_without_the_predictor(tmp_pat
     assert flight["outcome"].startswith("landed"), flight["outcome"]
 
 
-def test_the_predictor_policy_lands_off_board_behind_the_predictor_within_2x(tmp_path):
-    """The policy trained behind the state predictor, flown off-board at the defaults (the
-    predictor on for it): it lands, within 2x of its eval error (1.14-1.30x in 12 flights of two
-    runs, 1.17 / 1.59x and 1 KILLed on the floor in the benchmark, docs/deploy.md)."""
-    checkpoint = "checkpoints/datt_h10_predictor.pt"
+def test_the_smooth_policy_lands_off_board_behind_the_predictor_within_1_5x(tmp_path):
+    """What ``deploy.py`` flies off-board at its defaults (the smooth policy behind the state
+    predictor): it lands, within 1.5x of its eval error (0.98-1.23x in 15 flights, docs/deploy.md;
+    the predictor policy it was fine-tuned from sank at the thrust ceiling in 1 of 3-8)."""
+    checkpoint = "checkpoints/datt_h10_smooth.pt"
     eval_err = eval_star_error(checkpoint, tmp_path / "eval")
     flight = fly(checkpoint, CONDITIONS, tmp_path / "flight", seed=0)
     assert flight["outcome"] == "landed", flight["outcome"]
-    assert flight["track_error_m"] <= 2.0 * eval_err, (flight["track_error_m"], eval_err)
+    assert flight["track_error_m"] <= 1.5 * eval_err, (flight["track_error_m"], eval_err)
 
 
 def test_onboard_without_a_calibration_flight_within_1_3x(tmp_path):

@@ -26,11 +26,11 @@ from datt.errors import ConfigError, FlightAborted, FlightStopped
 from datt.runs import StopRequest, stop_signals
 from datt.tasks.common import console, hydra_run_dir, set_threads
 
-# the policy ``checkpoint: null`` flies, per mode: the one that transfers best there (docs/deploy.md,
-# "A cost on the rate command's change"): off-board the predictor policy fine-tuned with the cost
-# (experiment=deploy_smooth), flown behind the state predictor; onboard the firmware-grade policy
-# (experiment=deploy_firmware), which the app answers with the newest estimate
-DEFAULT_CHECKPOINTS = {"off-board": "checkpoints/datt_h10_smooth.pt", "onboard": "checkpoints/datt_h10_firmware.pt"}
+# the policy ``checkpoint: null`` flies, per mode (docs/deploy.md, "A cost on the rate command's
+# change"): off-board the predictor policy fine-tuned with the cost (experiment=deploy_smooth), flown
+# behind the state predictor, which no longer sinks at the transfer vehicle's thrust ceiling; onboard
+# the predictor policy itself (experiment=deploy_predictor; the cost made its onboard flights worse)
+DEFAULT_CHECKPOINTS = {"off-board": "checkpoints/datt_h10_smooth.pt", "onboard": "checkpoints/datt_h10_predictor.pt"}
 
 
 def resolve_checkpoint(cfg: DictConfig) -> None:

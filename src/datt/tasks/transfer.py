@@ -20,13 +20,15 @@ from datt.tasks.deploy import run_deploy
 from datt.tasks.eval import run_eval
 
 # what benchmarks/transfer.py flies by default: the shipped policy (python train.py), the deploy-grade one
-# (experiment=deploy), the firmware-grade one (experiment=deploy_firmware, what deploy.py flies) and the
-# one trained behind the state predictor (experiment=deploy_predictor)
+# (experiment=deploy), the firmware-grade one (experiment=deploy_firmware), the one trained behind the
+# state predictor (experiment=deploy_predictor, what deploy.py flies onboard) and that one with the
+# cost on its rate command's change (experiment=deploy_smooth, what deploy.py flies off-board)
 CHECKPOINTS = [
     "checkpoints/datt_h10.pt",
     "checkpoints/datt_h10_deploy.pt",
     "checkpoints/datt_h10_firmware.pt",
     "checkpoints/datt_h10_predictor.pt",
+    "checkpoints/datt_h10_smooth.pt",
 ]
 MASS_KG = 0.034  # deploy.thrust.mass_kg's default: what the controller believes
 CONDITIONS = {
