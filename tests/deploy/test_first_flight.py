@@ -208,6 +208,29 @@ def test_an_app_that_does_not_keep_the_trimmed_map_is_not_started_and_the_pid_la
     assert not server.locked and server.true_state()["pos_m"][2] < 0.15
 
 
+@needs_gcc
+def test_an_app_that_does_not_keep_a_setting_is_refused_before_arming(tmp_path):
+    """The app's settings are written before arming and read back fresh: an app that keeps its
+    old number of track steps (0) fails the read, and the flight is refused in the link's words
+    (without its ``connect:`` prefix); nothing is armed."""
+
+    def keep_no_track_steps(server, runner):
+        app_set = server.app.set
+
+        def stubborn(name, value):
+            if name != "trackSteps":
+                app_set(name, value)
+
+        server.app.set = stubborn
+
+    summary, server = fly(tmp_path, ["deploy.onboard=true"], hook=keep_no_track_steps)
+    assert summary["outcome"].startswith("preflight failed: deploy.onboard: datt.trackSteps reads back"), summary[
+        "outcome"
+    ]
+    assert "ARM" not in [e["text"] for e in summary["events"] if e["kind"] == "phase"]
+    assert not server.armed
+
+
 # -- 3: a read that can fail ------------------------------------------------------------------
 def test_a_setting_the_vehicle_does_not_keep_is_refused():
     """Without the app the firmware has no out-of-tree controller: writing its id is echoed as

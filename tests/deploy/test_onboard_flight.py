@@ -183,3 +183,218 @@ def test_the_host_waits_for_the_apps_track_landing_and_hold_and_a_margin(tmp_pat
     assert flight._app_settings(np.zeros(3), 200, 150)["landHoldS"] == APP_LAND_HOLD_S == 0.5
     flight.p.rate_hz = 100.0
     assert flight._app_budget_s() == pytest.approx(1.5 + 2.5 + 0.5 + 2.0)
+
+
+class StartingLink(Link):
+    """A link for the hand-over to the app: the trimmed map and ``datt.run`` written checked (or
+    refused with ``refusal``), a fresh state on the host's clock ``clock``, the app's published
+    controller id."""
+
+    def __init__(self, clock, refusal: str | None = None, controller_id: int = 6) -> None:
+        import threading
+
+        super().__init__()
+        self.clock, self.refusal, self.controller_id = clock, refusal, controller_id
+        self.link_lost = threading.Event()
+
+    def set_params_checked(self, values: dict) -> None:
+        from datt.errors import LinkError
+
+        if self.refusal is not None:
+            raise LinkError(self.refusal)
+        self.writes.extend(values.items())
+
+    def state(self):
+        return state_at(1.0, self.clock.monotonic())
+
+    def has_param(self, name: str) -> bool:
+        return True
+
+    def read_param(self, name: str) -> float:
+        assert name == "datt.controllerId"
+        return float(self.controller_id)
+
+
+class FakeClock:
+    """``time`` for the watch loop: ``monotonic`` reads a clock that only ``sleep`` moves, each
+    sleep ``overshoot_s`` longer than asked (as a real one wakes late)."""
+
+    def __init__(self, overshoot_s: float = 0.0) -> None:
+        self.now_s = 1000.0
+        self.overshoot_s = overshoot_s
+
+    def monotonic(self) -> float:
+        return self.now_s
+
+    def sleep(self, seconds: float) -> None:
+        self.now_s += max(0.0, seconds) + self.overshoot_s
+
+
+def test_the_host_watches_the_app_once_per_control_tick(tmp_path, monkeypatch):
+    """While the app flies the host checks and logs the vehicle's state every control period
+    (``1 / rate_hz``, 20 ms at 50 Hz; 10 ms at 100 Hz), on a clock that moves only when it sleeps:
+    12 watched ticks one period apart, row to row, when every sleep wakes 1 ms late: each tick
+    after the first is logged 1 ms behind its schedule, and the lateness does not add up (the
+    schedule is absolute)."""
+    import datt.deploy.onboard_flight as module
+
+    for rate_hz in (50.0, 100.0):
+        clock = FakeClock(overshoot_s=0.001)
+        monkeypatch.setattr(module, "time", clock)
+        flight = watching(tmp_path, onboard.TRACK)
+        flight.p.rate_hz, flight._onboard_steps = rate_hz, 500
+        flight.thrust = SimpleNamespace(hover_command=47123.5, slope=1.7e-4)
+        flight.link = StartingLink(clock)
+        calls = []
+
+        def verdict(now, stepping, calls=calls):
+            calls.append(now)
+            return OK if len(calls) > 12 else None
+
+        flight._app_verdict = verdict
+        assert flight._onboard_track(np.zeros(3)) == OK
+        times = [row["t_s"] for row in flight.rows]
+        assert len(times) == 12
+        assert np.diff(times) == pytest.approx([1.0 / rate_hz + 0.001] + [1.0 / rate_hz] * 10)
+        assert [row["jitter_ms"] for row in flight.rows] == pytest.approx([0.0] + [1.0] * 11, abs=1e-6)
+        assert flight.link.writes == [("datt.hoverCmd", 47123.5), ("datt.slope", 1.7e-4), ("datt.run", 1)]
+
+
+def test_an_app_start_that_is_not_confirmed_stops_the_app_and_lands_with_the_pid(tmp_path, monkeypatch):
+    """The checked write of the trimmed map and ``datt.run = 1`` fails: the host writes
+    ``datt.run = 0`` (the app must not start under the PID that lands it), returns LAND and says
+    why in the link's own words (without its ``connect:`` prefix)."""
+    import datt.deploy.onboard_flight as module
+
+    clock = FakeClock()
+    monkeypatch.setattr(module, "time", clock)
+    flight = watching(tmp_path, None)
+    flight.thrust = SimpleNamespace(hover_command=47123.5, slope=1.7e-4)
+    flight.link = StartingLink(clock, refusal="connect: datt.hoverCmd reads back 45000, not 47123.5")
+    assert flight._onboard_track(np.zeros(3)) == LAND
+    assert flight.link.writes == [("datt.run", 0)] and flight.rows == []
+    assert (flight.events[-1]["kind"], flight.events[-1]["text"]) == (
+        "LAND",
+        "the app's start was not confirmed: datt.hoverCmd reads back 45000, not 47123.5",
+    )
+
+
+def test_an_app_under_another_controller_id_is_flown_with_a_warning(tmp_path):
+    """The app publishes the id its firmware gives the out-of-tree controller; one that differs
+    from the host's table is used (it is the vehicle's own) with a warning naming both."""
+    from datt.deploy import firmware
+
+    flight = host(tmp_path)
+    flight.link = StartingLink(FakeClock(), controller_id=firmware.CONTROLLER_OOT)
+    assert flight._app_controller_id() == firmware.CONTROLLER_OOT and flight.events == []
+    flight.link.controller_id = 9
+    assert flight._app_controller_id() == 9
+    (event,) = flight.events
+    assert event["kind"] == "warning"
+    table = f"({firmware.FIRMWARE_VERSION})"
+    assert event["text"].startswith(f"the app runs under controller 9, the host's table {table} says 6")
+
+
+def test_the_host_judges_the_low_passed_battery_and_logs_the_raw_one(tmp_path):
+    """A sag of one tick to 2.9 V (below the KILL limit, 3.0 V) after 4.0 V: through the 1 s
+    low-pass it is ~3.98 V, so the host neither KILLs nor LANDs; the row keeps the raw 2.9 V."""
+    import dataclasses
+    import time
+
+    from datt.deploy.safety import BatteryFilter
+
+    flight = watching(tmp_path, onboard.TRACK)
+    flight.battery = BatteryFilter(flight.safety.battery_filter_s)
+    assert flight.safety.battery_filter_s == 1.0 and flight.safety.kill_battery_v == 3.0
+    now = time.monotonic()
+    assert flight._watch_step(state_at(1.0, now), now, 0.0, np.zeros(3)) is None
+    sag = dataclasses.replace(state_at(1.0, now + 0.02), vbat_v=2.9)
+    assert flight._watch_step(sag, now + 0.02, 0.0, np.zeros(3)) is None
+    assert not flight.link.stopped and flight.link.writes == []
+    assert flight.battery.value_v == pytest.approx(4.0 - 1.1 * 0.02)
+    assert flight.rows[-1]["vbat"] == 2.9
+
+
+def test_an_app_that_never_reports_landing_is_stopped_after_its_budget(tmp_path, monkeypatch):
+    """The app tracks on but never reports DONE: once its budget has passed (5 steps at 50 Hz, the
+    2.5 s ramp, the hold and the margin: 5.1 s on a clock that moves only when the host sleeps) the
+    host, still hearing the vehicle, stops the app (``datt.run = 0``) and lands, saying so."""
+    import datt.deploy.onboard_flight as module
+
+    clock = FakeClock()
+    monkeypatch.setattr(module, "time", clock)
+    flight = watching(tmp_path, onboard.TRACK)
+    flight.p.rate_hz, flight._onboard_steps = 50.0, 5
+    flight.thrust = SimpleNamespace(hover_command=47123.5, slope=1.7e-4)
+    flight.link = StartingLink(clock)
+    flight._app_verdict = lambda now, stepping: None
+    start = clock.now_s
+    assert flight._onboard_track(np.zeros(3)) == LAND
+    assert clock.now_s - start == pytest.approx(5.1, abs=0.021)
+    assert flight.link.writes[-1] == ("datt.run", 0) and not flight.link.stopped
+    assert (flight.events[-1]["kind"], flight.events[-1]["text"]) == (
+        "LAND",
+        "the app did not report landing within 5.1 s",
+    )
+    assert flight.outcome is None
+
+    lost = watching(tmp_path, onboard.TRACK)  # the same, the link lost by then: no e-stop, no LAND
+    lost.p.rate_hz, lost._onboard_steps = 50.0, 5
+    lost.thrust = flight.thrust
+    lost.link = StartingLink(clock)
+    lost.link.link_lost.set()
+    lost._app_verdict = lambda now, stepping: None
+    assert lost._onboard_track(np.zeros(3)) == module.LINK_LOST
+    text = "during the onboard flight the app flew on by itself; the host cannot confirm it landed"
+    assert lost.outcome.text.endswith(text) and (lost.events[-1]["kind"], lost.events[-1]["text"]) == (
+        "warning",
+        lost.outcome.text,
+    )
+    assert lost.link.writes == [("datt.hoverCmd", 47123.5), ("datt.slope", 1.7e-4), ("datt.run", 1)]
+
+
+def test_an_app_that_stops_stepping_while_heard_is_stopped_and_the_pid_takes_over(tmp_path):
+    """The app's log still arrives (the link is up) but its step has not moved for more than
+    ``APP_STALL_S``: the host stops the app, selects the PID (which honours the radio's rate
+    setpoints) and lands, naming the step it stopped at."""
+    import time
+
+    from datt.deploy import firmware
+    from datt.deploy.onboard_flight import APP_STALL_S
+
+    flight = host(tmp_path)
+    flight._on_app_log(log_values(onboard.TRACK, 7, ref=(0.5, 0.25, 1.0)))
+    t0 = time.monotonic()
+    stepping = [-1, 0.0]
+    assert flight._app_verdict(t0, stepping) is None and stepping == [7, t0]
+    later = t0 + APP_STALL_S + 0.05
+    flight._app["last"] = flight._app["last"][:3] + (later - 0.01,)  # heard 10 ms ago, still at step 7
+    assert flight._app_verdict(later, stepping) == LAND
+    assert flight.link.writes == [("datt.run", 0), ("stabilizer.controller", firmware.CONTROLLER_PID)]
+    assert (flight.events[-1]["kind"], flight.events[-1]["text"]) == (
+        "LAND",
+        "the app stopped stepping at step 7 (its state is stale: no hook)",
+    )
+
+
+def test_a_failed_reference_upload_refuses_the_flight_saying_why(tmp_path, monkeypatch):
+    """The app channel upload gives up (``onboard.Upload.run`` raises): the flight is refused
+    before arming with the upload's own reason."""
+    from datt.deploy.outcome import Kind
+    from datt.deploy.runner import _Abort
+
+    class GivesUp:
+        def __init__(self, send, table) -> None:
+            self.on_packet = None
+
+        def run(self) -> None:
+            raise RuntimeError("no acknowledgement for window 3 after 5 tries")
+
+    monkeypatch.setattr(onboard, "Upload", GivesUp)
+    flight = host(tmp_path)
+    flight.link = SimpleNamespace(send_app_packet=None, on_app_packet=lambda callback: None)
+    with pytest.raises(_Abort):
+        flight._upload(np.zeros((4, 3)))
+    text = "the reference upload to the app failed: no acknowledgement for window 3 after 5 tries"
+    assert flight.outcome.kind == Kind.REFUSED and flight.outcome.text.endswith(text)
+    assert (flight.events[-1]["kind"], flight.events[-1]["text"]) == ("preflight failed", text)
