@@ -485,10 +485,10 @@ class TrackingEnv(EnvBase):
             terminated |= err_m > float(self.params.max_tracking_error_m)
         truncated = (self.step_idx >= self.episode_len).unsqueeze(-1)
         penalty = self.params.reward.crash_penalty * terminated.to(self.dtype)
-        if self.params.reward.rate_change:
+        if self.params.reward.rate_change:  # the previous command is kept only for this cost
             change = torch.linalg.vector_norm(cmd[:, 1:] - self.prev_cmd[:, 1:], dim=-1, keepdim=True)
             cost = cost + self.params.reward.rate_change * change
-        self.prev_cmd = cmd.clone()  # a reset writes into it; cmd is also the simulator's
+            self.prev_cmd.copy_(cmd)  # into its own buffer: cmd is also the simulator's
         reward = -torch.nan_to_num(cost, nan=0.0, posinf=0.0) - penalty
         out.update({"reward": reward, "done": terminated | truncated, "terminated": terminated, "truncated": truncated})
         return out
