@@ -351,8 +351,10 @@ def test_the_app_flies_on_the_hover_trims_map(tmp_path):
     """A vehicle 10 % heavier with motors 10 % weaker than the map: the host's trim after the
     takeoff's hover goes to the app with the start (``datt.hoverCmd``, ``datt.slope``, then
     ``datt.run``), so the app flies the rescaled map: while it tracks its parameters are the
-    trim's (float32), ~22 % above the nominal map's hover command; after the flight the host
-    restores what the vehicle held."""
+    trim's (float32), ~22 % above the nominal map's hover command, and its ceiling is
+    ``deploy.thrust.app_max_command`` (65535: its setpoints skip the legacy commander's 60000, and
+    this vehicle needs more in the star's first second); after the flight the host restores what
+    the vehicle held."""
     import time
 
     pytest.importorskip("cflib")
@@ -361,13 +363,15 @@ def test_the_app_flies_on_the_hover_trims_map(tmp_path):
 
     from . import SHORT_FLIGHT
 
-    seen = {"tracking": []}
+    seen = {"tracking": [], "ceiling": [], "thrust": []}
 
     def watch(server, runner):
         def sample():
             while runner.phase != "DISARM":
                 if runner.phase == "TRACK" and server.app is not None and server.app.phase == onboard.TRACK:
                     seen["tracking"].append((server.app.p.hover_command, server.app.p.slope_mps2_per_command))
+                    seen["ceiling"].append(server.app.p.max_command)
+                    seen["thrust"].append(server.cmd[3])
                 time.sleep(0.05)
             seen["server"] = server
 
@@ -387,6 +391,8 @@ def test_the_app_flies_on_the_hover_trims_map(tmp_path):
         assert hover == pytest.approx(f32(trims[-1]["hover_command"]), rel=1e-6)
         assert hover / nominal.hover_command > 1.18
         assert slope * hover == pytest.approx(nominal.slope * nominal.hover_command, rel=1e-5)  # through zero
+    # its own ceiling, not the legacy commander's: the app's setpoints reach the motors unclamped
+    assert set(seen["ceiling"]) == {65535} and max(seen["thrust"]) > 60000, max(seen["thrust"])
     app = seen["server"].app
     assert app.p.hover_command == pytest.approx(f32(nominal.hover_command), rel=1e-6)  # restored at close
 

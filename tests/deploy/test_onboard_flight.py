@@ -40,9 +40,8 @@ def host(tmp_path) -> OnboardFlight:
     flight._app = {"samples": {}, "last": None}
     flight._onboard_steps = 0
     flight.p = SimpleNamespace(land_s=2.5, onboard_max_pos_std_m=0.07)
-    flight.thrust = SimpleNamespace(
-        hover_command=47123.5, slope=1.7e-4, p=SimpleNamespace(max_command=61000, max_rate_degps=[700.0, 650.0, 300.0])
-    )
+    limits = SimpleNamespace(max_command=59000, app_max_command=61000, max_rate_degps=[700.0, 650.0, 300.0])
+    flight.thrust = SimpleNamespace(hover_command=47123.5, slope=1.7e-4, p=limits)
     flight.safety = SimpleNamespace(max_tilt_deg=55.0)
     return flight
 

@@ -87,6 +87,10 @@ def test_thrust_params_are_the_deploy_config_defaults():
 
 
 CLAMP = " (the firmware clamps a legacy setpoint's thrust to MAX_THRUST 60000: crtp_commander_rpyt.c, 2026.08)"
+APP_CAP = (
+    " (the onboard app's setpoint thrust is a uint16; the power distribution caps each motor at UINT16_MAX: "
+    "power_distribution_quadrotor.c, 2026.08)"
+)
 
 
 @pytest.mark.parametrize(
@@ -101,6 +105,13 @@ CLAMP = " (the firmware clamps a legacy setpoint's thrust to MAX_THRUST 60000: c
         (
             {"max_command": 60001},
             "deploy.thrust.max_command: must be in (0, 60000], got 60001" + CLAMP,
+        ),
+        ({"app_max_command": 0}, "deploy.thrust.app_max_command: must be in (0, 65535], got 0" + APP_CAP),
+        ({"app_max_command": 65536}, "deploy.thrust.app_max_command: must be in (0, 65535], got 65536" + APP_CAP),
+        (
+            {"app_max_command": 45000},
+            "deploy.thrust: a 34.0 g vehicle needs command 45539 to hover with thrust_max_n=0.12 N, "
+            "above app_max_command=45000",
         ),
         ({"hover_command": 0.0}, "deploy.thrust.hover_command: must be a finite number > 0 or null, got 0.0"),
         ({"mass_kg": float("inf")}, "deploy.thrust.mass_kg: must be a finite number > 0, got inf"),
@@ -422,17 +433,22 @@ def test_what_is_sent_is_the_clipped_command_in_si():
 
 def test_the_thrust_settings_take_their_bounds_exactly():
     """``max_command`` in (0, 60000] (the legacy commander's MAX_THRUST): 1 and 60000 are ceilings
-    (0 and 60001 are not); ``hover_command`` in (0,
+    (0 and 60001 are not); ``app_max_command`` in (0, 65535] (the app's setpoint skips that clamp);
+    ``hover_command`` in (0,
     max_command): 1 is a hover command, 0 and max_command are not (the map refuses a hover at
     its ceiling too)."""
     from datt.errors import ConfigError
 
     ThrustParams(max_command=1).validate()
     ThrustParams(max_command=60000).validate()
+    ThrustParams(app_max_command=1).validate()
+    ThrustParams(app_max_command=65535).validate()  # above the legacy 60000: the app's own ceiling
     ThrustParams(hover_command=1.0).validate()
     for bad in (
         {"max_command": 0},
         {"max_command": 60001},
+        {"app_max_command": 0},
+        {"app_max_command": 65536},
         {"hover_command": 0.0},
         {"hover_command": 60000.0, "max_command": 60000},
     ):

@@ -10,7 +10,7 @@ A fact is located in its file by one of four rules (:func:`read_fact`):
   values, comments left out), the members behind ``#ifdef`` / ``#if defined`` / ``#ifndef`` /
   ``#else`` counted only as the options the build enables (:data:`BUILD_OPTIONS`) select them;
 * ``define``: a ``#define`` (``M2T(...)`` and a float suffix stripped);
-* ``regex``: the first group of a regular expression;
+* ``regex``: the first group of a regular expression (a number, or the text for a text fact);
 * ``param`` / ``log``: a parameter or log variable ``group.name`` declared in the file.
 """
 
@@ -41,6 +41,7 @@ _SUPERVISOR_C = "src/modules/src/supervisor.c"
 _RPYT_C = "src/modules/src/crtp_commander_rpyt.c"
 _CF2_H = "src/platform/interface/platform_defaults_cf2.h"
 _LEE_C = "src/modules/src/controller/controller_lee.c"
+_PID_C = "src/modules/src/controller/controller_pid.c"
 
 
 def _bit(condition: str) -> str:
@@ -88,6 +89,13 @@ FACTS: dict[str, Fact] = {
     # MAX_THRUST it flies MAX_THRUST (the host's deploy.thrust.max_command is at most this)
     "rpyt_min_thrust": Fact(1000, _RPYT_C, "define", "MIN_THRUST"),
     "rpyt_max_thrust": Fact(60000, _RPYT_C, "define", "MAX_THRUST"),
+    # the app's setpoints (commanderSetSetpoint, thrust as given) skip that clamp: the PID takes the
+    # setpoint's thrust as is, and the power distribution lowers every motor by the highest one's
+    # excess over UINT16_MAX (attitude first); the app's deploy.thrust.app_max_command is at most this
+    "pid_thrust_from_setpoint": Fact("setpoint->thrust", _PID_C, "regex", r"actuatorThrust = (setpoint->thrust);"),
+    "power_cap_max_thrust": Fact(
+        "UINT16_MAX", "src/modules/src/power_distribution_quadrotor.c", "regex", r"maxAllowedThrust = (\w+);"
+    ),
     # parameters the host sets, verifies and restores
     "param_controller": Fact("stabilizer.controller", "src/modules/src/stabilizer.c", "param", ""),
     "param_estimator": Fact("stabilizer.estimator", "src/modules/src/stabilizer.c", "param", ""),
@@ -196,7 +204,7 @@ def read_fact(root: str | Path, item: Fact, options: tuple[str, ...] = BUILD_OPT
         found = re.search(item.where, source)
         if found is None:
             return None
-        return _number(found.group(1))
+        return found.group(1) if isinstance(item.value, str) else _number(found.group(1))
     if item.rule in ("param", "log"):
         group, name = str(item.value).split(".")
         kind = "PARAM" if item.rule == "param" else "LOG"

@@ -119,7 +119,7 @@ class OnboardFlight(FlightRunner):
             "landHoldS": APP_LAND_HOLD_S,
             "hoverCmd": self.thrust.hover_command,
             "slope": self.thrust.slope,
-            "maxCmd": self.thrust.p.max_command,
+            "maxCmd": self.thrust.p.app_max_command,
             "maxRateRoll": self.thrust.p.max_rate_degps[0],
             "maxRatePitch": self.thrust.p.max_rate_degps[1],
             "maxRateYaw": self.thrust.p.max_rate_degps[2],

@@ -12,8 +12,11 @@ m/s²). A calibration flight (:func:`fit_hover`) measures the real vehicle's hov
 slope; the map then runs through the measured hover point with the measured slope:
 ``c(a) = c_h + (a - g) / k``. Commands are clipped to ``[0, max_command]``; ``max_command`` is at
 most the legacy commander's ``MAX_THRUST`` (60000, ``crtp_commander_rpyt.c``), to which the
-firmware itself clamps every off-board setpoint (the headroom above is the rate controller's, for
-its mixing).
+firmware itself clamps every off-board setpoint. The onboard app's setpoints do not pass that
+clamp (``commanderSetSetpoint``: ``controller_pid.c`` flies the setpoint's thrust as given), so the
+app clips at ``app_max_command`` instead, at most ``UINT16_MAX``: there the power distribution
+(``power_distribution_quadrotor.c``) lowers all four motors by the highest one's excess, keeping
+the attitude torques and giving up collective thrust.
 
 Rate conventions (FLU body frame, as the simulator and the policy): the legacy RPYT packet in
 rate mode carries roll rate ``deg(ωx)``, pitch ``deg(ωy)`` (cflib negates it on the wire and the
@@ -48,6 +51,8 @@ class ThrustParams:
     # calibrated k; None = 4 THRUST_MAX / (65535 m)
     slope_mps2_per_command: float | None = ranged(None, POSITIVE_OR_NONE)
     max_command: int = 60000
+    # the onboard app's ceiling: its setpoints skip the legacy clamp (docs/deploy.md)
+    app_max_command: int = 65535
     max_rate_degps: list = ranged([720.0, 720.0, 400.0], POSITIVE)
 
     def validate(self) -> None:
@@ -59,6 +64,13 @@ class ThrustParams:
             raise ConfigError(
                 f"deploy.thrust.max_command: must be in (0, {top}], got {self.max_command} (the firmware clamps "
                 f"a legacy setpoint's thrust to MAX_THRUST {top}: crtp_commander_rpyt.c, {FIRMWARE_VERSION})"
+            )
+        app_top = UINT16_MAX  # fact("power_cap_max_thrust"): the power distribution's cap per motor
+        if not 0 < self.app_max_command <= app_top:
+            raise ConfigError(
+                f"deploy.thrust.app_max_command: must be in (0, {app_top}], got {self.app_max_command} (the "
+                f"onboard app's setpoint thrust is a uint16; the power distribution caps each motor at "
+                f"{fact('power_cap_max_thrust')}: power_distribution_quadrotor.c, {FIRMWARE_VERSION})"
             )
         if self.hover_command is not None and not 0 < self.hover_command < self.max_command:
             raise ConfigError(f"deploy.thrust.hover_command: must be in (0, max_command), got {self.hover_command}")
@@ -72,13 +84,14 @@ class ThrustMap:
         self.slope = self.p.slope_mps2_per_command or self.firmware_slope
         g = self.p.gravity_mps2
         self.hover_command = self.p.hover_command if self.p.hover_command is not None else g / self.firmware_slope
-        if self.hover_command >= self.p.max_command:
-            from datt.errors import ConfigError
+        for key in ("max_command", "app_max_command"):
+            if self.hover_command >= getattr(self.p, key):
+                from datt.errors import ConfigError
 
-            raise ConfigError(
-                f"deploy.thrust: a {self.p.mass_kg * 1000:.1f} g vehicle needs command {self.hover_command:.0f} to "
-                f"hover with thrust_max_n={self.p.thrust_max_n} N, above max_command={self.p.max_command}"
-            )
+                raise ConfigError(
+                    f"deploy.thrust: a {self.p.mass_kg * 1000:.1f} g vehicle needs command {self.hover_command:.0f} to "
+                    f"hover with thrust_max_n={self.p.thrust_max_n} N, above {key}={getattr(self.p, key)}"
+                )
 
     @property
     def ceiling_mps2(self) -> float:
