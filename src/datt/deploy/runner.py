@@ -165,7 +165,7 @@ class FlightParams:
     hover_trim: bool = True
     hover_trim_window_s: float = ranged(0.5, POSITIVE)  # the end of the hover the trim averages over
     hover_trim_max: float = ranged(0.25, Range(0.0, 1.0, low_open=True, high_open=True))  # larger change: LAND
-    hover_trim_settle_s: float = ranged(1.0, NON_NEGATIVE)  # HOVER on the trim, trimmed again, before TRACK (0: none)
+    hover_trim_settle_s: float = ranged(2.0, NON_NEGATIVE)  # HOVER on the trim, trimmed again, before TRACK (0: none)
     # how long after it is sent a command shows in the logged velocity (s): the trim pairs each window's
     # velocity change with the commands sent this much earlier; null = the radio round trip measured at
     # connect + one control tick (the vehicle's actuation)
