@@ -456,6 +456,10 @@ def test_the_thrust_settings_take_their_bounds_exactly():
             ThrustParams(**bad).validate()
     with pytest.raises(ConfigError, match="deploy.thrust"):
         ThrustMap(ThrustParams(mass_kg=0.1, max_command=int(round(ThrustMap(ThrustParams(mass_kg=0.1)).hover_command))))
+    # a hover exactly at the app's ceiling leaves the app nothing to climb with: refused too
+    with pytest.raises(ConfigError, match="above app_max_command=50000$"):
+        ThrustMap(ThrustParams(hover_command=50000.0, app_max_command=50000))
+    ThrustMap(ThrustParams(hover_command=50000.0, app_max_command=50001))
 
 
 def test_no_thrust_is_command_zero_whatever_the_map():
