@@ -397,3 +397,21 @@ def test_a_failed_reference_upload_refuses_the_flight_saying_why(tmp_path, monke
     text = "the reference upload to the app failed: no acknowledgement for window 3 after 5 tries"
     assert flight.outcome.kind == Kind.REFUSED and flight.outcome.text.endswith(text)
     assert (flight.events[-1]["kind"], flight.events[-1]["text"]) == ("preflight failed", text)
+
+
+def test_an_app_without_a_published_controller_id_is_refused_saying_how_to_rebuild_it(tmp_path):
+    """An app built by an older ``datt export`` has no ``datt.controllerId``: the flight is refused
+    before arming as a setting of the flight (exit 2), and the refusal says what to do, in full."""
+    from datt.deploy.outcome import Kind
+    from datt.deploy.runner import _Abort
+
+    flight = host(tmp_path)
+    flight.link = SimpleNamespace(has_param=lambda name: False)
+    with pytest.raises(_Abort):
+        flight._app_controller_id()
+    text = (
+        "deploy.onboard: the vehicle's app does not publish datt.controllerId (built by an older datt export): "
+        "rebuild and flash it (datt export format=app; docs/onboard.md)"
+    )
+    assert flight.outcome.kind == Kind.REFUSED_SETTING and flight.outcome.text.endswith(text)
+    assert (flight.events[-1]["kind"], flight.events[-1]["text"]) == ("preflight failed", text)
