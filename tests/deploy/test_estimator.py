@@ -4,6 +4,7 @@ connect, mocap samples are sent once and never stale, and the mocap attitude ali
 
 import math
 import struct
+import time
 
 import pytest
 
@@ -125,6 +126,36 @@ def test_stale_mocap_is_never_sent(tmp_path):
     assert server.extpos_rx and not late, f"{len(late)} stale samples sent"
     sent = [p for _, p in server.extpos_rx]
     assert len(sent) > 100
+
+
+def test_without_mocap_the_preflight_passes_once_the_filter_settles_not_at_its_timeout(tmp_path):
+    """A positioning deck and no mocap source: the estimate has nothing to agree with, so the
+    preflight passes as soon as the Kalman filter has settled (well within a second here), not
+    after waiting out ``deploy.flight.preflight_timeout_s``. Stopped there, before arming."""
+    took = {}
+
+    def stop_after_the_preflight(server, runner):
+        preflight = runner._preflight
+
+        def timed():
+            t0 = time.monotonic()
+            start = preflight()
+            took["s"] = time.monotonic() - t0
+            raise KeyboardInterrupt("after the preflight")
+            return start
+
+        runner._preflight = timed
+
+    overrides = [
+        "deploy.mocap.source=none",
+        "deploy.server.decks=[bcLighthouse4]",
+        "deploy.flight.preflight_timeout_s=30",
+    ]
+    summary, server, _ = fly_sim(tmp_path, next(ports), overrides, hook=stop_after_the_preflight)
+    assert summary["outcome"] == "stopped before arming (after the preflight): nothing was armed"
+    assert [e["text"] for e in summary["events"] if e["kind"] == "preflight ok"] == ["battery 4.10 V"]
+    assert took["s"] < 15, took  # half the timeout: the filter settled long before it
+    assert not server.armed
 
 
 @pytest.mark.slow  # a real-time flight that 4 test workers on 2 cores can starve into a tilt KILL; alone it lands

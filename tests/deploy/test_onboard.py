@@ -347,6 +347,34 @@ def test_link_loss_mid_track_the_app_finishes_and_lands(tmp_path):
 
 
 @pytest.mark.flight
+def test_an_app_whose_log_never_arrives_is_not_started_and_the_pid_lands(tmp_path):
+    """The app's log block (phase, step, error) never reaches the host: the host could not see
+    the app abort or land, so it does not hand the flight over; the PID, hovering, lands."""
+    pytest.importorskip("cflib")
+    from datt.tasks.deploy import run_deploy
+
+    from . import SHORT_FLIGHT
+
+    seen = {}
+
+    def deaf_to_the_app(server, runner):
+        seen["server"] = server
+        runner._on_app_log = lambda values: None  # followed from before arming; no sample arrives
+
+    cfg = compose("deploy", [f"deploy.uri=udp://127.0.0.1:{next(ports)}", "deploy.onboard=true", *SHORT_FLIGHT])
+    summary = run_deploy(cfg, run_dir=tmp_path, server_hook=deaf_to_the_app)
+    server = seen["server"]
+    assert summary["outcome"] == (
+        "landed early: the onboard app's log (block datt) has not reached the host since before arming: "
+        "the app is not started (the host could not watch it)"
+    ), summary["outcome"]
+    phases = [e["text"] for e in summary["events"] if e["kind"] == "phase"]
+    assert "TRACK" not in phases and phases[-2:] == ["LAND", "DISARM"]
+    assert server.app.phase == onboard.IDLE and not server.app.run_request  # never started
+    assert server.cmd[3] == 0 and server.true_state()["pos_m"][2] < 0.1
+
+
+@pytest.mark.flight
 def test_the_app_flies_on_the_hover_trims_map(tmp_path):
     """A vehicle 10 % heavier with motors 10 % weaker than the map: the host's trim after the
     takeoff's hover goes to the app with the start (``datt.hoverCmd``, ``datt.slope``, then

@@ -57,6 +57,9 @@ class OnboardFlight(FlightRunner):
             takeoff, hover = built
             if self._climb(origin, takeoff, hover, []) != OK:
                 return  # killed, or already landed
+            if not self._app_heard():
+                self._land(origin)
+                return
             self._set_phase("TRACK")
             result = self._onboard_track(origin)
             if result == LAND:
@@ -104,6 +107,19 @@ class OnboardFlight(FlightRunner):
         self._upload(table)
         self._onboard_steps = steps
         self.link.log_block("datt", onboard.LOG_BLOCK, self.link.log_period_ms, self._on_app_log)
+
+    def _app_heard(self) -> bool:
+        """Whether the app's log (block ``datt``, followed since before arming) has reached the
+        host. Without it the host cannot see the app's phase, its abort or its landing, so the app
+        is not started and the PID, still hovering, lands (a LAND event says so)."""
+        if self._app["last"] is not None:
+            return True
+        self._event(
+            "LAND",
+            "the onboard app's log (block datt) has not reached the host since before arming: "
+            "the app is not started (the host could not watch it)",
+        )
+        return False
 
     def _app_settings(self, origin: np.ndarray, n_points: int, steps: int) -> dict:
         """The app's parameters (``datt.<name>``) for this flight: origin (world frame, m), table
