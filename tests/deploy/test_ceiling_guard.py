@@ -8,6 +8,7 @@ import math
 
 import numpy as np
 import pytest
+import torch
 
 from datt.configuration import compose
 from datt.deploy.ceiling_guard import keep_altitude_at_ceiling, tilt_limit_rad
@@ -157,12 +158,12 @@ class RollingFlatOut:
         return torch.tensor([[20.0, 2.0, -0.5, 0.3]], dtype=env.dtype)
 
 
-def _model(ceiling: float, guard):
+def _model(ceiling: float, guard, *overrides: str):
     from datt.deploy.runner import FlightModel
     from datt.envs.factory import make_env
     from datt.refs import Polygon
 
-    cfg = compose("sim", ["env.obs.action_history=2", "adaptation=l1"])
+    cfg = compose("sim", ["env.obs.action_history=2", "adaptation=l1", *overrides])
     return FlightModel(
         lambda family: make_env(cfg, num_envs=1, seed=0, traj=family), RollingFlatOut(), Polygon(), ceiling, guard
     )
@@ -189,6 +190,32 @@ def test_the_flight_model_sends_remembers_and_counts_the_guarded_command():
     # the attitude judged is the one the controller saw: a level predicted state is not guarded
     level = model.act(*state, predicted=(state[0], state[1], [1.0, 0.0, 0.0, 0.0]))
     assert model.guarded == 1 and level[0] == pytest.approx(11.0)
+
+
+@pytest.mark.parametrize("sign", [1.0, -1.0], ids=["tilted_right", "tilted_left"])
+def test_a_levelling_rate_beyond_the_rate_bounds_is_sent_at_the_bound_and_every_guarded_command_counts(sign):
+    """A gain of 200/s asks ~46 rad/s of levelling at 40 deg: sent at the policy's rate bound
+    (±20 rad/s), on the side that levels; each of three guarded commands is counted."""
+    q = tilted(sign * math.radians(40.0))
+    state = ([0.0, 0.0, -3.0], [0.0, 0.0, -2.0], q)
+    model = _model(11.0, functools.partial(keep_altitude_at_ceiling, gravity_mps2=G, level_gain_per_s=200.0))
+    assert model.env.action_low[1:4].tolist() == [-20.0, -20.0, -2.0]
+    assert model.command_high[1:4].tolist() == [20.0, 20.0, 2.0]
+    for _ in range(3):
+        sent = model.act(*state)
+        assert sent[1] == -sign * 20.0 and sent[2:] == pytest.approx([-0.5, 0.3])
+    assert model.guarded == 3
+
+
+def test_in_a_float64_env_the_guarded_rate_is_sent_as_the_guard_computed_it():
+    """``env.dtype=float64``: the levelling rate reaches the command in double precision, not
+    rounded through float32 on the way."""
+    q = tilted(math.radians(40.0))
+    model = _model(11.0, functools.partial(keep_altitude_at_ceiling, gravity_mps2=G), "env.dtype=float64")
+    sent = model.act([0.0, 0.0, -3.0], [0.0, 0.0, -2.0], q)
+    wanted, guarded = keep_altitude_at_ceiling(11.0, (2.0, -0.5, 0.3), model.env.sim.state.quat[0].tolist(), 11.0, G)
+    assert guarded and model.last_cmd.dtype == torch.float64
+    assert sent[1] == wanted[0] and float(model.last_cmd[0, 1]) == wanted[0]
 
 
 def test_the_guard_is_off_by_default_and_its_settings_are_checked():

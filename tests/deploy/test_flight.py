@@ -9,7 +9,9 @@ import csv
 import gc
 import json
 import math
+import os
 import re
+import signal
 import struct
 import threading
 import time
@@ -256,6 +258,31 @@ def test_link_loss_stops_the_motors_through_the_estop_watchdog(tmp_path):
     stops = [t for t, text in server.events if text.startswith("emergency stop: no e-stop watchdog")]
     assert stops and stops[0] - server.estop_watchdog_t <= 1.0 + 2 * server.p.dt_s
     assert not any("watchdog: no setpoint" in text for _, text in server.events)  # the 2 s one never came
+
+
+@pytest.mark.parametrize("sig, why", [(signal.SIGINT, "Ctrl-C"), (signal.SIGTERM, "SIGTERM")], ids=["int", "term"])
+def test_a_stop_signal_before_arming_ends_the_flight_unarmed_naming_it(tmp_path, sig, why):
+    """Ctrl-C or a SIGTERM (a scheduler, a `kill`) that arrives after the preflight: the flight's
+    own handler turns it into a stop, nothing is armed, the outcome names the signal and the
+    process's handler is restored afterwards."""
+    if threading.current_thread() is not threading.main_thread():  # pragma: no cover
+        pytest.skip("signals reach Python's main thread only")
+
+    def signal_after_the_preflight(server, runner):
+        preflight = runner._preflight
+
+        def then_signal():
+            start = preflight()
+            os.kill(os.getpid(), sig)
+            time.sleep(2.0)  # the handler raises here, in this (the main) thread
+            return start
+
+        runner._preflight = then_signal
+
+    before = signal.getsignal(sig)
+    summary, server, _ = fly_sim(tmp_path, next(ports), hook=signal_after_the_preflight)
+    assert summary["outcome"] == f"stopped before arming ({why}): nothing was armed"
+    assert not server.armed and signal.getsignal(sig) is before  # the process's own handler is back
 
 
 def test_preflight_refuses_a_locked_vehicle(tmp_path):

@@ -105,7 +105,11 @@ def test_what_the_host_decides_from_the_apps_phase(tmp_path):
     flight = host(tmp_path)
     flight._on_app_log(log_values(onboard.REFUSED, 0))
     assert flight._app_verdict(1.0, [-1, 0.0]) == LAND
-    assert flight.link.writes == [("datt.run", 0)] and flight.events[-1]["kind"] == "LAND"
+    assert flight.link.writes == [("datt.run", 0)]
+    assert (flight.events[-1]["kind"], flight.events[-1]["text"]) == (
+        "LAND",
+        "the app refused to start (table incomplete or a parameter invalid)",
+    )
 
 
 def watching(tmp_path, app_phase: int | None) -> OnboardFlight:
@@ -152,6 +156,7 @@ def test_the_host_kills_a_vehicle_on_the_floor_only_while_the_app_tracks(tmp_pat
     assert not waiting.link.stopped and waiting.outcome is None
     (row,) = waiting.rows
     assert row["phase"] == "TRACK" and row["jitter_ms"] == 1.5 and row["compute_ms"] == 0.0
+    assert row["t_s"] == pytest.approx(now - waiting.log.t0) and len(row["ref"]) == 3
     assert all(math.isnan(v) for v in row["ref"] + row["action"] + row["d_hat"]) and row["thrust_cmd"] == 0
 
     landing = watching(tmp_path, onboard.LAND)
@@ -415,3 +420,79 @@ def test_an_app_without_a_published_controller_id_is_refused_saying_how_to_rebui
     )
     assert flight.outcome.kind == Kind.REFUSED_SETTING and flight.outcome.text.endswith(text)
     assert (flight.events[-1]["kind"], flight.events[-1]["text"]) == ("preflight failed", text)
+
+
+def test_an_operator_e_stop_or_stale_mocap_while_the_app_flies_is_acted_on(tmp_path):
+    """The host's checks while the app flies are the off-board flight's: the operator's e-stop
+    KILLs (motors stopped), mocap older than ``max_mocap_age_s`` (0.1 s) LANDs (``datt.run = 0``)."""
+    import time
+
+    now = time.monotonic()
+    stopped = watching(tmp_path, onboard.TRACK)
+    stopped.estop.set()
+    assert stopped._watch_step(state_at(1.0, now), now, 0.0, np.zeros(3)) == KILL
+    assert stopped.link.stopped and stopped.outcome.text == "killed: operator e-stop"
+
+    stale = watching(tmp_path, onboard.TRACK)
+    stale._mocap_age = lambda: 0.25
+    assert stale._watch_step(state_at(1.0, now), now, 0.0, np.zeros(3)) == LAND
+    assert stale.link.writes == [("datt.run", 0)] and not stale.link.stopped
+    assert (stale.events[-1]["kind"], stale.events[-1]["text"]) == ("LAND", "mocap stale (250 ms > 100 ms)")
+
+
+def test_an_app_still_idle_after_the_hand_over_is_stopped_and_the_pid_takes_over(tmp_path):
+    """After ``datt.run = 1`` the host sends no setpoints: an app heard still idle (its task not
+    running) leaves the vehicle to the commander's watchdog. Idle for more than ``APP_STALL_S``
+    while its log arrives, the host stops it, selects the PID and lands, saying so."""
+    import time
+
+    from datt.deploy import firmware
+    from datt.deploy.onboard_flight import APP_STALL_S
+
+    flight = host(tmp_path)
+    flight._on_app_log(log_values(onboard.IDLE, 0))
+    t0 = time.monotonic()
+    stepping = [-1, t0 - 5.0]
+    assert flight._app_verdict(t0, stepping) is None and stepping == [0, t0]
+    just_before = t0 + APP_STALL_S - 0.005
+    flight._app["last"] = flight._app["last"][:3] + (just_before - 0.01,)
+    assert flight._app_verdict(just_before, stepping) is None and flight.link.writes == []
+    later = t0 + APP_STALL_S + 0.05
+    flight._app["last"] = flight._app["last"][:3] + (later - 0.01,)  # heard 10 ms ago, still idle
+    assert flight._app_verdict(later, stepping) == LAND
+    assert flight.link.writes == [("datt.run", 0), ("stabilizer.controller", firmware.CONTROLLER_PID)]
+    assert (flight.events[-1]["kind"], flight.events[-1]["text"]) == (
+        "LAND",
+        "the app did not start within 0.3 s of datt.run = 1 (still idle)",
+    )
+
+
+class SilentLink(StartingLink):
+    """The hand-over confirmed, then no state from the vehicle at all."""
+
+    def state(self):
+        return None
+
+
+def test_a_vehicle_silent_from_the_hand_over_is_said_once_and_the_app_flies_on(tmp_path, monkeypatch):
+    """No fresh state from the first watch on (the radio gone right after ``datt.run = 1``): the
+    host says once that the app flies on by itself, logs no row and KILLs nothing."""
+    import datt.deploy.onboard_flight as module
+
+    clock = FakeClock()
+    monkeypatch.setattr(module, "time", clock)
+    flight = watching(tmp_path, onboard.TRACK)
+    flight.p.rate_hz, flight._onboard_steps = 50.0, 500
+    flight.thrust = SimpleNamespace(hover_command=47123.5, slope=1.7e-4)
+    flight.link = SilentLink(clock)
+    calls = []
+
+    def verdict(now, stepping):
+        calls.append(now)
+        return OK if len(calls) > 10 else None
+
+    flight._app_verdict = verdict
+    assert flight._onboard_track(np.zeros(3)) == OK
+    said = [(e["kind"], e["text"]) for e in flight.events if e["kind"] != "phase"]
+    assert said == [("warning", "no fresh state from the vehicle: the onboard app flies on")]
+    assert flight.rows == [] and not flight.link.stopped

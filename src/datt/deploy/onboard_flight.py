@@ -235,11 +235,12 @@ class OnboardFlight(FlightRunner):
         return self._onboard_steps / self.p.rate_hz + self.p.land_s + APP_LAND_HOLD_S + APP_LANDED_MARGIN_S
 
     def _app_verdict(self, now: float, stepping: list) -> str | None:
-        """What the app's own log says about the flight: OK (landed), LAND (refused to start or
-        stopped stepping), KILL (aborted), or None (flying on). ``stepping`` is the app's last step
-        seen and when it changed, updated in place."""
-        last = self._app["last"]
-        phase = last[0] if last is not None else onboard.IDLE
+        """What the app's own log says about the flight: OK (landed), LAND (refused to start, or
+        heard without its step moving for ``APP_STALL_S``: not started or stopped stepping), KILL
+        (aborted), or None (flying on). ``stepping`` is the app's last step seen and when it
+        changed, updated in place."""
+        last = self._app["last"]  # set: the host starts the app only once it has heard it (_app_heard)
+        phase = last[0]
         if phase == onboard.REFUSED:
             self._event("LAND", "the app refused to start (table incomplete or a parameter invalid)")
             self.link.set_param("datt.run", 0)
@@ -254,16 +255,21 @@ class OnboardFlight(FlightRunner):
             self.link.set_param("datt.run", 0)
             self._event("onboard", "the app has landed")
             return OK
-        if last is not None and phase in (onboard.TRACK, onboard.LAND):
-            hearing = now - last[3] < APP_STALL_S / 2  # the app's log arrives: the link is up
-            if last[1] != stepping[0]:
-                stepping[:] = [last[1], now]
-            elif now - stepping[1] > APP_STALL_S and hearing:
-                self._event("LAND", f"the app stopped stepping at step {last[1]} (its state is stale: no hook)")
-                self.link.set_param("datt.run", 0)  # the commander back to the radio's setpoints,
-                # flown by a controller that honours rates (the app's hook ran under another)
-                self.link.set_param(str(firmware.fact("param_controller")), firmware.CONTROLLER_PID)
-                return LAND
+        # idle, tracking or landing: the step must move. Idle after datt.run = 1 is a stall too:
+        # nothing sends the vehicle setpoints (the host stopped at the hand-over, the app has not started)
+        hearing = now - last[3] < APP_STALL_S / 2  # the app's log arrives: the link is up
+        if last[1] != stepping[0]:
+            stepping[:] = [last[1], now]
+        elif now - stepping[1] > APP_STALL_S and hearing:
+            if phase == onboard.IDLE:
+                why = f"the app did not start within {APP_STALL_S:g} s of datt.run = 1 (still idle)"
+            else:
+                why = f"the app stopped stepping at step {last[1]} (its state is stale: no hook)"
+            self._event("LAND", why)
+            self.link.set_param("datt.run", 0)  # the commander back to the radio's setpoints,
+            # flown by a controller that honours rates (the app's hook ran under another)
+            self.link.set_param(str(firmware.fact("param_controller")), firmware.CONTROLLER_PID)
+            return LAND
         return None
 
     def _watch_step(self, state, now: float, jitter_ms: float, origin: np.ndarray) -> str | None:
