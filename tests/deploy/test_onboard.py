@@ -13,6 +13,7 @@ import pytest
 import torch
 
 from datt.configuration import compose
+from datt.control.factory import build_controller
 from datt.deploy import onboard
 from datt.deploy.sim.onboard_app import OnboardApp
 from datt.deploy.thrust import ThrustMap
@@ -410,6 +411,7 @@ def test_the_app_flies_on_the_hover_trims_map(tmp_path):
     cfg = compose("deploy", [*SHORT_FLIGHT, *overrides])
     summary = run_deploy(cfg, run_dir=tmp_path, server_hook=watch)
     assert summary["outcome"] == "landed (onboard)", summary["outcome"]
+    assert summary["controller"] == build_controller(cfg)[2]  # the run's labels reach the onboard flight's log
     trims = [e for e in summary["events"] if e["kind"] == "trim"]
     assert [e["phase"] for e in trims] == ["TAKEOFF", "HOVER"]  # the takeoff's hover, refined in HOVER
     f32 = lambda v: struct.unpack("<f", struct.pack("<f", v))[0]  # noqa: E731

@@ -71,6 +71,9 @@ def test_the_apps_log_gives_each_step_its_error(tmp_path):
     still do. The latest sample is kept with its reference point."""
     flight = host(tmp_path)
     flight._on_app_log(log_values(onboard.IDLE, 0, 9.0))
+    flight._on_app_log(log_values(onboard.IDLE, 3, 9.0))  # stopped mid-track: its count kept, no step flown
+    flight._on_app_log(log_values(onboard.ABORTED, 3, 9.0))
+    flight._on_app_log(log_values(onboard.TRACK, 0, 9.0))  # started, no step flown yet
     assert flight._app["samples"] == {}
     for k, err in enumerate([0.11, 0.12, 0.13], start=1):
         flight._on_app_log(log_values(onboard.TRACK, k, err, ref=(k, 2.0 * k, 1.0)))
