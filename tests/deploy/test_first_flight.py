@@ -115,15 +115,23 @@ def test_onboard_selects_the_controller_the_app_publishes(tmp_path):
             seen.update(controller=server.controller, phase=server.app.phase)
 
         threading.Thread(target=during_track, daemon=True).start()
+        seen["runner"] = runner
 
     summary, server = fly(tmp_path, ["deploy.onboard=true"], hook=watch)
     assert summary["outcome"] == "landed (onboard)", summary["outcome"]
     assert server.app.get("controllerId") == firmware.CONTROLLER_OOT == 6
+    runner = seen.pop("runner")
     assert seen == {"controller": "OutOfTree", "phase": onboard.TRACK}
-    assert any("stabilizer.controller = 6" in e["text"] for e in summary["events"])
+    said = [(e["kind"], e["text"]) for e in summary["events"]]
+    assert ("onboard", "stabilizer.controller = 6 (the app's out-of-tree controller), read back") in said
+    # the table holds the track's points and the policy's window after its last one
+    window = runner.make_env(runner.track_family).window
+    points = f"reference uploaded: {runner._onboard_steps + window} points in "
+    assert window > 0 and runner._onboard_steps == 150  # SHORT_FLIGHT's 3 s at 50 Hz
     # the upload's time is recorded and logged; the app's own errors score the track
     uploaded = [e for e in summary["events"] if e["text"].startswith("reference uploaded: ")]
     assert len(uploaded) == 1 and uploaded[0]["kind"] == "onboard" and summary["upload_s"] > 0
+    assert uploaded[0]["text"].startswith(points), uploaded[0]["text"]
     assert f"in {summary['upload_s']:.2f} s" in uploaded[0]["text"]
     assert 0.0 < summary["track_error_m"] < 0.2
     # the host computes nothing while the app flies: its TRACK rows carry no command and no compute time

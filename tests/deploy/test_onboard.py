@@ -458,7 +458,10 @@ def test_a_vehicle_without_the_app_is_refused_before_arming(tmp_path):
 
     cfg = compose("deploy", [f"deploy.uri=udp://127.0.0.1:{next(ports)}", "deploy.onboard=true"])
     summary = run_deploy(cfg, run_dir=tmp_path, server_hook=stock_firmware)
-    assert summary["outcome"].startswith("preflight failed: deploy.onboard: the vehicle's firmware has no DATT app")
+    assert summary["outcome"] == (
+        "preflight failed: deploy.onboard: the vehicle's firmware has no DATT app (no parameter datt.run): "
+        "build and flash it (datt export format=app; docs/onboard.md), or fly off-board (deploy.onboard=false)"
+    )
     assert "ARM" not in [e["text"] for e in summary["events"] if e["kind"] == "phase"]
 
 
@@ -491,8 +494,10 @@ def test_an_app_with_another_policy_is_refused_before_arming(tmp_path):
 
     cfg = compose("deploy", [f"deploy.uri=udp://127.0.0.1:{next(ports)}", "deploy.onboard=true"])
     summary = run_deploy(cfg, run_dir=tmp_path, server_hook=other_checkpoint)
-    assert re.match(
-        r"preflight failed: deploy.onboard: the vehicle's app carries policy 0x[0-9a-f]{8}, the checkpoint",
+    assert re.fullmatch(
+        r"preflight failed: deploy.onboard: the vehicle's app carries policy 0x[0-9a-f]{8}, the checkpoint is "
+        r"0x[0-9a-f]{8}: flash the app exported from it \(datt export format=app checkpoint=\.\.\.\), or pass the "
+        r"checkpoint the app was built from",
         summary["outcome"],
     )
     assert "ARM" not in [e["text"] for e in summary["events"] if e["kind"] == "phase"]

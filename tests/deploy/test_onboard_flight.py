@@ -375,7 +375,11 @@ def test_an_app_that_stops_stepping_while_heard_is_stopped_and_the_pid_takes_ove
     stepping = [-1, 0.0]
     assert flight._app_verdict(t0, stepping) is None and stepping == [7, t0]
     later = t0 + APP_STALL_S + 0.05
-    flight._app["last"] = flight._app["last"][:3] + (later - 0.01,)  # heard 10 ms ago, still at step 7
+    # the log last heard 0.16 s ago, more than APP_STALL_S / 2: the link may be down, and then the
+    # app flies on by itself (it is not taken over)
+    flight._app["last"] = flight._app["last"][:3] + (later - 0.16,)
+    assert flight._app_verdict(later, stepping) is None and flight.link.writes == []
+    flight._app["last"] = flight._app["last"][:3] + (later - 0.14,)  # heard 0.14 s ago, still at step 7
     assert flight._app_verdict(later, stepping) == LAND
     assert flight.link.writes == [("datt.run", 0), ("stabilizer.controller", firmware.CONTROLLER_PID)]
     assert (flight.events[-1]["kind"], flight.events[-1]["text"]) == (
