@@ -537,6 +537,38 @@ def test_the_references_whole_episode_is_checked_against_the_app_too(tmp_path):
     assert summary["outcome_kind"] == "refused_setting"
 
 
+def test_the_onboard_preflight_checks_the_reference_up_to_the_last_tick_flown(tmp_path):
+    """A reference that leaves the fence at t = 3.00 s: an onboard track of 3.00 s is refused for
+    it, one of 2.98 s is not (the app flies no step past it) and is prepared: the table uploaded,
+    stopped there, before arming."""
+    pytest.importorskip("cflib")
+    from datt.tasks.deploy import run_deploy
+
+    ref = tmp_path / "jump.csv"
+    ref.write_text("t,x,y,z\n0,0,0,0\n2.98,0,0,0\n3.0,3.0,0,0\n10,3.0,0,0\n")
+
+    def stop_after_the_upload(server, runner):
+        prepare = runner._onboard_prepare
+
+        def then_stop(track):
+            prepare(track)
+            raise KeyboardInterrupt("after the upload")
+
+        runner._onboard_prepare = then_stop
+
+    outcomes = []
+    for track_s in ("3.0", "2.98"):
+        run_dir = tmp_path / track_s
+        overrides = ["deploy.onboard=true", "traj=csv", f"traj.path={ref}", f"deploy.flight.track_s={track_s}"]
+        cfg = compose("deploy", [f"deploy.uri=udp://127.0.0.1:{next(ports)}", *overrides])
+        outcomes.append(run_deploy(cfg, run_dir=run_dir, server_hook=stop_after_the_upload)["outcome"])
+    assert outcomes == [
+        "preflight failed: deploy.safety.geofence_max_m: the reference leaves the geofence at t=3.00 s "
+        "(x=3.00 m; fence -2.00..2.00 m)",
+        "stopped before arming (after the upload): nothing was armed",
+    ]
+
+
 def test_only_an_acknowledgement_is_read_as_one():
     """parse_ack: type byte PKT_ACK and at least index (2 bytes) and status; an upload packet,
     another type or a short ACK is not an acknowledgement (the host must not drop a pending point)."""
