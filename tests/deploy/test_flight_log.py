@@ -393,3 +393,45 @@ def test_a_link_lost_while_waiting_for_arming_disarms_and_flies_nothing(tmp_path
     assert runner.outcome.text == "arming failed: link lost: no answer from the vehicle (supervisor.info); nothing flew"
     events = [(e["kind"], e["text"]) for e in runner.log.events]
     assert events == [("phase", "ARM"), ("arming failed", runner.outcome.text)]
+
+
+@pytest.mark.parametrize(
+    "pos, start", [((1.0, -0.5, 1.2), (0.8, -0.8, 0.2)), (None, (0.0, 0.0, 0.0))], ids=["from_the_vehicle", "no_state"]
+)
+def test_the_landing_ramps_from_where_the_vehicle_is_to_the_floor_below_it(tmp_path, pos, start):
+    """``_land`` from the hover point (0.2, 0.3, 1.0): the PID's ramp starts where the estimate is
+    (controller frame: relative to the hover point; the hover point itself without an estimate)
+    and ends 5 cm above the floor below that, over ``land_s`` with 0.5 s more of ticks; landed, the
+    motors get zero thrust and the outcome is the first LAND event's reason."""
+    from datt.deploy.link import StateSample
+    from datt.deploy.outcome import Kind
+    from datt.deploy.safety import OK
+
+    sent, built = [], {}
+    state = None if pos is None else StateSample(0.0, pos, (0.0, 0.0, 0.0), (1.0, 0.0, 0.0, 0.0), 4.0)
+    link = SimpleNamespace(state=lambda: state, send_rates=lambda *a: sent.append(a))
+    runner = bookkeeping_runner(
+        tmp_path, p=SimpleNamespace(land_s=2.0, rate_hz=50.0), link=link, pid_factory=lambda: "pid"
+    )
+    runner._model = lambda controller, family: built.update(controller=controller, family=family) or "model"
+
+    def tick_loop(model, steps, origin, allow_land):
+        built.update(model=model, steps=steps, origin=origin.tolist(), allow_land=allow_land)
+        return OK
+
+    runner._tick_loop = tick_loop
+    runner.log.event("LAND", "speed 5.0 m/s > 4.0 m/s")
+    runner.log.event("LAND", "a later reason")
+    runner._land(np.array([0.2, 0.3, 1.0]))
+    ramp = built.pop("family")
+    assert ramp.start.tolist() == pytest.approx(start) and ramp.duration_s == 2.0
+    assert ramp.end.tolist() == pytest.approx([start[0], start[1], -0.95])
+    assert built == {
+        "controller": "pid",
+        "model": "model",
+        "steps": 125,
+        "origin": [0.2, 0.3, 1.0],
+        "allow_land": False,
+    }
+    assert sent == [(0.0, 0.0, 0.0, 0)] and runner.log.phase == "LAND"
+    assert runner.outcome.kind is Kind.LANDED_EARLY and runner.outcome.text == "landed early: speed 5.0 m/s > 4.0 m/s"
