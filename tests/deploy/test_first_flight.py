@@ -116,11 +116,20 @@ def test_onboard_selects_the_controller_the_app_publishes(tmp_path):
 
         threading.Thread(target=during_track, daemon=True).start()
         seen["runner"] = runner
+        send_rates = runner.link.send_rates
+
+        def record(*args):
+            seen.setdefault("sent", []).append((runner.phase, args))
+            send_rates(*args)
+
+        runner.link.send_rates = record
 
     summary, server = fly(tmp_path, ["deploy.onboard=true"], hook=watch)
     assert summary["outcome"] == "landed (onboard)", summary["outcome"]
     assert server.app.get("controllerId") == firmware.CONTROLLER_OOT == 6
     runner = seen.pop("runner")
+    # from the hand-over the host sends no setpoint; once the app has landed, one with zero thrust
+    assert [args for phase, args in seen.pop("sent") if phase == "TRACK"] == [(0.0, 0.0, 0.0, 0)]
     assert seen == {"controller": "OutOfTree", "phase": onboard.TRACK}
     said = [(e["kind"], e["text"]) for e in summary["events"]]
     assert ("onboard", "stabilizer.controller = 6 (the app's out-of-tree controller), read back") in said
