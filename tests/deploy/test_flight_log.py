@@ -337,6 +337,40 @@ def test_the_hover_trim_reads_the_last_window_of_its_phase(tmp_path, window_s, r
     assert runner.thrust.hover_command == pytest.approx(expected, rel=1e-9)
 
 
+def test_the_hover_trim_uses_the_maps_gravity_the_configured_lag_and_a_two_tick_window(tmp_path):
+    """Settings away from their defaults: a 40 ms window at 50 Hz is two ticks (the fewest the
+    trim reads), the thrust map's gravity 9.0 m/s² (a vehicle whose map says so) weighs the
+    vertical acceleration, and a 0.6 s ``hover_trim_lag_s`` pairs each velocity with the command
+    sent 30 ticks earlier; the event says the lag in ms."""
+    from datt.deploy.outcome import Kind, Outcome
+    from datt.deploy.safety import OK
+    from datt.deploy.thrust import ThrustMap, ThrustParams, commands_acting, hover_command_from_hover
+
+    runner = bookkeeping_runner(
+        tmp_path,
+        outcome=Outcome(Kind.LANDED),
+        link=SimpleNamespace(round_trip_s=0.04),
+        p=SimpleNamespace(hover_trim_window_s=0.04, rate_hz=50.0, hover_trim_lag_s=0.6, hover_trim_max=0.3),
+    )
+    runner.thrust = ThrustMap(ThrustParams(hover_command=50000.0, gravity_mps2=9.0))
+    runner.configured_hover_command = 50000.0
+    rows = [{**row(k, "TAKEOFF", 0.0, 1.0), "t_s": k * 0.02, "thrust_cmd": 60000} for k in range(10)]
+    for k in range(10, 60):  # climbing ever faster: 0.5 m/s² up
+        hover = {**row(k, "HOVER", 0.0, 1.0), "t_s": k * 0.02, "thrust_cmd": 45000 + 200 * (k - 10)}
+        rows.append({**hover, "vel": [0.0, 0.0, 0.01 * (k - 10)]})
+    runner.log.rows = rows
+    assert runner._trim("HOVER", [], final=True) == OK
+    window = rows[-2:]
+    t = [r["t_s"] for r in window]
+    acting = commands_acting(t, [r["t_s"] for r in rows], [r["thrust_cmd"] for r in rows], 0.6)
+    expected = hover_command_from_hover(t, [r["vel"][2] for r in window], acting, 9.0)
+    (trim,) = [e for e in runner.log.events if e["kind"] == "trim"]
+    assert trim["hover_command"] == pytest.approx(expected, rel=1e-9)
+    assert trim["text"].startswith(
+        f"the hover needed command {expected:.0f} (commands 600 ms before the velocities), the thrust map 50000"
+    )
+
+
 @pytest.mark.parametrize("end_z, lifted", [(0.25, True), (0.2499, False), (-0.004, False), (0.9, True), (None, False)])
 def test_a_takeoff_has_lifted_off_when_it_ends_at_least_half_its_height_up(tmp_path, end_z, lifted):
     """``_lifted_off``: the takeoff phase's last estimate at least half of ``takeoff_height_m``
