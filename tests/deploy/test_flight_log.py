@@ -371,6 +371,33 @@ def test_the_hover_trim_uses_the_maps_gravity_the_configured_lag_and_a_two_tick_
     )
 
 
+def test_a_first_trim_beyond_its_limit_is_clamped_and_says_so(tmp_path):
+    """The takeoff's trim (not the final one) measures 30 % above the configured map, more than
+    ``hover_trim_max`` (25 %): the map is rescaled by the limit and HOVER measures again; the event
+    says what was measured, by how much, and the clamp."""
+    from datt.deploy.outcome import Kind, Outcome
+    from datt.deploy.safety import OK
+    from datt.deploy.thrust import ThrustMap, ThrustParams
+
+    runner = bookkeeping_runner(
+        tmp_path,
+        outcome=Outcome(Kind.LANDED),
+        link=SimpleNamespace(round_trip_s=0.04),
+        p=SimpleNamespace(hover_trim_window_s=0.5, rate_hz=50.0, hover_trim_lag_s=0.0, hover_trim_max=0.25),
+    )
+    runner.thrust = ThrustMap(ThrustParams(hover_command=50000.0))
+    runner.configured_hover_command = 50000.0
+    runner.log.rows = [{**row(k, "TAKEOFF", 0.0, 1.0), "thrust_cmd": 65000} for k in range(40)]
+    assert runner._trim("TAKEOFF", [], final=False) == OK
+    (trim,) = [(e["text"], e["hover_command"]) for e in runner.log.events if e["kind"] == "trim"]
+    assert trim == (
+        "the hover needed command 65000 (commands 0 ms before the velocities), the thrust map 50000 "
+        "(+30 % from deploy.thrust, clamped to +25 %: HOVER measures again): map rescaled by +25.0 %",
+        pytest.approx(62500.0),
+    )
+    assert runner.thrust.hover_command == pytest.approx(62500.0)
+
+
 @pytest.mark.parametrize("end_z, lifted", [(0.25, True), (0.2499, False), (-0.004, False), (0.9, True), (None, False)])
 def test_a_takeoff_has_lifted_off_when_it_ends_at_least_half_its_height_up(tmp_path, end_z, lifted):
     """``_lifted_off``: the takeoff phase's last estimate at least half of ``takeoff_height_m``
