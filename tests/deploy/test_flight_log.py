@@ -371,31 +371,47 @@ def test_the_hover_trim_uses_the_maps_gravity_the_configured_lag_and_a_two_tick_
     )
 
 
-def test_a_first_trim_beyond_its_limit_is_clamped_and_says_so(tmp_path):
-    """The takeoff's trim (not the final one) measures 30 % above the configured map, more than
-    ``hover_trim_max`` (25 %): the map is rescaled by the limit and HOVER measures again; the event
-    says what was measured, by how much, and the clamp."""
+def test_a_trim_beyond_its_limit_is_clamped_on_the_first_pass_and_lands_on_the_final_one(tmp_path):
+    """The hover measures 60 % above the configured map, more than ``hover_trim_max`` (25 %). The
+    takeoff's trim (not the final one) rescales the map by the limit and HOVER measures again; the
+    final trim (the map TRACK would fly) does not fly it: LAND. Each event says what was measured,
+    by how much, and what was done."""
     from datt.deploy.outcome import Kind, Outcome
-    from datt.deploy.safety import OK
+    from datt.deploy.safety import LAND, OK
     from datt.deploy.thrust import ThrustMap, ThrustParams
 
-    runner = bookkeeping_runner(
-        tmp_path,
-        outcome=Outcome(Kind.LANDED),
-        link=SimpleNamespace(round_trip_s=0.04),
-        p=SimpleNamespace(hover_trim_window_s=0.5, rate_hz=50.0, hover_trim_lag_s=0.0, hover_trim_max=0.25),
-    )
-    runner.thrust = ThrustMap(ThrustParams(hover_command=50000.0))
-    runner.configured_hover_command = 50000.0
-    runner.log.rows = [{**row(k, "TAKEOFF", 0.0, 1.0), "thrust_cmd": 65000} for k in range(40)]
-    assert runner._trim("TAKEOFF", [], final=False) == OK
-    (trim,) = [(e["text"], e["hover_command"]) for e in runner.log.events if e["kind"] == "trim"]
+    def trimming():
+        runner = bookkeeping_runner(
+            tmp_path,
+            outcome=Outcome(Kind.LANDED),
+            link=SimpleNamespace(round_trip_s=0.04),
+            p=SimpleNamespace(hover_trim_window_s=0.5, rate_hz=50.0, hover_trim_lag_s=0.0, hover_trim_max=0.25),
+        )
+        runner.thrust = ThrustMap(ThrustParams(hover_command=50000.0))
+        runner.configured_hover_command = 50000.0
+        runner.log.rows = [{**row(k, "TAKEOFF", 0.0, 1.0), "thrust_cmd": 80000} for k in range(40)]
+        return runner
+
+    measured = "the hover needed command 80000 (commands 0 ms before the velocities), the thrust map 50000"
+    first = trimming()
+    assert first._trim("TAKEOFF", [], final=False) == OK
+    (trim,) = [(e["text"], e["hover_command"]) for e in first.log.events if e["kind"] == "trim"]
     assert trim == (
-        "the hover needed command 65000 (commands 0 ms before the velocities), the thrust map 50000 "
-        "(+30 % from deploy.thrust, clamped to +25 %: HOVER measures again): map rescaled by +25.0 %",
+        f"{measured} (+60 % from deploy.thrust, clamped to +25 %: HOVER measures again): map rescaled by +25.0 %",
         pytest.approx(62500.0),
     )
-    assert runner.thrust.hover_command == pytest.approx(62500.0)
+    assert first.thrust.hover_command == pytest.approx(62500.0)
+
+    final = trimming()
+    assert final._trim("TAKEOFF", [], final=True) == LAND
+    assert [(e["kind"], e["text"]) for e in final.log.events] == [
+        (
+            "LAND",
+            f"{measured} (+60 % from deploy.thrust), beyond deploy.flight.hover_trim_max (25 %); check "
+            "deploy.thrust.mass_kg and the battery, or calibrate",
+        )
+    ]
+    assert final.thrust.hover_command == 50000.0  # not rescaled
 
 
 @pytest.mark.parametrize("end_z, lifted", [(0.25, True), (0.2499, False), (-0.004, False), (0.9, True), (None, False)])
