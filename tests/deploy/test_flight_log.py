@@ -372,20 +372,20 @@ def test_the_hover_trim_uses_the_maps_gravity_the_configured_lag_and_a_two_tick_
 
 
 def test_a_trim_beyond_its_limit_is_clamped_on_the_first_pass_and_lands_on_the_final_one(tmp_path):
-    """The hover measures 60 % above the configured map, more than ``hover_trim_max`` (25 %). The
-    takeoff's trim (not the final one) rescales the map by the limit and HOVER measures again; the
-    final trim (the map TRACK would fly) does not fly it: LAND. Each event says what was measured,
-    by how much, and what was done."""
+    """The hover measures 60 % above the configured map, more than ``hover_trim_max`` (25 %, then
+    55 %). The takeoff's trim (not the final one) rescales the map by the limit and HOVER measures
+    again; the final trim (the map TRACK would fly) does not fly it: LAND. Each event says what was
+    measured, by how much, and what was done."""
     from datt.deploy.outcome import Kind, Outcome
     from datt.deploy.safety import LAND, OK
     from datt.deploy.thrust import ThrustMap, ThrustParams
 
-    def trimming():
+    def trimming(limit):
         runner = bookkeeping_runner(
             tmp_path,
             outcome=Outcome(Kind.LANDED),
             link=SimpleNamespace(round_trip_s=0.04),
-            p=SimpleNamespace(hover_trim_window_s=0.5, rate_hz=50.0, hover_trim_lag_s=0.0, hover_trim_max=0.25),
+            p=SimpleNamespace(hover_trim_window_s=0.5, rate_hz=50.0, hover_trim_lag_s=0.0, hover_trim_max=limit),
         )
         runner.thrust = ThrustMap(ThrustParams(hover_command=50000.0))
         runner.configured_hover_command = 50000.0
@@ -393,7 +393,7 @@ def test_a_trim_beyond_its_limit_is_clamped_on_the_first_pass_and_lands_on_the_f
         return runner
 
     measured = "the hover needed command 80000 (commands 0 ms before the velocities), the thrust map 50000"
-    first = trimming()
+    first = trimming(0.25)
     assert first._trim("TAKEOFF", [], final=False) == OK
     (trim,) = [(e["text"], e["hover_command"]) for e in first.log.events if e["kind"] == "trim"]
     assert trim == (
@@ -402,12 +402,12 @@ def test_a_trim_beyond_its_limit_is_clamped_on_the_first_pass_and_lands_on_the_f
     )
     assert first.thrust.hover_command == pytest.approx(62500.0)
 
-    final = trimming()
+    final = trimming(0.55)
     assert final._trim("TAKEOFF", [], final=True) == LAND
     assert [(e["kind"], e["text"]) for e in final.log.events] == [
         (
             "LAND",
-            f"{measured} (+60 % from deploy.thrust), beyond deploy.flight.hover_trim_max (25 %); check "
+            f"{measured} (+60 % from deploy.thrust), beyond deploy.flight.hover_trim_max (55 %); check "
             "deploy.thrust.mass_kg and the battery, or calibrate",
         )
     ]
