@@ -414,6 +414,22 @@ def test_a_trim_beyond_its_limit_is_clamped_on_the_first_pass_and_lands_on_the_f
     assert final.thrust.hover_command == 50000.0  # not rescaled
 
 
+@pytest.mark.parametrize(
+    "configured_s, round_trip_s, lag_s",
+    [(None, 0.03, 0.05), (None, math.inf, 0.02), (None, math.nan, 0.02), (0.6, 0.03, 0.6)],
+    ids=["measured", "not_measured", "nan", "configured"],
+)
+def test_the_trim_lag_is_the_round_trip_and_a_tick_unless_configured(tmp_path, configured_s, round_trip_s, lag_s):
+    """``hover_trim_lag_s: null``: the round trip measured at connect + one tick at 50 Hz; a round
+    trip never measured (inf, nan) counts as none; a configured lag is taken as it is."""
+    runner = bookkeeping_runner(
+        tmp_path,
+        link=SimpleNamespace(round_trip_s=round_trip_s),
+        p=SimpleNamespace(hover_trim_lag_s=configured_s, rate_hz=50.0),
+    )
+    assert runner._trim_lag_s() == pytest.approx(lag_s)
+
+
 @pytest.mark.parametrize("end_z, lifted", [(0.25, True), (0.2499, False), (-0.004, False), (0.9, True), (None, False)])
 def test_a_takeoff_has_lifted_off_when_it_ends_at_least_half_its_height_up(tmp_path, end_z, lifted):
     """``_lifted_off``: the takeoff phase's last estimate at least half of ``takeoff_height_m``
