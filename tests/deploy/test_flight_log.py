@@ -528,3 +528,30 @@ def test_the_landing_ramps_from_where_the_vehicle_is_to_the_floor_below_it(tmp_p
     }
     assert sent == [(0.0, 0.0, 0.0, 0)] and runner.log.phase == "LAND"
     assert runner.outcome.kind is Kind.LANDED_EARLY and runner.outcome.text == "landed early: speed 5.0 m/s > 4.0 m/s"
+
+
+def test_each_trim_reaches_the_models_still_to_fly(tmp_path):
+    """``_climb``: TAKEOFF, its trim (a first pass: the HOVER model and the later ones get the new
+    ceiling), HOVER, the final trim (the later ones); without HOVER the takeoff's trim is final."""
+    from datt.deploy.safety import OK
+
+    def climbing():
+        runner = bookkeeping_runner(tmp_path, p=SimpleNamespace(hover_trim=True))
+        calls = []
+        runner._fly_phase = lambda model, duration, origin: calls.append(("fly", runner.log.phase, model)) or OK
+        runner._lifted_off = lambda phase: True
+        runner._trim = lambda phase, models, final: calls.append(("trim", phase, list(models), final)) or OK
+        return runner, calls
+
+    runner, calls = climbing()
+    takeoff, hover = ("TAKEOFF", "takeoff model", 2.0), ("HOVER", "hover model", 2.0)
+    assert runner._climb(np.zeros(3), takeoff, hover, ["track model"]) == OK
+    assert calls == [
+        ("fly", "TAKEOFF", "takeoff model"),
+        ("trim", "TAKEOFF", ["track model", "hover model"], False),
+        ("fly", "HOVER", "hover model"),
+        ("trim", "HOVER", ["track model"], True),
+    ]
+    runner, calls = climbing()
+    assert runner._climb(np.zeros(3), takeoff, None, ["track model"]) == OK
+    assert calls == [("fly", "TAKEOFF", "takeoff model"), ("trim", "TAKEOFF", ["track model"], True)]
