@@ -322,18 +322,27 @@ def test_the_host_judges_the_low_passed_battery_and_logs_the_raw_one(tmp_path):
     assert flight.rows[-1]["vbat"] == 2.9
 
 
+def handing_over(tmp_path, monkeypatch, steps: int, link_class=None):
+    """A host about to hand the flight to a tracking app (``steps`` track steps at 50 Hz) on a
+    fake clock that moves only when the host sleeps; returns (flight, clock)."""
+    import datt.deploy.onboard_flight as module
+
+    clock = FakeClock()
+    monkeypatch.setattr(module, "time", clock)
+    flight = watching(tmp_path, onboard.TRACK)
+    flight.p.rate_hz, flight._onboard_steps = 50.0, steps
+    flight.thrust = SimpleNamespace(hover_command=47123.5, slope=1.7e-4)
+    flight.link = (link_class or StartingLink)(clock)
+    return flight, clock
+
+
 def test_an_app_that_never_reports_landing_is_stopped_after_its_budget(tmp_path, monkeypatch):
     """The app tracks on but never reports DONE: once its budget has passed (5 steps at 50 Hz, the
     2.5 s ramp, the hold and the margin: 5.1 s on a clock that moves only when the host sleeps) the
     host, still hearing the vehicle, stops the app (``datt.run = 0``) and lands, saying so."""
     import datt.deploy.onboard_flight as module
 
-    clock = FakeClock()
-    monkeypatch.setattr(module, "time", clock)
-    flight = watching(tmp_path, onboard.TRACK)
-    flight.p.rate_hz, flight._onboard_steps = 50.0, 5
-    flight.thrust = SimpleNamespace(hover_command=47123.5, slope=1.7e-4)
-    flight.link = StartingLink(clock)
+    flight, clock = handing_over(tmp_path, monkeypatch, 5)
     flight._app_verdict = lambda now, stepping: None
     start = clock.now_s
     assert flight._onboard_track(np.zeros(3)) == LAND
@@ -484,14 +493,7 @@ class SilentLink(StartingLink):
 def test_a_vehicle_silent_from_the_hand_over_is_said_once_and_the_app_flies_on(tmp_path, monkeypatch):
     """No fresh state from the first watch on (the radio gone right after ``datt.run = 1``): the
     host says once that the app flies on by itself, logs no row and KILLs nothing."""
-    import datt.deploy.onboard_flight as module
-
-    clock = FakeClock()
-    monkeypatch.setattr(module, "time", clock)
-    flight = watching(tmp_path, onboard.TRACK)
-    flight.p.rate_hz, flight._onboard_steps = 50.0, 500
-    flight.thrust = SimpleNamespace(hover_command=47123.5, slope=1.7e-4)
-    flight.link = SilentLink(clock)
+    flight, _ = handing_over(tmp_path, monkeypatch, 500, SilentLink)
     calls = []
 
     def verdict(now, stepping):
