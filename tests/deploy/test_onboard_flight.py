@@ -145,7 +145,7 @@ def state_at(z_m: float, now_s: float, vx_mps: float = 0.0):
 def test_the_host_kills_a_vehicle_on_the_floor_only_while_the_app_tracks(tmp_path):
     """The floor limit (``track_floor_m``) applies while the app tracks: at 2 cm in TRACK the host
     KILLs; the same height before the app reports tracking (it is still on the ground) is logged
-    as a TRACK row with the app's reference and no host command."""
+    as a TRACK row with no reference (an idle app's logged one is stale) and no host command."""
     import time
 
     now = time.monotonic()
@@ -154,7 +154,7 @@ def test_the_host_kills_a_vehicle_on_the_floor_only_while_the_app_tracks(tmp_pat
     assert tracking._watch_step(state_at(0.02, now), now, 0.0, np.zeros(3)) == KILL
     assert tracking.link.stopped and tracking.outcome.text.startswith("killed: on the floor while tracking")
 
-    waiting = watching(tmp_path, None)
+    waiting = watching(tmp_path, onboard.IDLE)  # heard, not started yet: its logged reference is stale
     assert waiting._watch_step(state_at(0.02, now), now, 1.5, np.array([1.0, 2.0, 0.0])) is None
     assert not waiting.link.stopped and waiting.outcome is None
     (row,) = waiting.rows

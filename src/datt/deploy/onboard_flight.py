@@ -277,8 +277,8 @@ class OnboardFlight(FlightRunner):
         KILL or LAND when the check says so (the app hands the commander back), else None."""
         dt = 1.0 / self.p.rate_hz
         state_for_check = dataclasses.replace(state, vbat_v=self.battery.update(state.vbat_v, dt))
-        last = self._app["last"]
-        phase = last[0] if last is not None else onboard.IDLE
+        last = self._app["last"]  # set: the host starts the app only once it has heard it (_app_heard)
+        phase = last[0]
         decision = check(
             self.safety,
             now_s=now,
@@ -296,7 +296,8 @@ class OnboardFlight(FlightRunner):
             self._event("LAND", decision.reason)
             self.link.set_param("datt.run", 0)  # the app hands the commander back
             return LAND
-        ref = np.array(last[2]) + origin if last is not None else np.full(3, np.nan)
+        # an idle app has no reference yet (its log holds the last one it flew, or zeros)
+        ref = np.array(last[2]) + origin if phase != onboard.IDLE else np.full(3, np.nan)
         self.rows.append(
             {
                 "t_s": now - self.log.t0,
