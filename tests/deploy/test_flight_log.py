@@ -555,3 +555,31 @@ def test_each_trim_reaches_the_models_still_to_fly(tmp_path):
     runner, calls = climbing()
     assert runner._climb(np.zeros(3), takeoff, None, ["track model"]) == OK
     assert calls == [("fly", "TAKEOFF", "takeoff model"), ("trim", "TAKEOFF", ["track model"], True)]
+
+
+@pytest.mark.parametrize(
+    "action, allow_land, jitter_ms, returned, events",
+    [
+        ("OK", True, 30.0, None, []),  # on course: a late tick alone is the timing summary's business
+        ("LAND", True, 2.0, "LAND", [("LAND", "why")]),
+        ("LAND", False, 2.0, None, [("warning", "why")]),  # already landing: noted, the landing goes on
+        ("LAND", False, 30.0, None, [("warning", "this tick ran 30 ms behind schedule (the host stalled)"),
+                                     ("warning", "why")]),
+        ("KILL", False, 2.0, "KILL", [("KILL", "why")]),
+        ("KILL", True, 10.0, "KILL", [("KILL", "why")]),  # exactly late_tick_ms: not behind schedule
+    ],
+)  # fmt: skip
+def test_each_safety_decision_has_its_effect_on_the_tick(tmp_path, action, allow_land, jitter_ms, returned, events):
+    """``_act_on``: KILL stops the motors and ends the phase; LAND ends it where landing is allowed
+    and is a warning with its reason while already landing; OK does nothing. A decision taken on a
+    tick more than ``late_tick_ms`` behind schedule is preceded by a warning saying so."""
+    from datt.deploy.safety import Decision
+
+    stops = []
+    runner = bookkeeping_runner(
+        tmp_path, p=SimpleNamespace(late_tick_ms=10.0), link=SimpleNamespace(emergency_stop=lambda: stops.append(1))
+    )
+    reason = "" if action == "OK" else "why"
+    assert runner._act_on(Decision(action, reason), jitter_ms, allow_land) == returned
+    assert [(e["kind"], e["text"]) for e in runner.log.events] == events
+    assert stops == ([1] if action == "KILL" else [])
