@@ -123,3 +123,16 @@ def fly_sim(tmp_path, port: int, overrides=(), hook=None, estop=None) -> tuple[d
     if lags[-1] > STALL_LIMIT_S:  # the test's own checks judge whether the stalls changed what they check
         print(f"the machine stalled the simulated vehicle in every flight: {[round(x, 3) for x in lags]} s")
     return summary, seen["server"], seen["runner"]
+
+
+def bookkeeping_runner(tmp_path, **attrs):
+    """A FlightRunner with its flight log in ``tmp_path`` and ``attrs`` set, nothing else: the
+    bookkeeping alone, no link or vehicle unless a test hands in a stand-in."""
+    from datt.deploy.flight_log import FlightLog
+    from datt.deploy.runner import FlightRunner
+
+    runner = FlightRunner.__new__(FlightRunner)
+    runner.log = FlightLog(tmp_path)
+    for name, value in attrs.items():
+        setattr(runner, name, value)
+    return runner

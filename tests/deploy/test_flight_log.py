@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from datt.deploy.flight_log import COLUMNS, FlightLog
+from tests.deploy import bookkeeping_runner
 
 
 def row(k: int, phase: str, jitter_ms: float, compute_ms: float, err_m: float = 0.0) -> dict:
@@ -33,18 +34,6 @@ def row(k: int, phase: str, jitter_ms: float, compute_ms: float, err_m: float = 
         "jitter_ms": jitter_ms,
         "compute_ms": compute_ms,
     }
-
-
-def bookkeeping_runner(tmp_path, **attrs):
-    """A FlightRunner with its flight log in ``tmp_path`` and ``attrs`` set, nothing else: the
-    bookkeeping alone, no link or vehicle unless a test hands in a stand-in."""
-    from datt.deploy.runner import FlightRunner
-
-    runner = FlightRunner.__new__(FlightRunner)
-    runner.log = FlightLog(tmp_path)
-    for name, value in attrs.items():
-        setattr(runner, name, value)
-    return runner
 
 
 def test_timing_summary_counts_late_ticks_strictly_and_takes_absolute_jitter(tmp_path):
