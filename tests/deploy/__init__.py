@@ -136,3 +136,18 @@ def bookkeeping_runner(tmp_path, **attrs):
     for name, value in attrs.items():
         setattr(runner, name, value)
     return runner
+
+
+class FakeClock:
+    """``time`` for the watch loop: ``monotonic`` reads a clock that only ``sleep`` moves, each
+    sleep ``overshoot_s`` longer than asked (as a real one wakes late)."""
+
+    def __init__(self, overshoot_s: float = 0.0) -> None:
+        self.now_s = 1000.0
+        self.overshoot_s = overshoot_s
+
+    def monotonic(self) -> float:
+        return self.now_s
+
+    def sleep(self, seconds: float) -> None:
+        self.now_s += max(0.0, seconds) + self.overshoot_s

@@ -15,6 +15,7 @@ from datt.deploy import onboard
 from datt.deploy.flight_log import FlightLog
 from datt.deploy.onboard_flight import OnboardFlight
 from datt.deploy.safety import KILL, LAND, OK
+from tests.deploy import FakeClock
 
 
 class Link:
@@ -220,21 +221,6 @@ class StartingLink(Link):
     def read_param(self, name: str) -> float:
         assert name == "datt.controllerId"
         return float(self.controller_id)
-
-
-class FakeClock:
-    """``time`` for the watch loop: ``monotonic`` reads a clock that only ``sleep`` moves, each
-    sleep ``overshoot_s`` longer than asked (as a real one wakes late)."""
-
-    def __init__(self, overshoot_s: float = 0.0) -> None:
-        self.now_s = 1000.0
-        self.overshoot_s = overshoot_s
-
-    def monotonic(self) -> float:
-        return self.now_s
-
-    def sleep(self, seconds: float) -> None:
-        self.now_s += max(0.0, seconds) + self.overshoot_s
 
 
 def test_the_host_watches_the_app_once_per_control_tick(tmp_path, monkeypatch):

@@ -13,7 +13,7 @@ import pytest
 
 from datt.deploy.link import StateSample
 from datt.deploy.safety import KILL, LAND, OK, BatteryFilter
-from tests.deploy import bookkeeping_runner
+from tests.deploy import FakeClock, bookkeeping_runner
 
 HOVER = (0.0, 0.0, 1.0)
 
@@ -199,3 +199,28 @@ def test_the_predictor_serves_the_tracking_phase_and_sets_the_send_slot_once(tmp
     if predicted:  # tick 0 scheduled at the start: the slot asked for is 10 ms after it
         assert slots[0] - 0.01 == pytest.approx(runner.rows[0]["sched_t_s"] + runner.log.t0, abs=1e-9)
         assert slots[0] - 0.01 >= start
+
+
+def test_each_tick_is_timed_against_an_absolute_schedule(tmp_path, monkeypatch):
+    """On a clock that only sleeping moves, each sleep waking 1 ms late: every tick after the first
+    runs 1 ms behind its schedule (the lateness does not add up), the schedule is one period
+    apart, and a tick that takes no time has no compute time."""
+    import datt.deploy.runner as module
+
+    clock = FakeClock(overshoot_s=0.001)
+    monkeypatch.setattr(module, "time", clock)
+    runner = tick_runner(tmp_path, [sample(1.00), sample(1.02), sample(1.04)])
+    assert runner._tick_loop(Model(), 3, np.zeros(3)) == OK
+    assert [r["jitter_ms"] for r in runner.rows] == pytest.approx([0.0, 1.0, 1.0], rel=1e-6, abs=1e-9)
+    assert np.diff([r["sched_t_s"] for r in runner.rows]) == pytest.approx([0.02, 0.02], rel=1e-9)
+    assert [r["compute_ms"] for r in runner.rows] == [0.0] * 3
+    assert clock.now_s == pytest.approx(1000.0 + 3 * 0.02 + 0.001)  # slept to the last slot, 1 ms late
+
+
+def test_a_tick_without_an_estimate_kills(tmp_path):
+    """No estimate at all (none has arrived): the tick KILLs ("no state estimate") and sends
+    nothing; the controller is not asked."""
+    runner = tick_runner(tmp_path, [None])
+    assert runner._tick_loop(Model(), 1, np.zeros(3)) == KILL
+    assert runner.outcome.text == "killed: no state estimate"
+    assert (runner.link.stops, runner.sent, runner.acted) == (1, [], [])
