@@ -224,3 +224,111 @@ def test_a_tick_without_an_estimate_kills(tmp_path):
     assert runner._tick_loop(Model(), 1, np.zeros(3)) == KILL
     assert runner.outcome.text == "killed: no state estimate"
     assert (runner.link.stops, runner.sent, runner.acted) == (1, [], [])
+
+
+def test_a_row_holds_every_column_of_the_tick(tmp_path, monkeypatch):
+    """The row of a tick, whole, on a fake clock: flight-log times (the tick, its schedule, the
+    estimate's arrival) from the log's start, the vehicle's own stamp, the estimate as measured,
+    the reference in the world frame, the action as floats, the thrust sent, the model's
+    disturbance estimate, the raw battery, the decision and the timing."""
+    import datt.deploy.runner as module
+
+    clock = FakeClock()
+    monkeypatch.setattr(module, "time", clock)
+    quat = (0.9950042, 0.0998334, 0.0, 0.0)  # 11.5° of roll
+    estimate = StateSample(999.99, (0.3, -0.2, 1.1), (0.1, 0.2, -0.3), quat, 3.9, vehicle_s=12.5)
+    runner = tick_runner(tmp_path, [estimate], phase="TRACK")
+    model = Model()
+    model.d_hat = (0.01, -0.02, 0.03)
+    assert runner._tick_loop(model, 1, np.array([0.5, 0.0, 1.0])) == OK
+    (row,) = runner.rows
+    t0 = runner.log.t0
+    assert row == {
+        "t_s": pytest.approx(1000.0 - t0),
+        "sched_t_s": pytest.approx(1000.0 - t0),
+        "arrived_s": pytest.approx(999.99 - t0),
+        "vehicle_s": 12.5,
+        "phase": "TRACK",
+        "pos": [0.3, -0.2, 1.1],
+        "vel": [0.1, 0.2, -0.3],
+        "quat": list(quat),
+        "ref": pytest.approx([0.5, 0.0, 1.0]),
+        "action": [9.81, 0.0, 0.0, 0.0],
+        "thrust_cmd": 45001,
+        "d_hat": [0.01, -0.02, 0.03],
+        "vbat": 3.9,
+        "decision": OK,
+        "jitter_ms": 0.0,
+        "compute_ms": 0.0,
+    }
+    assert all(type(a) is float for a in row["action"])
+
+
+class ActingModel:
+    """A model that records what ``act`` is given and returns a fixed command."""
+
+    d_hat = (0.01, 0.0, -0.02)
+
+    def __init__(self):
+        self.given = []
+
+    def act(self, pos, vel, quat, predicted, lead_steps):
+        self.given.append((np.asarray(pos).tolist(), vel, quat, predicted, lead_steps))
+        return np.array([9.0, 0.1, -0.1, 0.0])
+
+
+@pytest.mark.parametrize("predict", [False, True])
+def test_the_controller_flies_relative_to_the_origin_on_the_estimate_or_its_prediction(tmp_path, predict):
+    """``_act``: the model gets the estimate moved to the controller frame (minus ``origin``); with
+    the predictor, also the prediction (its position moved likewise) for the estimate's stamps and
+    the model's disturbance estimate, and the lead in ticks (lead 30 ms at 50 Hz: 1.5). The
+    calibration's excitation at tick ``k`` adds to the thrust only."""
+    seen = []
+
+    def predict_state(now, t_s, pos, vel, quat, d_hat, vehicle_s):
+        seen.append((now, t_s, pos, vel, quat, d_hat, vehicle_s))
+        return (1.6, 0.1, 1.2), (0.5, 0.0, 0.0), (1.0, 0.0, 0.0, 0.0)
+
+    runner = tick_runner(tmp_path, [])
+    del runner._act  # the runner's own
+    runner.predictor = SimpleNamespace(predict=predict_state, lead_at=lambda now: 0.03 if now == 7.0 else None)
+    runner._excitation = None
+    model, origin = ActingModel(), np.array([1.5, 0.0, 1.0])
+    estimate = sample(6.98, pos=(1.55, 0.05, 1.1))
+    action = runner._act(model, estimate, 7.0, origin, 3, predict)
+    assert action.tolist() == [9.0, 0.1, -0.1, 0.0]
+    ((pos, vel, quat, predicted, lead_steps),) = model.given
+    assert pos == pytest.approx([0.05, 0.05, 0.1]) and (vel, quat) == (estimate.vel_mps, estimate.quat)
+    if predict:
+        assert seen == [(7.0, 6.98, estimate.pos_m, estimate.vel_mps, estimate.quat, model.d_hat, 6.48)]
+        assert predicted[0].tolist() == pytest.approx([0.1, 0.1, 0.2]) and predicted[1:] == (
+            (0.5, 0.0, 0.0),
+            (1.0, 0.0, 0.0, 0.0),
+        )
+        assert lead_steps == pytest.approx(1.5)
+    else:
+        assert (seen, predicted, lead_steps) == ([], None, 0.0)
+    runner._excitation = lambda k: 0.25 * k
+    assert runner._act(ActingModel(), estimate, 7.0, origin, 3, predict).tolist() == [9.75, 0.1, -0.1, 0.0]
+
+
+@pytest.mark.parametrize("result, landed", [(LAND, True), (OK, False), (KILL, False)])
+def test_a_phase_that_ends_in_land_is_followed_by_the_landing(tmp_path, result, landed):
+    """``_fly_phase``: the phase's ticks for its duration (1.23 s at 50 Hz: 62 ticks), then the
+    landing from the same origin if (and only if) the phase ended in LAND; its result returned."""
+    runner = tick_runner(tmp_path, [])
+    calls = []
+    runner._tick_loop = lambda model, steps, origin: calls.append(("ticks", model, steps, origin.tolist())) or result
+    runner._land = lambda origin: calls.append(("land", origin.tolist()))
+    assert runner._fly_phase("model", 1.23, np.array([0.0, 0.5, 1.0])) == result
+    assert calls == [("ticks", "model", 62, [0.0, 0.5, 1.0])] + ([("land", [0.0, 0.5, 1.0])] if landed else [])
+
+
+@pytest.mark.parametrize("duration_s, rate_hz, steps", [(None, 50.0, 250), (None, 100.0, 500), (1.23, 50.0, 62)])
+def test_a_phase_lasts_its_duration_or_the_references_episode(tmp_path, duration_s, rate_hz, steps):
+    """``_steps``: the reference's episode (250 env steps of 20 ms: 5 s) or the given duration, in
+    ticks of the flight's rate, rounded to the nearest."""
+    runner = tick_runner(tmp_path, [])
+    runner.p.rate_hz = rate_hz
+    model = SimpleNamespace(env=SimpleNamespace(params=SimpleNamespace(episode_steps=250), dt_s=0.02))
+    assert runner._steps(model, duration_s) == steps
