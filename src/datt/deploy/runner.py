@@ -540,6 +540,12 @@ class FlightRunner:
         if state is None:
             checks.append("no state estimate from the vehicle")
         else:
+            age_s = time.monotonic() - state.t_s
+            if age_s >= self.safety.max_state_age_s:  # the log stream stopped: every check below is of the past
+                checks.append(
+                    f"no fresh state estimate (the last arrived {age_s * 1e3:.0f} ms ago, > "
+                    f"{self.safety.max_state_age_s * 1e3:.0f} ms)"
+                )
             if self._has_mocap() and mocap_pos is None:
                 checks.append("no mocap frame for the vehicle")
             elif mocap_pos is not None:
