@@ -99,3 +99,39 @@ def test_the_takeoff_ramps_the_pid_from_the_start_to_the_hover_point(tmp_path):
     ((controller, ramp),) = built
     assert controller == "pid" and isinstance(ramp, Ramp) and ramp.duration_s == 2.5
     assert ramp.start.tolist() == pytest.approx([0.1, -0.2, -0.95]) and ramp.end.tolist() == [0.0, 0.0, 0.0]
+
+
+def test_a_runner_holds_what_it_was_built_with(tmp_path):
+    """The constructor's arguments, each where the flight reads it: the track's family (not the
+    config's: the flight model is built on it), the settings, the hover command before any trim,
+    the log at the flight's rate and late-tick limit with the console, the battery filter's time constant, a copy
+    of the summary's extra keys; an e-stop of its own when none is given; nothing flown yet."""
+    import threading
+
+    from datt.deploy.outcome import Kind
+    from datt.deploy.runner import FlightParams
+    from datt.deploy.safety import SafetyParams
+
+    family, extra = Ramp([0.0, 0.0, 0.0], [1.0, 0.0, 0.0], 2.0), {"policy": "p.pt"}
+    params, safety = FlightParams(rate_hz=100.0, late_tick_ms=3.0), SafetyParams(battery_filter_s=2.5)
+    thrust, stop, predictor = SimpleNamespace(hover_command=41000.0), SimpleNamespace(signal=None), object()
+    console = SimpleNamespace(print=lambda *a: None)
+    runner = FlightRunner(
+        "link", "mocap", "make_env", "policy", "pid", family, params, safety, thrust, tmp_path / "run",
+        console=console, stop_request=stop, summary_extra=extra, predictor=predictor,
+    )  # fmt: skip
+    assert (runner.link, runner.mocap, runner.make_env) == ("link", "mocap", "make_env")
+    assert (runner.track_controller, runner.pid_factory, runner.track_family) == ("policy", "pid", family)
+    assert (runner.p, runner.safety, runner.thrust, runner.predictor) == (params, safety, thrust, predictor)
+    assert runner.stop_request is stop and runner.configured_hover_command == 41000.0
+    assert (
+        runner.run_dir == tmp_path / "run" and runner.log.run_dir == tmp_path / "run" and runner.log.console is console
+    )
+    assert (runner.log.rate_hz, runner.log.late_tick_ms) == (100.0, 3.0) and runner.battery.tau_s == 2.5
+    assert runner.summary_extra == extra and runner.summary_extra is not extra
+    assert isinstance(runner.estop, threading.Event) and not runner.estop.is_set()
+    assert runner.outcome.kind is Kind.INCOMPLETE and runner._excitation is None and not runner._forwarding
+    assert runner._mocap_sent_t is None and runner._pending_frame is None and not runner._frame_ready.is_set()
+    estop = threading.Event()
+    given = FlightRunner("l", None, None, None, None, family, params, safety, thrust, tmp_path, estop=estop)
+    assert given.estop is estop and given.summary_extra == {} and given.predictor is None
