@@ -135,3 +135,39 @@ def test_a_runner_holds_what_it_was_built_with(tmp_path):
     estop = threading.Event()
     given = FlightRunner("l", None, None, None, None, family, params, safety, thrust, tmp_path, estop=estop)
     assert given.estop is estop and given.summary_extra == {} and given.predictor is None
+
+
+def test_a_flight_model_is_built_on_the_family_the_ceiling_and_the_guard_and_starts_fresh(tmp_path):
+    """``_model``: the env is made for the given family, the command is capped at the thrust
+    map's ceiling, the configured ceiling guard is bound; the warm-up step (which traces a
+    policy) leaves nothing behind: the last command is the hover command and the controller was
+    reset after it."""
+    import functools
+
+    from datt.configuration import compose
+    from datt.control.pid import PidController
+    from datt.deploy.ceiling_guard import keep_altitude_at_ceiling
+    from datt.envs.factory import make_env
+    from datt.refs import Polygon
+
+    cfg = compose("sim", ["adaptation=l1"])
+    families, resets = [], []
+
+    class Pid(PidController):
+        def reset(self, env):
+            resets.append(len(families))
+            super().reset(env)
+
+    def make(family):
+        families.append(family)
+        return make_env(cfg, num_envs=1, seed=0, traj=family)
+
+    p = SimpleNamespace(ceiling_guard=True, ceiling_climb_reserve_mps2=0.5, ceiling_level_gain_per_s=3.0)
+    thrust = SimpleNamespace(ceiling_mps2=12.5, p=SimpleNamespace(gravity_mps2=9.8))
+    runner = bookkeeping_runner(tmp_path, p=p, thrust=thrust, make_env=make)
+    family = Polygon()
+    model = runner._model(Pid(), family)
+    assert families == [family] and float(model.command_high[0]) == 12.5
+    assert isinstance(model.guard, functools.partial) and model.guard.func is keep_altitude_at_ceiling
+    assert model.guard.keywords == {"gravity_mps2": 9.8, "climb_reserve_mps2": 0.5, "level_gain_per_s": 3.0}
+    assert resets == [1, 1] and model.last_cmd.tolist() == model.env.hover_action.tolist()

@@ -59,6 +59,13 @@ class Model:
         self.advanced += 1
 
 
+def module_time():
+    """The runner's clock (a test may have swapped in a fake one)."""
+    import datt.deploy.runner as module
+
+    return module.time
+
+
 def tick_runner(tmp_path, states, phase: str = "HOVER", **settings):
     """A runner whose tick loop flies ``states`` (one per tick) with the shipped safety settings;
     ``_act`` returns a hover command and records its calls, ``_send_tick`` records the sends."""
@@ -76,6 +83,8 @@ def tick_runner(tmp_path, states, phase: str = "HOVER", **settings):
         safety=deploy_params(compose("deploy").deploy)[2],
         acted=[],
         sent=[],
+        compute_s=0.0,
+        command=[9.81, 0.0, 0.0, 0.0],
     )
     # the stand-in's stamps are not the host's clock: no estimate is stale
     runner.safety.max_state_age_s = runner.safety.kill_state_age_s = math.inf
@@ -83,8 +92,10 @@ def tick_runner(tmp_path, states, phase: str = "HOVER", **settings):
     runner._mocap_age = lambda: None
 
     def act(model, state, now, origin, k, predict):
-        runner.acted.append((state.t_s, k, predict, origin.tolist()))
-        return np.array([9.81, 0.0, 0.0, 0.0])
+        runner.acted.append((state.t_s, k, predict, origin.tolist(), model, now))
+        if runner.compute_s:  # the controller takes this long (on a fake clock)
+            module_time().sleep(runner.compute_s)
+        return np.array(runner.command)
 
     def send_tick(model, action):
         runner.sent.append(action.tolist())
@@ -103,6 +114,7 @@ def test_each_tick_waits_for_an_estimate_newer_than_the_one_it_last_used(tmp_pat
     assert runner._tick_loop(model, 4, np.array([0.5, 0.0, 1.0])) == OK
     assert runner.link.waits == [(-math.inf, 0.01), (1.00, 0.01), (1.01, 0.01), (1.01, 0.01)]
     assert [a[:2] for a in runner.acted] == [(1.00, 0), (1.01, 1), (1.01, 2), (1.03, 3)]
+    assert all(a[4] is model and a[3] == [0.5, 0.0, 1.0] for a in runner.acted)
 
 
 def test_the_check_sees_the_low_passed_battery_and_the_row_keeps_the_raw_one(tmp_path):
@@ -211,6 +223,7 @@ def test_each_tick_is_timed_against_an_absolute_schedule(tmp_path, monkeypatch):
     monkeypatch.setattr(module, "time", clock)
     runner = tick_runner(tmp_path, [sample(1.00), sample(1.02), sample(1.04)])
     assert runner._tick_loop(Model(), 3, np.zeros(3)) == OK
+    assert [a[5] for a in runner.acted] == pytest.approx([1000.0, 1000.021, 1000.041])  # each tick's now
     assert [r["jitter_ms"] for r in runner.rows] == pytest.approx([0.0, 1.0, 1.0], rel=1e-6, abs=1e-9)
     assert np.diff([r["sched_t_s"] for r in runner.rows]) == pytest.approx([0.02, 0.02], rel=1e-9)
     assert [r["compute_ms"] for r in runner.rows] == [0.0] * 3
@@ -332,3 +345,22 @@ def test_a_phase_lasts_its_duration_or_the_references_episode(tmp_path, duration
     runner.p.rate_hz = rate_hz
     model = SimpleNamespace(env=SimpleNamespace(params=SimpleNamespace(episode_steps=250), dt_s=0.02))
     assert runner._steps(model, duration_s) == steps
+
+
+def test_a_ticks_compute_time_is_from_its_estimate_to_its_row(tmp_path, monkeypatch):
+    """A controller that takes 3 ms (on a fake clock): the row's compute time is 3 ms, in ms."""
+    import datt.deploy.runner as module
+
+    monkeypatch.setattr(module, "time", FakeClock())
+    runner = tick_runner(tmp_path, [sample(1.00), sample(1.02)])
+    runner.compute_s = 0.003
+    assert runner._tick_loop(Model(), 2, np.zeros(3)) == OK
+    assert [r["compute_ms"] for r in runner.rows] == pytest.approx([3.0, 3.0], rel=1e-6)
+
+
+def test_the_check_sees_the_command_about_to_be_sent(tmp_path):
+    """A command beyond the thrust limit (50 > 39.81 m/s²): the check lands before it is sent."""
+    runner = tick_runner(tmp_path, [sample(1.00)])
+    runner.command = [50.0, 0.0, 0.0, 0.0]
+    assert runner._tick_loop(Model(), 1, np.zeros(3)) == LAND
+    assert runner.sent == [] and runner.log.events[-1]["text"] == "command out of range"
