@@ -121,7 +121,8 @@ def test_connect_opens_the_link_and_starts_forwarding_mocap_only_from_a_source(t
             ("predictor", "latency 26 ms compensated"),
         ]
         assert runner._forwarding is forwarding
-        assert ("mocap-forward" in {t.name for t in threading.enumerate()} - before) is forwarding
+        started = [t for t in threading.enumerate() if t.name == "mocap-forward" and t.name not in before]
+        assert len(started) == (1 if forwarding else 0) and all(t.daemon for t in started)  # never holds exit
         if mocap is not None:
             want = [("subscribe", runner._forward_frame), ("start",)] if forwarding else [("start",)]
             assert mocap.calls == want

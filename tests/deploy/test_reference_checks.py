@@ -171,3 +171,18 @@ def test_a_flight_model_is_built_on_the_family_the_ceiling_and_the_guard_and_sta
     assert isinstance(model.guard, functools.partial) and model.guard.func is keep_altitude_at_ceiling
     assert model.guard.keywords == {"gravity_mps2": 9.8, "climb_reserve_mps2": 0.5, "level_gain_per_s": 3.0}
     assert resets == [1, 1] and model.last_cmd.tolist() == model.env.hover_action.tolist()
+
+
+def test_a_reference_on_the_fence_is_inside_it(tmp_path):
+    """The fence's bounds are inside (the check is strict): a path touching x = −2, y = ±2 and
+    z = 2.5 exactly passes; a point on one bound and outside another names the axis outside."""
+    runner = fenced_runner(tmp_path)
+    on_fence = [[-2.5, 0.0, 0.0], [-0.5, 2.0, 0.0], [-0.5, -2.0, 1.5], [1.5, 0.0, 0.0], [0.0, 0.0, 0.0]]
+    runner._check_reference_in_geofence(table_model(on_fence), None)  # x −2 and +2, y ±2, z 2.5
+    for point, text in (
+        ([-2.5, 2.1, 0.0], "geofence_max_m: " + LEAVES + " t=0.00 s (y=2.10 m; fence -2.00..2.00 m)"),
+        ([1.5, -2.1, 0.0], "geofence_min_m: " + LEAVES + " t=0.00 s (y=-2.10 m; fence -2.00..2.00 m)"),
+    ):
+        with pytest.raises(_Abort):
+            runner._check_reference_in_geofence(table_model([point] * 5), None)
+        assert runner.outcome.text == f"preflight failed: deploy.safety.{text}"
