@@ -70,7 +70,7 @@ def test_a_vehicle_not_armed_in_time_is_disarmed_and_nothing_flies(tmp_path, mon
 
 
 class ConnectingLink:
-    round_trip_s = 0.0123
+    round_trip_s = 0.1609  # a latency of 100.45 ms: in ms (x 1000) it rounds to 100, x 1001 would give 101
 
     def __init__(self):
         self.connected = []
@@ -115,10 +115,10 @@ def test_connect_opens_the_link_and_starts_forwarding_mocap_only_from_a_source(t
         runner._connect()
         forwarding = source == "sim"
         assert runner.link.connected == [forwarding] and runner.log.phase == "CONNECT"
-        assert predictor.round_trip_s == 0.0123
+        assert predictor.round_trip_s == 0.1609
         assert [(e["kind"], e["text"]) for e in runner.log.events] == [
             ("phase", "CONNECT"),
-            ("predictor", "latency 26 ms compensated"),
+            ("predictor", "latency 100 ms compensated"),
         ]
         assert runner._forwarding is forwarding
         started = [t for t in threading.enumerate() if t.name == "mocap-forward" and t.name not in before]
