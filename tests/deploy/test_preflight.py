@@ -54,14 +54,14 @@ class Mocap:
         return None if self.reads <= self.after_reads else (self.pos, LEVEL, self.clock.now_s - 0.005)
 
 
-def preflight(tmp_path, monkeypatch, mocap=None, **link):
+def preflight(tmp_path, monkeypatch, mocap=None, clock=None, **link):
     """Run the preflight of a runner with the shipped safety settings, a 3 s timeout, a 3.7 V
     minimum and the hover point (0, 0, 1); returns (runner, clock, result or None if refused)."""
     import datt.deploy.runner as module
     from datt.configuration import compose
     from datt.deploy.schema import deploy_params
 
-    clock = FakeClock()
+    clock = clock or FakeClock()
     monkeypatch.setattr(module, "time", clock)
     p = SimpleNamespace(preflight_timeout_s=3.0, min_battery_v=3.7, origin_m=[0.0, 0.0], takeoff_height_m=1.0)
     runner = bookkeeping_runner(
@@ -93,6 +93,7 @@ def test_with_mocap_the_estimate_must_agree_with_it(tmp_path, monkeypatch):
         tmp_path, monkeypatch, mocap=lambda c: Mocap(c, pos=(0.01, 0.0, 0.02), after_reads=6), settles_after=1
     )
     assert start is not None and clock.now_s > 1000.04  # it waited for the frame, not only the filter
+    assert clock.now_s < 1001.0  # and went on once they agreed (not at the timeout)
 
 
 REFUSALS = {
@@ -164,3 +165,95 @@ def test_mocap_and_hover_points_outside_the_fence_and_several_reasons_at_once(tm
     with pytest.raises(_Abort):
         runner._preflight()
     assert runner.outcome.text == "preflight failed: hover point outside the geofence"
+
+
+class SixtyFourthClock(FakeClock):
+    """A fake clock whose every sleep moves it 1/64 s (a power of two: its sums are exact)."""
+
+    def sleep(self, seconds: float) -> None:
+        self.now_s += 1.0 / 64.0
+
+
+def test_the_wait_ends_at_the_timeout(tmp_path, monkeypatch):
+    """A filter that never settles: the preflight polls while the clock is before the deadline
+    (a 1/16 s timeout polled every 1/64 s: four reads, none at the deadline itself)."""
+    clock = SixtyFourthClock()
+    runner, _, start = preflight(tmp_path, monkeypatch, clock=clock, settles_after=10**9)
+    assert start is None and runner.link.reads == 4 * 48  # the shipped 3 s: 192 polls of 1/64 s
+    runner.p.preflight_timeout_s = 1.0 / 16.0
+    runner.link.reads = 0
+    with pytest.raises(_Abort):
+        runner._preflight()
+    assert runner.link.reads == 4
+
+
+def test_an_estimate_exactly_max_state_age_old_is_stale_and_named_in_ms(tmp_path, monkeypatch):
+    """The last estimate read 3/64 s old, checked 1/64 s later: 62.5 ms old against a limit of
+    62.5 ms is stale (the limit is not fresh), shown rounded in ms (62)."""
+    import datt.deploy.runner as module
+    from datt.configuration import compose
+    from datt.deploy.schema import deploy_params
+
+    clock = SixtyFourthClock()
+    monkeypatch.setattr(module, "time", clock)
+    safety = deploy_params(compose("deploy").deploy)[2]
+    safety.max_state_age_s = 4.0 / 64.0
+    p = SimpleNamespace(preflight_timeout_s=0.25, min_battery_v=3.7, origin_m=[0.0, 0.0], takeoff_height_m=1.0)
+    link = PreflightLink(clock, age_s=3.0 / 64.0, settles_after=10**9)
+    runner = bookkeeping_runner(tmp_path, p=p, link=link, safety=safety, mocap=None)
+    with pytest.raises(_Abort):
+        runner._preflight()
+    assert "; no fresh state estimate (the last arrived 62 ms ago, > 62 ms)" in runner.outcome.text
+
+
+@pytest.mark.parametrize(
+    "offset_m, text",
+    [
+        (0.0496, None),  # 4.96 cm: within 5 cm
+        (0.05, "onboard estimate 5 cm from mocap (> 5 cm; "),  # 5 cm exactly is too far
+        (0.0645, "onboard estimate 6 cm from mocap (> 5 cm; "),  # 6.45 cm, shown rounded
+    ],
+    ids=["within", "at_the_limit", "rounded"],
+)
+def test_the_estimate_must_be_closer_to_mocap_than_the_limit(tmp_path, monkeypatch, offset_m, text):
+    """``max_estimate_mocap_m`` (5 cm) is a strict limit: at 5 cm the preflight waits out its
+    timeout for a closer estimate and refuses, naming the distance in whole cm."""
+    runner, clock, start = preflight(
+        tmp_path, monkeypatch, mocap=lambda c: Mocap(c, pos=(offset_m, 0.0, 0.02)), settles_after=1
+    )
+    if text is None:
+        assert start is not None and clock.now_s < 1000.1
+    else:
+        assert start is None and runner.outcome.text.startswith(f"preflight failed: {text}")
+        assert clock.now_s >= 1003.0
+
+
+def test_positions_on_the_fence_and_a_battery_at_its_minimum_pass(tmp_path, monkeypatch):
+    """The fence's bounds are inside: a vehicle, its mocap frame and the hover point exactly on
+    them (x = −2, y = 2, z = 2.5) pass; so does a battery exactly at ``min_battery_v``."""
+    corner = (-2.0, 2.0, 2.5)
+    runner, _, _ = preflight(tmp_path, monkeypatch, mocap=lambda c: Mocap(c, pos=corner), pos=corner, vbat_v=3.7)
+    runner.p.origin_m, runner.p.takeoff_height_m = [-2.0, 2.0], 2.5
+    runner.link.settles_after = 1
+    assert runner._preflight().tolist() == list(corner)
+    runner.p.origin_m, runner.p.takeoff_height_m = [2.0, -2.0], 2.5
+    assert runner._preflight().tolist() == list(corner)
+
+
+def test_an_estimate_exactly_max_state_age_old_does_not_end_the_wait(tmp_path, monkeypatch):
+    """Fresh means younger than ``max_state_age_s``: an estimate exactly that old (4/64 s) with
+    a settled filter does not end the wait; the preflight waits out its timeout and refuses."""
+    import datt.deploy.runner as module
+    from datt.configuration import compose
+    from datt.deploy.schema import deploy_params
+
+    clock = SixtyFourthClock()
+    monkeypatch.setattr(module, "time", clock)
+    safety = deploy_params(compose("deploy").deploy)[2]
+    safety.max_state_age_s = 4.0 / 64.0
+    p = SimpleNamespace(preflight_timeout_s=0.25, min_battery_v=3.7, origin_m=[0.0, 0.0], takeoff_height_m=1.0)
+    link = PreflightLink(clock, age_s=4.0 / 64.0, settles_after=1)
+    runner = bookkeeping_runner(tmp_path, p=p, link=link, safety=safety, mocap=None)
+    with pytest.raises(_Abort):
+        runner._preflight()
+    assert clock.now_s == 1000.25 and "no fresh state estimate (the last arrived 78 ms ago" in runner.outcome.text
