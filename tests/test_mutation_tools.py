@@ -94,6 +94,36 @@ def test_a_shown_mutant_is_applied_at_its_place_with_the_files_indentation():
         check_by_hand.apply(METHOD + METHOD, old, new)
 
 
+SHOWN_AFTER_A_DOCSTRING = '''# datt.x.xǁMǁact__mutmut_12: survived
+--- src/datt/x.py
++++ src/datt/x.py
+@@ -1,4 +1,4 @@
+         time, while the adaptation is updated."""
+     self.env.set_state(pos_m)
+-    self.env.adaptation.update(self.env.sim.state, self.last_cmd, None)
++    self.env.adaptation.update(self.env.sim.state, self.last_cmd, )
+     self.env.set_reference_lead(lead_steps)
+'''
+
+METHOD_WITH_A_DOCSTRING = '''class M:
+    def act(self, pos_m, lead_steps):
+        """The command;
+        time, while the adaptation is updated."""
+        self.env.set_state(pos_m)
+        self.env.adaptation.update(self.env.sim.state, self.last_cmd, None)
+        self.env.set_reference_lead(lead_steps)
+'''
+
+
+def test_a_mutant_after_a_docstring_keeps_the_methods_indentation():
+    """mutmut dedents a method's code but not its docstring's text: each changed line takes the
+    indentation of the line it replaces (one offset from the first context line broke the file)."""
+    _, old, new = check_by_hand.parse_diff(SHOWN_AFTER_A_DOCSTRING)
+    got = check_by_hand.apply(METHOD_WITH_A_DOCSTRING, old, new)
+    assert got == METHOD_WITH_A_DOCSTRING.replace("self.last_cmd, None)", "self.last_cmd, )")
+    compile(got, "m.py", "exec")
+
+
 def test_the_by_hand_list_names_a_test_for_every_mutant():
     listed = [line for line in check_by_hand.BY_HAND.read_text().splitlines() if line and not line.startswith("#")]
     got = check_by_hand.entries()

@@ -67,6 +67,13 @@ def apply(source: str, old: list[str], new: list[str]) -> str:
     if len(hits) != 1:
         raise ValueError(f"the mutant's context matches {len(hits)} places, not one")
     i = hits[0]
+    if len(old) == len(new):  # only the lines that differ, each at its own line's indentation (a
+        # docstring's lines keep theirs where mutmut dedents a method, so no one offset fits all)
+        replaced = [
+            line if o == n else " " * (len(line) - len(line.lstrip()) - (len(o) - len(o.lstrip()))) + n + "\n"
+            for line, o, n in zip(lines[i : i + len(old)], old, new)
+        ]
+        return "".join(lines[:i] + replaced + lines[i + len(old) :])
     first = next(k for k, s in enumerate(old) if s.strip())
     indent = len(lines[i + first]) - len(lines[i + first].lstrip()) - (len(old[first]) - len(old[first].lstrip()))
     pad = " " * indent

@@ -134,3 +134,32 @@ def test_connect_without_a_predictor_logs_no_latency(tmp_path):
     runner = bookkeeping_runner(tmp_path, link=ConnectingLink(), mocap=None, predictor=None)
     runner._connect()
     assert runner.link.connected == [False] and [e["kind"] for e in runner.log.events] == ["phase"]
+
+
+def test_the_mocap_age_and_position_come_from_the_sources_latest_frame(tmp_path, monkeypatch):
+    """No source (or the "none" source): no age, no position; a source without a frame yet: age
+    inf, no position; with one: its age on the runner's clock and its position as floats."""
+    import math
+
+    import datt.deploy.runner as module
+
+    clock = FakeClock()
+    monkeypatch.setattr(module, "time", clock)
+    frames = []
+    source = SimpleNamespace(name="sim", read=lambda: frames[-1] if frames else None)
+    runner = bookkeeping_runner(tmp_path, mocap=None)
+    assert runner._mocap_age() is None and runner._mocap_position() is None
+    runner.mocap = SimpleNamespace(name="none", read=lambda: ((1, 2, 3), None, 999.0))
+    assert runner._mocap_age() is None and runner._mocap_position() is None
+    runner.mocap = source
+    assert runner._mocap_age() == math.inf and runner._mocap_position() is None
+    frames.append(((1, 2, 3), None, 999.75))
+    assert runner._mocap_age() == 0.25
+    position = runner._mocap_position()
+    assert position.dtype == float and position.tolist() == [1.0, 2.0, 3.0]
+
+
+def test_an_event_without_text_has_an_empty_one(tmp_path):
+    runner = bookkeeping_runner(tmp_path)
+    runner._event("armed")
+    assert (runner.log.events[-1]["kind"], runner.log.events[-1]["text"]) == ("armed", "")

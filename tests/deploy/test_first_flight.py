@@ -506,3 +506,21 @@ def test_a_vehicle_tilted_past_the_limit_for_a_second_is_stopped_by_the_supervis
         server._physics_step()
     assert server.crashed and server.cmd[3] == 0
     assert server.state_bitfield() & (1 << 5) and server.state_bitfield() & (1 << 7)  # tumbled, crashed
+
+
+@pytest.mark.parametrize("origin_m", [[0.5], [0.0, 0.0, 1.0]])
+def test_a_hover_point_needs_two_coordinates(origin_m):
+    from datt.deploy.runner import FlightParams
+
+    with pytest.raises(ConfigError) as refused:
+        FlightParams(origin_m=origin_m).validate()
+    assert str(refused.value) == f"deploy.flight.origin_m: need 2 values (x, y), got {origin_m!r}"
+
+
+def test_a_hover_after_the_trim_of_zero_seconds_is_none_and_accepted():
+    """``hover_trim_settle_s = 0`` means no HOVER on the trimmed map, not a too-short one."""
+    from datt.deploy.runner import FlightParams
+
+    FlightParams(hover_trim_settle_s=0.0).validate()
+    with pytest.raises(ConfigError, match=r"^deploy.flight.hover_trim_settle_s: must be 0 or at least"):
+        FlightParams(hover_trim_settle_s=0.01).validate()

@@ -155,7 +155,7 @@ def test_a_flight_model_is_built_on_the_family_the_ceiling_and_the_guard_and_sta
 
     class Pid(PidController):
         def reset(self, env):
-            resets.append(len(families))
+            resets.append((len(families), env))
             super().reset(env)
 
     def make(family):
@@ -170,7 +170,7 @@ def test_a_flight_model_is_built_on_the_family_the_ceiling_and_the_guard_and_sta
     assert families == [family] and float(model.command_high[0]) == 12.5
     assert isinstance(model.guard, functools.partial) and model.guard.func is keep_altitude_at_ceiling
     assert model.guard.keywords == {"gravity_mps2": 9.8, "climb_reserve_mps2": 0.5, "level_gain_per_s": 3.0}
-    assert resets == [1, 1] and model.last_cmd.tolist() == model.env.hover_action.tolist()
+    assert resets == [(1, model.env), (1, model.env)] and model.last_cmd.tolist() == model.env.hover_action.tolist()
 
 
 def test_a_reference_on_the_fence_is_inside_it(tmp_path):
@@ -186,3 +186,48 @@ def test_a_reference_on_the_fence_is_inside_it(tmp_path):
         with pytest.raises(_Abort):
             runner._check_reference_in_geofence(table_model([point] * 5), None)
         assert runner.outcome.text == f"preflight failed: deploy.safety.{text}"
+
+
+class Recording:
+    """A controller that records the observation and the state it is given and asks for
+    ``action`` ([1, 4]: thrust m/s², body rates rad/s)."""
+
+    def __init__(self, action, builds_observation: bool):
+        self.action, self.builds_observation, self.seen = action, builds_observation, []
+
+    def reset(self, env) -> None:
+        pass
+
+    def act(self, env, td):
+        self.seen.append((td, env.sim.state.pos_m[0].tolist()))
+        return self.action.clone()
+
+
+@pytest.mark.parametrize("builds_observation", [False, True])
+def test_a_flight_model_hands_the_controller_the_observation_it_needs_and_clamps_its_command(builds_observation):
+    """``FlightModel.act``: a controller that does not build its own observation gets the env's
+    (one that does gets None); it sees the predicted state when there is one; no reference lead
+    unless asked for; the command below the env's lower bounds is clamped to them and returned
+    as floats."""
+    import torch
+
+    from datt.configuration import compose
+    from datt.deploy.runner import FlightModel
+    from datt.envs.factory import make_env
+    from datt.refs import Polygon
+
+    cfg = compose("sim", ["adaptation=none"])
+    controller = Recording(torch.tensor([[-5.0, -50.0, 50.0, 0.0]]), builds_observation)
+    model = FlightModel(lambda family: make_env(cfg, num_envs=1, seed=0, traj=family), controller, Polygon())
+    low, high = model.env.action_low, model.command_high
+    sent = model.act([0.1, 0.0, 0.0], [0.0, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0])
+    ((td, pos),) = controller.seen
+    assert (td is None) is builds_observation and pos == pytest.approx([0.1, 0.0, 0.0])
+    assert model.env._ref_lead_steps == 0.0
+    assert sent.dtype == np.float64 and sent.tolist() == pytest.approx(
+        [float(low[0]), float(low[1]), float(high[2]), 0.0]
+    )
+    model.act(
+        [0.1, 0.0, 0.0], [0.0, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0], predicted=([0.3, 0.0, 0.0], [0, 0, 0], [1.0, 0, 0, 0])
+    )
+    assert controller.seen[-1][1] == pytest.approx([0.3, 0.0, 0.0])
