@@ -52,6 +52,7 @@ def test_each_frame_goes_out_once_and_a_wake_up_without_a_frame_is_skipped():
         runner._forward_frame(((1.0, 2.0, 3.0), None, t))
         assert sent_after(runner, 1) == [("extpos", (1.0, 2.0, 3.0))]
         runner._forward_frame(((1.0, 2.0, 3.0), None, t))  # the same frame again: not resent
+        assert sent_after(runner, 2) == [("extpos", (1.0, 2.0, 3.0))]  # (taken alone, not overwritten)
         runner._forward_frame(((0.0, 0.0, 1.0), None, time.monotonic() - 1.0))  # stale (1 s old)
         assert sent_after(runner, 2) == [("extpos", (1.0, 2.0, 3.0))]
         runner._forward_frame(((4.0, 5.0, 6.0), (1.0, 0.0, 0.0, 0.0), time.monotonic()))
