@@ -154,11 +154,15 @@ def test_disarm_sends_zero_thrust_disarms_writes_the_log_then_closes(tmp_path):
     """DISARM: a zero setpoint and the disarm request, the log written (with a second Ctrl-C
     ignored meanwhile) before mocap and the link are closed; forwarding stops."""
     runner, writes = ending(tmp_path, EndingLink())
-    assert runner._disarm_and_write() == {"written": 1}
+    handler = signal.signal(signal.SIGINT, signal.default_int_handler)  # (pytest-xdist workers ignore it)
+    try:
+        assert runner._disarm_and_write() == {"written": 1}
+        assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # back afterwards
+    finally:
+        signal.signal(signal.SIGINT, handler)
     assert runner.link.calls == [("rates", 0.0, 0.0, 0.0, 0), ("arm", False), ("mocap stop",), ("close",)]
     assert writes == [signal.SIG_IGN] and runner._forwarding is False and runner.log.phase == "DISARM"
     assert [e["kind"] for e in runner.log.events] == ["phase"]
-    assert signal.getsignal(signal.SIGINT) is not signal.SIG_IGN  # the handler is back afterwards
 
 
 def test_a_dead_link_at_disarm_is_logged_and_the_log_still_written(tmp_path):
