@@ -531,8 +531,6 @@ class FlightRunner:
             if agrees and self.link.kalman_settled():
                 break
             time.sleep(0.02)
-        # the estimate's age when the wait ended (the supervisor's query below is a radio round trip)
-        age_s = None if state is None else time.monotonic() - state.t_s
         checks = self._supervisor_checks()
         if not self.link.kalman_settled():
             checks.append(
@@ -542,6 +540,7 @@ class FlightRunner:
         if state is None:
             checks.append("no state estimate from the vehicle")
         else:
+            age_s = time.monotonic() - state.t_s
             if age_s >= self.safety.max_state_age_s:  # the log stream stopped: every check below is of the past
                 checks.append(
                     f"no fresh state estimate (the last arrived {age_s * 1e3:.0f} ms ago, > "
