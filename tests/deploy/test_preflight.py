@@ -54,21 +54,25 @@ class Mocap:
         return None if self.reads <= self.after_reads else (self.pos, LEVEL, self.clock.now_s - 0.005)
 
 
-def preflight(tmp_path, monkeypatch, mocap=None, clock=None, **link):
-    """Run the preflight of a runner with the shipped safety settings, a 3 s timeout, a 3.7 V
-    minimum and the hover point (0, 0, 1); returns (runner, clock, result or None if refused)."""
+def preflight(tmp_path, monkeypatch, mocap=None, clock=None, timeout_s=3.0, max_state_age_s=None, **link):
+    """Run the preflight of a runner with the shipped safety settings (``max_state_age_s`` if
+    given), a ``timeout_s`` timeout, a 3.7 V minimum and the hover point (0, 0, 1); returns
+    (runner, clock, result or None if refused)."""
     import datt.deploy.runner as module
     from datt.configuration import compose
     from datt.deploy.schema import deploy_params
 
     clock = clock or FakeClock()
     monkeypatch.setattr(module, "time", clock)
-    p = SimpleNamespace(preflight_timeout_s=3.0, min_battery_v=3.7, origin_m=[0.0, 0.0], takeoff_height_m=1.0)
+    p = SimpleNamespace(preflight_timeout_s=timeout_s, min_battery_v=3.7, origin_m=[0.0, 0.0], takeoff_height_m=1.0)
+    safety = deploy_params(compose("deploy").deploy)[2]
+    if max_state_age_s is not None:
+        safety.max_state_age_s = max_state_age_s
     runner = bookkeeping_runner(
         tmp_path,
         p=p,
         link=PreflightLink(clock, **link),
-        safety=deploy_params(compose("deploy").deploy)[2],
+        safety=safety,
         mocap=None if mocap is None else mocap(clock),
     )
     try:
@@ -190,19 +194,11 @@ def test_the_wait_ends_at_the_timeout(tmp_path, monkeypatch):
 def test_an_estimate_exactly_max_state_age_old_is_stale_and_named_in_ms(tmp_path, monkeypatch):
     """The last estimate read 3/64 s old, checked 1/64 s later: 62.5 ms old against a limit of
     62.5 ms is stale (the limit is not fresh), shown rounded in ms (62)."""
-    import datt.deploy.runner as module
-    from datt.configuration import compose
-    from datt.deploy.schema import deploy_params
-
-    clock = SixtyFourthClock()
-    monkeypatch.setattr(module, "time", clock)
-    safety = deploy_params(compose("deploy").deploy)[2]
-    safety.max_state_age_s = 4.0 / 64.0
-    p = SimpleNamespace(preflight_timeout_s=0.25, min_battery_v=3.7, origin_m=[0.0, 0.0], takeoff_height_m=1.0)
-    link = PreflightLink(clock, age_s=3.0 / 64.0, settles_after=10**9)
-    runner = bookkeeping_runner(tmp_path, p=p, link=link, safety=safety, mocap=None)
-    with pytest.raises(_Abort):
-        runner._preflight()
+    runner, _, start = preflight(
+        tmp_path, monkeypatch, clock=SixtyFourthClock(), timeout_s=0.25, max_state_age_s=4.0 / 64.0,
+        age_s=3.0 / 64.0, settles_after=10**9,
+    )  # fmt: skip
+    assert start is None
     assert "; no fresh state estimate (the last arrived 62 ms ago, > 62 ms)" in runner.outcome.text
 
 
@@ -243,17 +239,9 @@ def test_positions_on_the_fence_and_a_battery_at_its_minimum_pass(tmp_path, monk
 def test_an_estimate_exactly_max_state_age_old_does_not_end_the_wait(tmp_path, monkeypatch):
     """Fresh means younger than ``max_state_age_s``: an estimate exactly that old (4/64 s) with
     a settled filter does not end the wait; the preflight waits out its timeout and refuses."""
-    import datt.deploy.runner as module
-    from datt.configuration import compose
-    from datt.deploy.schema import deploy_params
-
-    clock = SixtyFourthClock()
-    monkeypatch.setattr(module, "time", clock)
-    safety = deploy_params(compose("deploy").deploy)[2]
-    safety.max_state_age_s = 4.0 / 64.0
-    p = SimpleNamespace(preflight_timeout_s=0.25, min_battery_v=3.7, origin_m=[0.0, 0.0], takeoff_height_m=1.0)
-    link = PreflightLink(clock, age_s=4.0 / 64.0, settles_after=1)
-    runner = bookkeeping_runner(tmp_path, p=p, link=link, safety=safety, mocap=None)
-    with pytest.raises(_Abort):
-        runner._preflight()
+    runner, clock, start = preflight(
+        tmp_path, monkeypatch, clock=SixtyFourthClock(), timeout_s=0.25, max_state_age_s=4.0 / 64.0,
+        age_s=4.0 / 64.0, settles_after=1,
+    )  # fmt: skip
+    assert start is None
     assert clock.now_s == 1000.25 and "no fresh state estimate (the last arrived 78 ms ago" in runner.outcome.text
