@@ -3,13 +3,16 @@
 against hand-written sources (so a rule that cannot find what it looks for fails here, not only
 on a checkout)."""
 
+import math
 import os
 import re
 
 import pytest
+import torch
 
 from datt.deploy import firmware
 from datt.deploy.firmware import FACTS, Fact, read_fact
+from datt.sim.vehicles import RATE_LOOPS, VEHICLES, number
 
 FIRMWARE = os.environ.get("CRAZYFLIE_FIRMWARE")
 
@@ -44,26 +47,77 @@ def test_the_simulated_firmware_models_the_same_firmware():
     from datt.deploy.sim import stabilizer as st
 
     assert st.ATTITUDE_RATE_HZ == FACTS["attitude_rate_hz"].value
-    assert (st.ARM_LENGTH_M, st.THRUST2TORQUE_M) == (FACTS["arm_length_m"].value, FACTS["thrust2torque_m"].value)
-    assert st.INERTIA_KGM2 == tuple(FACTS[f"inertia_{a}_kgm2"].value for a in "xyz")
-    terms = ("kp", "ki", "kd", "integration_limit")
-    assert st.RATE_PID_CF2 == tuple(
-        tuple(FACTS[f"pid_{axis}_rate_{t}"].value for t in terms) for axis in ("roll", "pitch", "yaw")
+
+
+@pytest.mark.parametrize("name", sorted(VEHICLES))
+def test_every_number_of_a_vehicle_preset_is_a_fact_or_cited(name):
+    """Each preset's numbers have one source each: a firmware fact (read back from a checkout by
+    the test above) or a citation; nothing of the preset is left unsourced."""
+    v = VEHICLES[name]
+    numbers = {"thrust_max_n", "thrust_min_n", "thrust2torque_m", "firmware_mass_kg", "mass_kg", "rate_loop"}
+    numbers |= {"arm_length_m", "max_command"} | {f"vmotor2thrust[{i}]" for i in range(4)}
+    numbers |= {f"inertia_kgm2[{i}]" for i in range(3)} | {f"rate_pid[{i}][{j}]" for i in range(3) for j in range(4)}
+    assert set(v.sources) == numbers
+    for key, src in v.sources.items():
+        if src.rule == "cited":
+            assert src.file, key
+        else:
+            assert FACTS[f"{name}.{key}"].value == number(v, key)
+    assert v.rate_loop in RATE_LOOPS
+    assert v.max_command == FACTS["rpyt_max_thrust"].value
+
+
+@pytest.mark.parametrize("name", sorted(VEHICLES))
+def test_the_simulated_vehicle_and_the_training_loop_fly_the_presets_numbers(name):
+    """The simulated Crazyflie's stabilizer and motors and the training side's firmware rate model
+    take every constant from the preset (no copy of their own to drift)."""
+    from datt.deploy.sim.motors import FirmwareMotors, MotorParams
+    from datt.deploy.sim.stabilizer import Stabilizer, body_torques_nm
+    from datt.sim.firmware_rates import FirmwareRateLoop
+
+    v = VEHICLES[name]
+    motors = FirmwareMotors(MotorParams(vehicle=name))
+    assert (motors.p.mass_kg, motors.p.thrust_max_n, motors.p.thrust_min_n) == (
+        v.mass_kg,
+        v.thrust_max_n,
+        v.thrust_min_n,
     )
+    p0, p1, p2, p3 = v.vmotor2thrust
+    assert motors.fit_force_n(3.5) == pytest.approx(p0 + 3.5 * (p1 + 3.5 * (p2 + 3.5 * p3)), rel=1e-12)
+    st = Stabilizer(motors)
+    assert [(p.kp, p.ki, p.kd, p.i_limit) for p in st.pids] == list(v.rate_pid)
+    arm = v.arm_length_m / math.sqrt(2)
+    assert body_torques_nm([1.0, 0.0, 0.0, 0.0], v) == pytest.approx((-arm, -arm, -v.thrust2torque_m), rel=1e-12)
+    loop = FirmwareRateLoop(1, 0.02, v.mass_kg, 0.03, 9.81, torch.device("cpu"), torch.float64, v)
+    assert loop.kp.tolist() == [g[0] for g in v.rate_pid] and loop.inertia.tolist() == list(v.inertia_kgm2)
+    assert loop.torque_per_n[:, 0].tolist() == pytest.approx([-arm, -arm, -v.thrust2torque_m], rel=1e-12)
+    assert loop.command_per_mps2 == pytest.approx(v.mass_kg / 4 / v.thrust_max_n * 65535, rel=1e-12)
 
 
-def test_the_training_sides_firmware_rate_model_is_the_same_firmware():
-    """``env.quad.rate_model: firmware`` keeps its own copy too (it is not the simulated vehicle's)."""
-    from datt.sim import firmware_rates as fr
-
-    assert fr.ATTITUDE_RATE_HZ == FACTS["attitude_rate_hz"].value
-    assert (fr.ARM_LENGTH_M, fr.THRUST2TORQUE_M) == (FACTS["arm_length_m"].value, FACTS["thrust2torque_m"].value)
-    assert (fr.THRUST_MAX_N, fr.THRUST_MIN_N) == (FACTS["thrust_max_n"].value, FACTS["thrust_min_n"].value)
-    assert fr.INERTIA_KGM2 == tuple(FACTS[f"inertia_{a}_kgm2"].value for a in "xyz")
-    terms = ("kp", "ki", "kd", "integration_limit")
-    assert fr.RATE_PID_GAINS == tuple(
-        tuple(FACTS[f"pid_{axis}_rate_{t}"].value for t in terms) for axis in ("roll", "pitch", "yaw")
-    )
+def test_the_branch_rule_reads_the_define_of_the_named_setup_only():
+    source = """
+#if defined(CONFIG_KIT)
+    #define CF_MASS 0.0325f
+#else
+    #define CF_MASS 0.029f
+#endif
+#ifdef CONFIG_COMPENSATED
+    #if defined(CONFIG_PLUS)
+        #define THRUST_MAX 0.12f
+    #elif defined(CONFIG_KIT) // kit
+        #if 0
+        #define THRUST_MAX 9.0f
+        #endif
+        #define THRUST_MAX 0.18f
+    #endif
+#endif
+"""
+    assert firmware._branch_define(source, "CONFIG_KIT", "THRUST_MAX") == "0.18f"
+    assert firmware._branch_define(source, "CONFIG_PLUS", "THRUST_MAX") == "0.12f"
+    assert firmware._branch_define(source, "CONFIG_KIT", "CF_MASS") == "0.0325f"
+    assert firmware._branch_define(source, "!CONFIG_KIT", "CF_MASS") == "0.029f"
+    assert firmware._branch_define(source, "CONFIG_PLUS", "CF_MASS") is None
+    assert firmware._branch_define(source, "CONFIG_KI", "THRUST_MAX") is None  # a whole word only
 
 
 CONTROLLER_H = """

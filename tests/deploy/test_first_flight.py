@@ -438,6 +438,7 @@ def test_each_outcome_kind_has_its_text_and_exit_status():
             "preflight failed: deploy.safety.geofence_max_m: ...",
             2,
         ),
+        Outcome(Kind.REFUSED_REFERENCE, "asks for 11.4 m/s²"): ("landed without tracking: asks for 11.4 m/s²", 2),
         Outcome(Kind.REFUSED, "vehicle not level"): ("preflight failed: vehicle not level", 4),
         Outcome(Kind.ARMING_FAILED, "no"): ("arming failed: no", 4),
         Outcome(Kind.STOPPED, "SIGTERM"): ("stopped before arming (SIGTERM): nothing was armed", 130),
@@ -447,7 +448,7 @@ def test_each_outcome_kind_has_its_text_and_exit_status():
     }
     assert {o.kind for o in cases} == set(Kind)
     for outcome, (text, code) in cases.items():
-        assert (outcome.text, outcome.exit_code, outcome.landed) == (text, code, code == 0)
+        assert (outcome.text, outcome.exit_code, outcome.landed) == (text, code, code == 0), outcome.kind
 
 
 # -- the simulated vehicle's estimate, supervisor and radio ---------------------------------------

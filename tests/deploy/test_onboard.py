@@ -406,7 +406,9 @@ def test_the_app_flies_on_the_hover_trims_map(tmp_path):
 
         threading.Thread(target=sample, daemon=True).start()
 
+    # the training model's rate loop: on a stock vehicle's own loop this vehicle is at its hover trim's limit
     overrides = ["deploy.onboard=true", "deploy.server.mass_kg=0.0374", "deploy.server.thrust_gain=0.9"]
+    overrides.append("deploy.server.rate_loop=pi_first_order")
     overrides += [f"deploy.uri=udp://127.0.0.1:{next(ports)}", "deploy.flight.hover_s=1.0"]
     cfg = compose("deploy", [*SHORT_FLIGHT, *overrides])
     summary = run_deploy(cfg, run_dir=tmp_path, server_hook=watch)

@@ -277,3 +277,41 @@ def test_battery_filter_step_response_by_hand():
     assert f.update(3.0, 6.0) == pytest.approx(3.0)
     unfiltered = safety.BatteryFilter(0.0)
     assert [unfiltered.update(v, 0.02) for v in (4.0, 3.1, 3.9)] == [4.0, 3.1, 3.9]
+
+
+def _sinking(z_m, reference_z_m, tracking=True, sink=0.3):
+    from datt.deploy.link import StateSample
+
+    p = safety.SafetyParams(track_sink_m=sink)
+    state = StateSample(t_s=10.0, pos_m=[0.0, 0.0, z_m], vel_mps=[0.0, 0.0, 0.0], quat=[1.0, 0.0, 0.0, 0.0], vbat_v=4.0)
+    return safety.check(
+        p,
+        now_s=10.0,
+        state=state,
+        command=None,
+        estop=False,
+        link_lost=False,
+        mocap_age_s=None,
+        tracking=tracking,
+        reference_z_m=reference_z_m,
+    )
+
+
+@pytest.mark.parametrize(
+    "z_m, reference_z_m, tracking, sink, action",
+    [
+        (0.8, 1.0, True, 0.25, "OK"),  # 0.2 below
+        (0.75, 1.0, True, 0.25, "OK"),  # at the edge (exact in binary): 0.25 below is still flown
+        (0.74, 1.0, True, 0.25, "LAND"),
+        (0.69, 1.0, False, 0.3, "OK"),  # takeoff and hover: the PID's own business
+        (0.69, None, True, 0.3, "OK"),  # no reference known: no sink check
+        (0.69, 1.0, True, None, "OK"),  # off
+        (1.40, 1.0, True, 0.3, "OK"),  # above the reference: not sinking
+        (0.9, float("nan"), True, 0.3, "LAND"),  # a reference that is not a number is not "close enough"
+    ],
+)
+def test_sinking_below_the_reference_while_tracking_lands(z_m, reference_z_m, tracking, sink, action):
+    decision = _sinking(z_m, reference_z_m, tracking, sink)
+    assert decision.action == action
+    if action == safety.LAND:
+        assert decision.reason.startswith("sinking while tracking") and "track_sink_m" in decision.reason

@@ -8,16 +8,11 @@ import torch
 
 from datt.deploy.sim.motors import UINT16_MAX, FirmwareMotors, MotorParams
 from datt.deploy.sim.server import SimCrazyflie, SimCrazyflieParams, check_server_settings
-from datt.deploy.sim.stabilizer import (
-    ARM_LENGTH_M,
-    INERTIA_KGM2,
-    THRUST2TORQUE_M,
-    PidAxis,
-    Stabilizer,
-    body_torques_nm,
-    mix_and_cap,
-)
+from datt.deploy.sim.stabilizer import PidAxis, Stabilizer, body_torques_nm, mix_and_cap
 from datt.errors import ConfigError
+from datt.sim.vehicles import CF21
+
+ARM_LENGTH_M, INERTIA_KGM2, THRUST2TORQUE_M = CF21.arm_length_m, CF21.inertia_kgm2, CF21.thrust2torque_m
 
 MASS_KG = 0.034
 
@@ -147,16 +142,17 @@ def test_the_simulated_vehicle_hovers_on_the_firmware_loop_at_the_hover_command(
 
 
 def test_the_rate_loop_setting_is_checked():
-    check_server_settings({"rate_loop": "training_model", "motor_time_constant_s": 0.0})
+    check_server_settings({"rate_loop": "pi_first_order", "motor_time_constant_s": 0.0})
     with pytest.raises(
-        ConfigError, match=r"^deploy\.server\.rate_loop: unknown value 'pid'; allowed: firmware, training_model$"
+        ConfigError,
+        match=r"^deploy\.server\.rate_loop: unknown value 'pid'; allowed: firmware, pi_first_order, null$",
     ):
         check_server_settings({"rate_loop": "pid"})
     with pytest.raises(ConfigError, match=r"^deploy\.server\.motor_time_constant_s: "):
         check_server_settings({"motor_time_constant_s": -0.1})
 
 
-@pytest.mark.parametrize("rate_loop", ["training_model", "firmware"])
+@pytest.mark.parametrize("rate_loop", ["pi_first_order", "firmware"])
 def test_a_position_hold_mode_holds_the_height_of_a_vehicle_with_weak_motors(rate_loop):
     """``flightmode.althold`` (as an earlier flight may leave it): the vehicle's own height loop
     stops a climb and holds, whatever its motors' gain against the firmware's map."""

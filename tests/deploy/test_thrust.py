@@ -9,9 +9,10 @@ import pytest
 
 from datt.configuration import compose
 from datt.deploy.schema import deploy_params
-from datt.deploy.sim.motors import VMOTOR2THRUST_21_PLUS, FirmwareMotors, MotorParams
+from datt.deploy.sim.motors import FirmwareMotors, MotorParams
 from datt.deploy.thrust import ThrustMap, ThrustParams, fit_hover, hover_command_from_hover
 from datt.errors import ConfigError
+from datt.sim.vehicles import CF21
 
 P = ThrustParams()
 K = 4 * 0.12 / (65535 * 0.034)  # m/s² per command unit for the default 34 g vehicle, THRUST_MAX 0.12 N
@@ -169,7 +170,7 @@ def test_simulated_motors_stop_below_thrust_min_and_without_a_battery():
 
 def test_a_low_battery_caps_the_force_at_the_cubic_fit():
     m = FirmwareMotors()
-    p0, p1, p2, p3 = VMOTOR2THRUST_21_PLUS
+    p0, p1, p2, p3 = CF21.vmotor2thrust
     at_3v = p0 + p1 * 3.0 + p2 * 9.0 + p3 * 27.0  # 0.1128 N < THRUST_MAX
     assert m.motor_force_n(65535, 3.0) == pytest.approx(at_3v, rel=1e-12)
     assert m.motor_force_n(30000, 3.0) == pytest.approx(30000 / 65535 * 0.12, rel=1e-12)  # within reach

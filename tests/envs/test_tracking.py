@@ -809,3 +809,21 @@ def test_a_reset_starts_the_rma_history_from_the_state_the_drone_restarts_in():
     env.reset(td)
     history = env.adaptation.history[1]  # [L, 14]: vel, quat, rates, thrust - g, rates commanded
     assert torch.equal(history[:, 3], torch.ones(50)) and history[:, [0, 1, 2, 4, 5, 6]].abs().max() == 0
+
+
+def test_a_replaced_reference_is_read_from_the_current_step_on():
+    """``replace_reference``: the table and the policy's window are the new table's from each
+    drone's current step (deployment slows a reference this way); a wrong shape is refused."""
+    env = make_env(compose("train", ["env.compile=false"]), num_envs=2, seed=0)
+    env.reset()
+    for _ in range(3):
+        env.advance_reference()
+    new = torch.randn_like(env.ref_table)
+    env.replace_reference(new)
+    assert torch.equal(env.ref_table, new)
+    future = env._ref_future()  # [H, N, 3] at t + i Δ
+    expected = new[:, 3 + env.ref_offsets].transpose(0, 1)
+    assert torch.equal(future, expected)
+    torch.testing.assert_close(env.reference_now_m(), new[:, 3])
+    with pytest.raises(ValueError, match="replace_reference"):
+        env.replace_reference(new[:, :-1])

@@ -9,6 +9,7 @@ from datt.configuration import compose, upgrade_saved_config
 from datt.control.factory import build_controller
 from datt.eval.rollout import evaluate
 from datt.paths import PACKAGE_DIR, resolve_path
+from datt.sim.vehicles import VEHICLES
 
 
 def test_shipped_checkpoint_is_found_from_any_directory(tmp_path, monkeypatch):
@@ -35,7 +36,8 @@ ADDED_SINCE: dict[str, tuple] = {
     "env.obs.timing": ("project",),
     "curriculum.fixed_ref": ("steps",),
     # the firmware rate model's vehicle: read only under env.quad.rate_model=firmware
-    "env.quad.vehicle_mass_kg": (0.034,),
+    "env.quad.vehicle_mass_kg": (0.034, None),
+    "env.quad.vehicle": ("cf21",),  # the vehicle preset (datt.sim.vehicles): its numbers are the former constants
     "env.quad.motor_time_constant_s": (0.03,),
     "env.obs.predict_latency": (False,),
     "env.obs.predict_latency_error_steps": (0,),
@@ -60,6 +62,9 @@ def drop_added_keys(trained: dict, expected: dict) -> None:
         else:
             if name not in have:  # a checkpoint trained before the key existed
                 assert want.pop(name) in values, path
+    quad = expected["env"]["quad"]
+    if "vehicle_mass_kg" in quad and quad["vehicle_mass_kg"] is None:  # null now: the preset's mass, then written out
+        quad["vehicle_mass_kg"] = VEHICLES[quad.get("vehicle", "cf21")].mass_kg
 
 
 @pytest.mark.parametrize(

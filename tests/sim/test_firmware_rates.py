@@ -11,8 +11,9 @@ import torch
 
 from datt.deploy.sim.motors import FirmwareMotors, MotorParams
 from datt.deploy.sim.stabilizer import Stabilizer
-from datt.sim.firmware_rates import THRUST_MAX_N, UINT16_MAX
+from datt.sim.firmware_rates import UINT16_MAX
 from datt.sim.quadrotor import Quadrotor, QuadrotorParams
+from datt.sim.vehicles import CF21
 
 MASS_KG = 0.034
 HOVER = 9.81
@@ -42,7 +43,7 @@ def test_it_turns_and_lifts_the_body_as_the_simulated_crazyflies_stabilizer_does
     sequence += [(0.0, 3.0, 3.0, 0.0), (1.0, 0.0, 0.0, 0.0), (11.0, -8.0, 8.0, -2.0)]
     for thrust, *rates in sequence * 2:
         _step(quad, thrust, rates)
-        command = int(min(thrust, 12.92) * MASS_KG / 4 / THRUST_MAX_N * UINT16_MAX)
+        command = int(min(thrust, 12.92) * MASS_KG / 4 / CF21.thrust_max_n * UINT16_MAX)
         for _ in range(10):
             force_n = ref.tick(tuple(rates), command, 4.0)
         torch.testing.assert_close(quad.state.rate_radps[0], torch.tensor(ref.rate_radps, dtype=torch.float64))

@@ -4,12 +4,14 @@ by hand: it takes it from :data:`FACTS`. ``tests/deploy/test_firmware_table.py``
 back from a firmware checkout (``CRAZYFLIE_FIRMWARE=<dir>``), so a firmware that renumbers an enum
 or renames a parameter fails a test instead of a flight.
 
-A fact is located in its file by one of four rules (:func:`read_fact`):
+A fact is located in its file by one of five rules (:func:`read_fact`):
 
 * ``enum``: the position of a member in a ``typedef enum`` as the compiler counts it (explicit
   values, comments left out), the members behind ``#ifdef`` / ``#if defined`` / ``#ifndef`` /
   ``#else`` counted only as the options the build enables (:data:`BUILD_OPTIONS`) select them;
 * ``define``: a ``#define`` (``M2T(...)`` and a float suffix stripped);
+* ``branch``: a ``#define`` inside one branch of an ``#if`` chain, ``where`` = ``"OPTION:MACRO"``
+  (the branch whose ``#if`` / ``#elif`` names ``OPTION``; ``"!OPTION:MACRO"``: that ``#if``'s ``#else``);
 * ``regex``: the first group of a regular expression (a number, or the text for a text fact);
 * ``param`` / ``log``: a parameter or log variable ``group.name`` declared in the file.
 """
@@ -19,6 +21,8 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass
 from pathlib import Path
+
+from datt.sim.vehicles import VEHICLES, number
 
 FIRMWARE_VERSION = "2026.08"
 # Kconfig options of the builds this project flies: the DATT app (app-config) adds the
@@ -32,6 +36,17 @@ class Fact:
     file: str  # path inside crazyflie-firmware
     rule: str  # enum | define | regex | param | log
     where: str  # enum: "Typedef.Member"; define: macro name; regex: pattern; param/log: unused
+
+
+def vehicle_facts() -> dict[str, Fact]:
+    """The firmware numbers of every vehicle preset (:data:`datt.sim.vehicles.VEHICLES`) as facts
+    ``"<preset>.<field>"``, so the checkout test reads them back like every other fact."""
+    return {
+        f"{v.name}.{key}": Fact(number(v, key), src.file, src.rule, src.where)
+        for v in VEHICLES.values()
+        for key, src in v.sources.items()
+        if src.rule != "cited"
+    }
 
 
 _CONTROLLER_H = "src/modules/interface/controller/controller.h"
@@ -106,30 +121,12 @@ FACTS: dict[str, Fact] = {
     "param_posset": Fact("flightmode.posSet", _RPYT_C, "param", ""),
     "param_kalman_reset": Fact("kalman.resetEstimation", "src/modules/src/estimator/estimator_kalman.c", "param", ""),
     "log_supervisor_info": Fact("supervisor.info", _SUPERVISOR_C, "log", ""),
-    # the thrust map (Crazyflie 2.1, standard motors): THRUST_MAX N per motor, motors off below THRUST_MIN
-    "thrust_max_n": Fact(0.12, "src/platform/interface/platform_defaults_cf2.h", "define", "THRUST_MAX"),
-    "thrust_min_n": Fact(
-        0.012817578393224994, "src/platform/interface/platform_defaults_cf2.h", "define", "THRUST_MIN"
-    ),
-    # below the commander (the simulated vehicle's rate loop and body, datt.deploy.sim.stabilizer)
+    # below the commander (the simulated vehicle's rate loop, datt.deploy.sim.stabilizer)
     "attitude_rate_hz": Fact(
         500, "src/modules/interface/stabilizer_types.h", "regex", r"#define ATTITUDE_RATE RATE_(\d+)_HZ"
     ),
-    "arm_length_m": Fact(0.046, _CF2_H, "define", "ARM_LENGTH"),
-    "thrust2torque_m": Fact(0.0069928948992470565, _CF2_H, "define", "THRUST2TORQUE"),
-    **{
-        f"pid_{axis.lower()}_rate_{term.lower()}": Fact(value, _CF2_H, "define", f"PID_{axis}_RATE_{term}")
-        for axis, gains in (
-            ("ROLL", (250.0, 500.0, 2.5, 33.3)),
-            ("PITCH", (250.0, 500.0, 2.5, 33.3)),
-            ("YAW", (120.0, 16.7, 0.0, 166.7)),
-        )
-        for term, value in zip(("KP", "KI", "KD", "INTEGRATION_LIMIT"), gains)
-    },
-    **{
-        f"inertia_{axis}_kgm2": Fact(value, _LEE_C, "regex", r"\.J = \{" + r"[-+.\de]+, " * i + r"([-+.\de]+)")
-        for i, (axis, value) in enumerate(zip("xyz", (16.571710e-6, 16.655602e-6, 29.261652e-6)))
-    },
+    # each vehicle preset's numbers (datt.sim.vehicles): "<preset>.<field>"
+    **vehicle_facts(),
 }
 
 
@@ -188,6 +185,35 @@ def _enum_index(source: str, typedef: str, member: str, options: tuple[str, ...]
     return None
 
 
+def _branch_define(source: str, option: str, macro: str) -> str | None:
+    """The text of ``#define macro`` in the branch of the ``#if`` / ``#elif`` that names ``option``
+    (``!option``: the ``#else`` of the ``#if`` that names it), nested conditionals skipped; the
+    first such branch that defines it."""
+    negate = option.startswith("!")
+    name = option.lstrip("!")
+    lines = [line.strip() for line in source.splitlines()]
+    for i, line in enumerate(lines):
+        if not (line.startswith(("#if", "#elif")) and re.search(r"\b" + re.escape(name) + r"\b", line)):
+            continue
+        inside, depth = not negate, 0
+        for text in lines[i + 1 :]:
+            if text.startswith("#if"):
+                depth += 1
+            elif text.startswith("#endif"):
+                if depth == 0:
+                    break
+                depth -= 1
+            elif text.startswith(("#elif", "#else")) and depth == 0:
+                if not negate:
+                    break
+                inside = text.startswith("#else")
+            elif inside and depth == 0:
+                found = re.match(r"#define\s+" + re.escape(macro) + r"\s+([^\n/]+)", text)
+                if found:
+                    return found.group(1)
+    return None  # no branch naming option defines macro
+
+
 def read_fact(root: str | Path, item: Fact, options: tuple[str, ...] = BUILD_OPTIONS) -> int | float | str | None:
     """The value ``item`` has in the firmware checkout at ``root`` (None: not found there)."""
     path = Path(root) / item.file
@@ -200,6 +226,10 @@ def read_fact(root: str | Path, item: Fact, options: tuple[str, ...] = BUILD_OPT
     if item.rule == "define":
         found = re.search(r"#define\s+" + re.escape(item.where) + r"\s+([^\n/]+)", source)
         return None if found is None else _number(found.group(1))
+    if item.rule == "branch":
+        option, macro = item.where.split(":")
+        found = _branch_define(source, option, macro)
+        return None if found is None else _number(found)
     if item.rule == "regex":
         found = re.search(item.where, source)
         if found is None:

@@ -51,12 +51,17 @@ class OnboardFlight(FlightRunner):
             track = self._model(self.track_controller, self.track_family)
             self._check_reference_in_geofence(track, self.p.track_s)
             self._onboard_prepare(track)
-            return self._takeoff(start_rel), self._hover_after_trim()
+            return self._takeoff(start_rel), self._hover_after_trim(), track
 
         def airborne(origin, built):
-            takeoff, hover = built
+            takeoff, hover, track = built
             if self._climb(origin, takeoff, hover, []) != OK:
                 return  # killed, or already landed
+            # the uploaded reference (slowed before the upload if it had to be) against the trimmed map's
+            # ceiling at the app's own maxCmd; the app cannot be given another table now: fit or LAND
+            if self._thrust_check(track, self._app_ceiling_mps2(), can_slow=False) != OK:
+                self._land(origin)
+                return
             if not self._app_heard():
                 self._land(origin)
                 return
@@ -86,6 +91,10 @@ class OnboardFlight(FlightRunner):
                     f"checkpoint is {self.onboard_policy_id:#010x}: flash the app exported from it "
                     "(datt export format=app checkpoint=...), or pass the checkpoint the app was built from"
                 )
+        if self.p.infeasible == "slow":  # slowed before the upload, on the configured map's ceiling
+            refusal = self._fit_reference(track, self._app_ceiling_mps2(), can_slow=True)
+            if refusal is not None:
+                self._refuse(f"deploy.flight.infeasible: {refusal}")
         steps = self._steps(track, self.p.track_s)
         env = track.env
         # the track's points and the window after them, as far as the reference goes (at least the track)
@@ -107,6 +116,10 @@ class OnboardFlight(FlightRunner):
         self._upload(table)
         self._onboard_steps = steps
         self.link.log_block("datt", onboard.LOG_BLOCK, self.link.log_period_ms, self._on_app_log)
+
+    def _app_ceiling_mps2(self) -> float:
+        """The most collective thrust the app commands: its ``maxCmd`` on the thrust map (trimmed, after the hover)."""
+        return self.thrust.thrust_mps2(self.thrust.p.app_max_command)
 
     def _app_heard(self) -> bool:
         """Whether the app's log (block ``datt``, followed since before arming) has reached the
@@ -288,6 +301,7 @@ class OnboardFlight(FlightRunner):
             link_lost=False,
             mocap_age_s=self._mocap_age(),
             tracking=phase == onboard.TRACK,
+            reference_z_m=float(last[2][2] + origin[2]) if phase == onboard.TRACK else None,
         )
         if decision.action == KILL:
             self._kill(decision.reason)

@@ -35,6 +35,7 @@ import torch
 from datt.configuration import FINITE, NON_NEGATIVE, POSITIVE, POSITIVE_OR_NONE, Range, check_ranges, ranged
 from datt.deploy import firmware
 from datt.deploy.ceiling_guard import keep_altitude_at_ceiling
+from datt.deploy.feasibility import peak_ask, slow_factor, slowed
 from datt.deploy.flight_log import FlightLog, errors_when_measured, measured_at
 from datt.deploy.outcome import Kind, Outcome
 from datt.deploy.safety import KILL, LAND, OK, BatteryFilter, SafetyParams, check, tilt_deg
@@ -146,6 +147,9 @@ class FlightModel:
         return self.env.adaptation.d_hat[0].numpy().astype(float)
 
 
+INFEASIBLE = ("refuse", "slow")  # deploy.flight.infeasible
+
+
 @dataclass
 class FlightParams:
     rate_hz: float = ranged(50.0, POSITIVE)
@@ -176,6 +180,13 @@ class FlightParams:
     ceiling_guard: bool = False
     ceiling_climb_reserve_mps2: float = ranged(0.0, NON_NEGATIVE)
     ceiling_level_gain_per_s: float = ranged(4.0, NON_NEGATIVE)
+    # before TRACK, the reference's thrust ask against the ceiling the hover trim measured
+    # (datt.deploy.feasibility): a reference the vehicle cannot follow is refused (LAND from the
+    # hover) or, with "slow", flown slower in time until it fits (at most max_slow_factor)
+    infeasible: str = ranged("refuse", Range(choices=INFEASIBLE))
+    thrust_window_s: float = ranged(0.4, Range(0.02, 2.0))  # corners averaged over this (a tracker's response time)
+    thrust_reserve_mps2: float = ranged(0.5, Range(0.0, 10.0))  # kept under the ceiling for the feedback
+    max_slow_factor: float = ranged(2.0, Range(1.0, 10.0))
 
     def validate(self) -> None:
         from datt.errors import ConfigError
@@ -241,6 +252,8 @@ class FlightRunner:
         self._excitation = None  # calibration: extra thrust (m/s²) as a function of the tick index
         self.stop_request = stop_request  # datt.runs.StopRequest active while the flight was prepared
         self.summary_extra = dict(summary_extra or {})  # recorded in events.json with the summary
+        self._track_table = None  # the track's reference table as drawn (the thrust check slows a copy)
+        self._refused_reference: str | None = None  # the thrust check's refusal: the outcome's detail
 
     # -- helpers ---------------------------------------------------------------------------
     @property
@@ -492,6 +505,9 @@ class FlightRunner:
             takeoff, hover, track = built
             if self._climb(origin, takeoff, hover, [track]) != OK:
                 return  # killed, or already landed
+            if self._thrust_check(track, self.thrust.ceiling_mps2, can_slow=True) != OK:
+                self._land(origin)
+                return
             self._set_phase("TRACK")
             ended = self._fly_phase(track, self.p.track_s, origin)
             self._note_guard(track)
@@ -500,6 +516,58 @@ class FlightRunner:
             self._land(origin)
 
         return self._flight(build, airborne)
+
+    def _thrust_check(self, track: FlightModel, ceiling_mps2: float, can_slow: bool) -> str:
+        """Before TRACK: :meth:`_fit_reference`, and a reference that does not fit is not flown (a
+        LAND event names both figures and the option; the outcome is ``refused_reference``).
+        Returns OK or LAND."""
+        refusal = self._fit_reference(track, ceiling_mps2, can_slow)
+        if refusal is None:
+            return OK
+        self._refused_reference = refusal
+        self._event("LAND", refusal)
+        return LAND
+
+    def _fit_reference(self, track: FlightModel, ceiling_mps2: float, can_slow: bool) -> str | None:
+        """Whether the vehicle can follow the track's reference (:mod:`datt.deploy.feasibility`):
+        its peak thrust ask plus ``thrust_reserve_mps2`` against ``ceiling_mps2``. A reference that
+        asks for more is flown slower when ``infeasible`` is ``slow`` and ``can_slow`` (the track's
+        table replaced in place: the same duration covers less of the path). Returns None (flown,
+        a "thrust check" event says how) or the refusal's text."""
+        steps = self._steps(track, self.p.track_s)
+        if self._track_table is None:  # the reference as drawn (a second check slows the original)
+            self._track_table = track.env.ref_table[0].double().numpy().copy()
+        table, dt_s, gravity = self._track_table, float(track.env.dt_s), self.thrust.p.gravity_mps2
+        # the TRACK phase's points (a track longer than the table holds its last), the table after them its future
+        path = np.concatenate((table, np.repeat(table[-1:], max(0, steps + 1 - len(table)), axis=0)))
+        ask = peak_ask(path, dt_s, self.p.thrust_window_s, gravity, points=steps + 1)
+        limit = ceiling_mps2 - self.p.thrust_reserve_mps2
+        text = (
+            f"the reference asks for {ask.peak_mps2:.2f} m/s² of thrust (at t={ask.at_s:.2f} s, its acceleration "
+            f"over deploy.flight.thrust_window_s {self.p.thrust_window_s:g} s) + {self.p.thrust_reserve_mps2:g} "
+            f"reserve; the vehicle's ceiling is {ceiling_mps2:.2f} m/s² (thrust-to-weight {ceiling_mps2 / gravity:.2f})"
+        )
+        check = {"ask_mps2": ask.peak_mps2, "ceiling_mps2": ceiling_mps2, "reserve_mps2": self.p.thrust_reserve_mps2}
+        self.summary_extra["thrust_check"] = check
+        if ask.peak_mps2 <= limit:
+            self._event("thrust check", f"{text}: flown")
+            return None
+        slow = can_slow and self.p.infeasible == "slow"
+        factor = (
+            slow_factor(path, dt_s, self.p.thrust_window_s, gravity, limit, self.p.max_slow_factor) if slow else None
+        )
+        if factor is not None:
+            track.env.replace_reference(
+                torch.as_tensor(slowed(table, dt_s, factor)).unsqueeze(0).to(track.env.ref_table)
+            )
+            check["slow_factor"] = factor
+            self._event("thrust check", f"{text}: flown {factor:.2f} times slower (deploy.flight.infeasible=slow)")
+            return None
+        if slow:
+            hint = f"not even {self.p.max_slow_factor:g} times slower (deploy.flight.max_slow_factor)"
+        else:
+            hint = "deploy.flight.infeasible=slow flies it slower"
+        return f"{text}: not flown; {hint}, or fly a gentler traj or a stronger vehicle"
 
     def _note_guard(self, track: FlightModel) -> None:
         """How many TRACK commands the ceiling guard levelled (the summary's ``ceiling_guarded_ticks``)."""
@@ -680,6 +748,7 @@ class FlightRunner:
                 link_lost=self.link.link_lost.is_set(),
                 mocap_age_s=mocap_age,
                 tracking=self.phase == "TRACK",
+                reference_z_m=float(model.reference()[2] + origin[2]),
             )
             ended = self._act_on(decision, jitter_ms, allow_land)
             if ended is not None:
@@ -835,7 +904,10 @@ class FlightRunner:
         if result == OK:
             self.link.send_rates(0.0, 0.0, 0.0, 0)
             reasons = [e["text"] for e in self.events if e["kind"] == "LAND"]
-            self.outcome = Outcome(Kind.LANDED_EARLY, reasons[0]) if reasons else Outcome(Kind.LANDED)
+            if self._refused_reference is not None:
+                self.outcome = Outcome(Kind.REFUSED_REFERENCE, self._refused_reference)
+            else:
+                self.outcome = Outcome(Kind.LANDED_EARLY, reasons[0]) if reasons else Outcome(Kind.LANDED)
 
     # -- records ---------------------------------------------------------------------------
     def _track_errors(self) -> list[float]:

@@ -9,7 +9,10 @@ KILL: operator e-stop; link lost; no state estimate or one older than ``kill_sta
 LAND: a state estimate older than ``max_state_age_s`` (a late log packet: land on the last
       estimate before giving up at ``kill_state_age_s``); outside the geofence box; speed above
       ``max_speed_mps``; external position (mocap) older than ``max_mocap_age_s`` while a mocap
-      source is configured; command out of range (thrust or rates beyond the policy's bounds);
+      source is configured; while tracking, more than ``track_sink_m`` below the reference's
+      height (the vehicle cannot hold its height: at its thrust ceiling a policy that keeps
+      turning sinks; the PID lands it before it reaches ``track_floor_m``); command out of range
+      (thrust or rates beyond the policy's bounds);
       battery below ``land_battery_v``.
 
 The runner acts on the decision (KILL sends the emergency stop before anything else) and logs
@@ -45,6 +48,7 @@ class SafetyParams:
     battery_filter_s: float = ranged(1.0, NON_NEGATIVE)  # time constant of the battery voltage low-pass
     max_estimate_mocap_m: float = ranged(0.05, POSITIVE)  # preflight: the onboard estimate must agree with mocap
     track_floor_m: float | None = ranged(0.05, POSITIVE_OR_NONE)  # TRACK below this height: KILL (null: off)
+    track_sink_m: float | None = ranged(0.3, POSITIVE_OR_NONE)  # TRACK this far below the reference: LAND (null: off)
 
     def validate(self) -> None:
         from datt.errors import ConfigError
@@ -86,10 +90,12 @@ def check(
     link_lost: bool,
     mocap_age_s: float | None,
     tracking: bool = False,
+    reference_z_m: float | None = None,
 ) -> Decision:
     """``state``: a :class:`~datt.deploy.link.StateSample` or None; ``command``: the action about
     to be sent ``[thrust_mps2, wx, wy, wz]`` (or None before one exists); ``mocap_age_s``: None
-    when no mocap source is configured; ``tracking``: the flight is in TRACK (the floor applies)."""
+    when no mocap source is configured; ``tracking``: the flight is in TRACK (the floor applies);
+    ``reference_z_m``: the reference's height now (world frame; None: not known, no sink check)."""
     if estop:
         return Decision(KILL, "operator e-stop")
     if link_lost:
@@ -123,6 +129,8 @@ def check(
     speed = math.sqrt(sum(v * v for v in state.vel_mps))
     if speed > p.max_speed_mps:
         return Decision(LAND, f"speed {speed:.1f} m/s > {p.max_speed_mps} m/s")
+    if tracking and (sinking := _sinking(p, state.pos_m[2], reference_z_m)) is not None:
+        return sinking
     if mocap_age_s is not None and mocap_age_s > p.max_mocap_age_s:
         return Decision(LAND, f"mocap stale ({mocap_age_s * 1e3:.0f} ms > {p.max_mocap_age_s * 1e3:.0f} ms)")
     if command is not None:
@@ -132,6 +140,20 @@ def check(
     if state.vbat_v < p.land_battery_v:
         return Decision(LAND, f"battery {state.vbat_v:.2f} V < {p.land_battery_v} V")
     return Decision(OK)
+
+
+def _sinking(p: SafetyParams, z_m: float, reference_z_m: float | None) -> Decision | None:
+    """LAND when the vehicle is more than ``track_sink_m`` below the reference's height (a
+    reference that is not a number counts as too far), else None (also with no reference or the
+    check off)."""
+    sink = p.track_sink_m
+    if sink is None or reference_z_m is None or reference_z_m - z_m <= sink:
+        return None
+    return Decision(
+        LAND,
+        f"sinking while tracking (z {z_m:.2f} m, {reference_z_m - z_m:.2f} m below the "
+        f"reference > track_sink_m {sink} m: the thrust cannot hold the height)",
+    )
 
 
 class BatteryFilter:

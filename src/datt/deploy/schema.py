@@ -15,6 +15,7 @@ from datt.deploy.runner import FlightParams
 from datt.deploy.safety import SafetyParams
 from datt.deploy.thrust import ThrustParams
 from datt.errors import ConfigError
+from datt.sim.vehicles import VEHICLES, vehicle
 
 MOCAP_SOURCES = ("none", "simulated", "motioncapture")
 MODES = ("fly", "calibrate")
@@ -43,6 +44,7 @@ class DeployParams:
     nodes are checked by their own schemas)."""
 
     uri: str = MISSING
+    vehicle: str = ranged(MISSING, Range(choices=tuple(VEHICLES)))  # the preset that flies (datt.sim.vehicles)
     server: Any = MISSING  # simulated Crazyflie (deploy=sim) or null (a real one)
     mocap: MocapParams = MISSING
     mode: str = ranged(MISSING, Range(choices=MODES))
@@ -71,10 +73,18 @@ class DeployParams:
 
 
 def deploy_params(node: DictConfig) -> tuple[DeployParams, FlightParams, SafetyParams, ThrustParams]:
-    """``cfg.deploy`` checked against every schema of the flight session."""
+    """``cfg.deploy`` checked against every schema of the flight session; the thrust map's and the
+    simulated vehicle's nulls become the preset's numbers (``deploy.vehicle``)."""
     params = structured(DeployParams, OmegaConf.to_container(node, resolve=True), "deploy")
     flight = structured(FlightParams, params.flight, "deploy.flight")
     safety = structured(SafetyParams, params.safety, "deploy.safety")
-    thrust = structured(ThrustParams, params.thrust, "deploy.thrust")
+    preset = vehicle(params.vehicle)
+    thrust_node = dict(params.thrust)
+    for key in ("mass_kg", "thrust_max_n"):  # null: the preset's
+        if thrust_node.get(key) is None:
+            thrust_node[key] = getattr(preset, key)
+    thrust = structured(ThrustParams, thrust_node, "deploy.thrust")
+    if params.server is not None:
+        params.server = {**params.server, "vehicle": params.vehicle}
     params.predictor = structured(PredictorParams, params.predictor, "deploy.predictor")
     return params, flight, safety, thrust

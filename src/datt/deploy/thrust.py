@@ -41,11 +41,11 @@ UINT16_MAX = 65535
 
 @dataclass
 class ThrustParams:
-    """``conf/deploy/*.yaml`` key ``thrust`` (Crazyflie 2.1 with mocap markers by default)."""
+    """``conf/deploy/*.yaml`` key ``thrust`` (the ``cf21`` preset's numbers by default)."""
 
-    mass_kg: float = ranged(0.034, POSITIVE)
+    mass_kg: float = ranged(0.034, POSITIVE)  # deploy.thrust.mass_kg: null in the YAML = the preset's (deploy.vehicle)
     gravity_mps2: float = ranged(9.81, POSITIVE)
-    # the firmware's THRUST_MAX per motor (0.1125 before 2025-11; kit: 0.18 / 0.1625)
+    # the firmware's THRUST_MAX per motor (datt.sim.vehicles; null in the YAML = the preset's)
     thrust_max_n: float = ranged(0.12, POSITIVE)
     hover_command: float | None = ranged(None, POSITIVE_OR_NONE)  # calibrated; None = the firmware map's own (g / k)
     # calibrated k; None = 4 THRUST_MAX / (65535 m)

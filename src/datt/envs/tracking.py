@@ -228,6 +228,18 @@ class TrackingEnv(EnvBase):
         out.update({"done": false, "terminated": false.clone(), "truncated": false.clone()})
         return out
 
+    def replace_reference(self, table: torch.Tensor) -> None:
+        """Fly ``table`` (``[N, table_len, 3]``, world, m, at ``dt_s``) from now on: every drone's
+        reference table replaced and its window refilled from its current step (deployment slows a
+        reference in time this way, :mod:`datt.deploy.feasibility`)."""
+        if tuple(table.shape) != tuple(self.ref_table.shape):
+            raise ValueError(f"replace_reference: table {tuple(table.shape)}, need {tuple(self.ref_table.shape)}")
+        self.ref_table.copy_(table)
+        k = torch.arange(self.window, device=self.device)
+        rows = (self.step_idx.unsqueeze(0) + k.unsqueeze(1)).clamp_max(self.table_len - 1)  # [W, N]
+        slots = (self._head + k) % self.window
+        self.ref_window[slots] = self.ref_table.view(-1, 3)[self._row_base.unsqueeze(0) + rows]
+
     def _ref_future(self) -> torch.Tensor:
         """The H reference points at t + iΔ for every drone, ``[H, N, 3]`` (world)."""
         slots = (self._head + self.ref_offsets) % self.window

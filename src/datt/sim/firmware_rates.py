@@ -7,8 +7,9 @@ four motors together), and the body turns through its own inertia, not a fixed f
 
 Read from crazyflie-firmware 2026.08, the same sources as the simulated Crazyflie's
 :mod:`datt.deploy.sim.stabilizer` (an independent, batched implementation: the tests compare the
-two tick for tick; the constants below are checked against ``datt.deploy.firmware.FACTS``, which a
-test checks against a firmware checkout):
+two tick for tick). The vehicle's numbers (gains, frame, inertia, THRUST_MAX, THRUST_MIN) are its
+preset's (``env.quad.vehicle``, :mod:`datt.sim.vehicles`, each cited and checked against a
+firmware checkout):
 
 * rate PIDs (``controller_pid.c`` in rate mode, ``utils/src/pid.c``): per body axis on the error
   in deg/s, derivative on the measurement, integral clamped to its limit, output saturated to
@@ -26,7 +27,7 @@ test checks against a firmware checkout):
 
 The policy's thrust (m/s², mass-normalised) becomes the per-motor command of a linear thrust map,
 ``c = a * mass_kg / 4 / THRUST_MAX * 65535``, the map of ``datt.deploy.thrust`` for the firmware's
-own fit, so ``env.quad.max_thrust_mps2`` 12.92 is ``max_command`` 60000 on 34 g.
+own fit, so ``env.quad.max_thrust_mps2`` 12.92 is ``max_command`` 60000 on a 34 g ``cf21``.
 
 Frames and shapes: world z-up, body FLU; rates ``[N, 3]`` rad/s, forces ``[N, 4]`` N (motors
 M1..M4: front-right, back-right, back-left, front-left).
@@ -41,17 +42,11 @@ import torch
 from torch import Tensor
 
 from datt.sim.frames import quat_body_z, quat_exp_rotvec, quat_mul, quat_normalize
+from datt.sim.vehicles import CF21, Vehicle
 
 ATTITUDE_RATE_HZ = 500  # stabilizer_types.h: ATTITUDE_RATE
 UINT16_MAX = 65535
 INT16_MIN, INT16_MAX = -32768, 32767
-ARM_LENGTH_M = 0.046  # platform_defaults_cf2.h
-THRUST2TORQUE_M = 0.0069928948992470565  # platform_defaults_cf2.h, 2.1+ propellers
-THRUST_MAX_N = 0.12  # platform_defaults_cf2.h: THRUST_MAX
-THRUST_MIN_N = 0.012817578393224994  # platform_defaults_cf2.h: THRUST_MIN
-INERTIA_KGM2 = (16.571710e-6, 16.655602e-6, 29.261652e-6)  # controller_lee.c: J
-# platform_defaults_cf2.h: kp, ki, kd, integration limit of the roll, pitch and yaw rate PIDs
-RATE_PID_GAINS = ((250.0, 500.0, 2.5, 33.3), (250.0, 500.0, 2.5, 33.3), (120.0, 16.7, 0.0, 166.7))
 # signs of the roll, pitch and yaw outputs in each motor's command (legacy mixing, body FLU torques)
 MIX_SIGNS = ((-0.5, -0.5, -1.0), (-0.5, 0.5, 1.0), (0.5, 0.5, -1.0), (0.5, -0.5, 1.0))
 
@@ -78,21 +73,23 @@ class FirmwareRateLoop:
         initial_thrust_mps2: float,
         device: torch.device,
         dtype: torch.dtype,
+        vehicle: Vehicle = CF21,
     ) -> None:
         kw = {"device": device, "dtype": dtype}
+        self.vehicle = vehicle
         self.ticks = max(1, round(dt_s * ATTITUDE_RATE_HZ))
         self.tick_s = dt_s / self.ticks
-        gains = torch.tensor(RATE_PID_GAINS, **kw)
+        gains = torch.tensor(vehicle.rate_pid, **kw)
         self.kp, self.ki, self.kd, self.i_limit = gains.unbind(-1)  # each [3]
         self.mix = torch.tensor(MIX_SIGNS, **kw)  # [4, 3]
-        arm = ARM_LENGTH_M / math.sqrt(2.0)
+        arm = vehicle.arm_length_m / math.sqrt(2.0)
         # torque about body x, y, z of a newton on each motor ([3, 4]): x = +y arm, y = -x arm
         motor_xy = ((1, -1), (-1, -1), (-1, 1), (1, 1))
-        yaw = [signs[2] * THRUST2TORQUE_M for signs in MIX_SIGNS]  # drag turns the body with the yaw sign
+        yaw = [signs[2] * vehicle.thrust2torque_m for signs in MIX_SIGNS]  # drag turns the body with the yaw sign
         self.torque_per_n = torch.tensor([[y * arm for _, y in motor_xy], [-x * arm for x, _ in motor_xy], yaw], **kw)
-        self.inertia = torch.tensor(INERTIA_KGM2, **kw)
+        self.inertia = torch.tensor(vehicle.inertia_kgm2, **kw)
         self.mass_kg = float(mass_kg)
-        self.command_per_mps2 = mass_kg / 4.0 / THRUST_MAX_N * UINT16_MAX
+        self.command_per_mps2 = mass_kg / 4.0 / vehicle.thrust_max_n * UINT16_MAX
         self.blend = 1.0 if motor_time_constant_s <= 0 else 1.0 - math.exp(-self.tick_s / motor_time_constant_s)
         self.state = FirmwareLoopState(
             integral_degs=torch.zeros(n, 3, **kw),
@@ -162,8 +159,8 @@ def run_ticks(
         motors = command.unsqueeze(-1) + out @ loop.mix.T  # [N, 4]
         excess = (motors.amax(-1, keepdim=True) - UINT16_MAX).clamp_min(0.0)
         motors = torch.where(flying, (motors - excess).clamp_min(0.0), torch.zeros_like(motors))
-        target = torch.trunc(motors).clamp(max=UINT16_MAX) / UINT16_MAX * THRUST_MAX_N
-        target = torch.where(target < THRUST_MIN_N, torch.zeros_like(target), target)
+        target = torch.trunc(motors).clamp(max=UINT16_MAX) / UINT16_MAX * loop.vehicle.thrust_max_n
+        target = torch.where(target < loop.vehicle.thrust_min_n, torch.zeros_like(target), target)
         forces = forces + loop.blend * (target - forces)
         produced = forces if motor_gain is None else forces * motor_gain.unsqueeze(-1)
         torque = produced @ loop.torque_per_n.T  # [N, 3]

@@ -39,6 +39,7 @@ from torch import Tensor
 from datt.configuration import FRACTION, POSITIVE, Range, check_ranges, ranged
 from datt.sim.firmware_rates import FirmwareRateLoop
 from datt.sim.frames import quat_body_z, quat_exp_rotvec, quat_mul, quat_normalize
+from datt.sim.vehicles import DEFAULT_VEHICLE, VEHICLES
 
 _DTYPES = {"float32": torch.float32, "float64": torch.float64}
 RATE_MODELS = ("first_order", "second_order", "mixed", "firmware")
@@ -71,8 +72,9 @@ class QuadrotorParams:
     steps; ``rate_model``: ``first_order`` (paper, ``k_rate``), ``second_order`` (the authors'
     model with ``kw_rate``, ``kt_rate``), ``mixed`` (each drone draws one of the two) or
     ``firmware`` (a stock Crazyflie's rate PIDs, mixing, motors and rigid body at 500 Hz,
-    :mod:`datt.sim.firmware_rates`: ``vehicle_mass_kg`` and ``motor_time_constant_s`` are its
-    vehicle, and its motors' lag replaces ``k_thrust``, ``k_rate`` and ``max_rate_radps``).
+    :mod:`datt.sim.firmware_rates`: ``vehicle`` (a preset of :mod:`datt.sim.vehicles`),
+    ``vehicle_mass_kg`` (None: the preset's) and ``motor_time_constant_s`` are its vehicle, and
+    its motors' lag replaces ``k_thrust``, ``k_rate`` and ``max_rate_radps``).
 
     ``thrust_map_trimmed``: the vehicle flies behind a thrust map trimmed to it, as a deployed one
     after ``deploy.flight.hover_trim``: the commanded thrust is divided by the trim's estimate of
@@ -98,7 +100,8 @@ class QuadrotorParams:
     rate_model: str = ranged("first_order", Range(choices=RATE_MODELS))
     kw_rate: float = ranged(0.4, FRACTION)
     kt_rate: float = ranged(0.6, FRACTION)
-    vehicle_mass_kg: float = ranged(0.034, Range(0.005, 5.0))
+    vehicle: str = ranged(DEFAULT_VEHICLE, Range(choices=tuple(VEHICLES)))  # firmware rate model: the preset
+    vehicle_mass_kg: float | None = ranged(None, Range(0.005, 5.0, optional=True))  # None: the preset's
     motor_time_constant_s: float = ranged(0.03, Range(0.0, 1.0))
 
     @property
@@ -255,8 +258,10 @@ class Quadrotor:
         self.motor_gain: Tensor | None = None  # [N] firmware rate model: motor force / nominal
         self.firmware: FirmwareRateLoop | None = None
         if p.rate_model == "firmware":
+            preset = VEHICLES[p.vehicle]
+            mass_kg = preset.mass_kg if p.vehicle_mass_kg is None else p.vehicle_mass_kg
             self.firmware = FirmwareRateLoop(
-                n, self.dt_s, p.vehicle_mass_kg, p.motor_time_constant_s, self.initial_thrust, self.device, self.dtype
+                n, self.dt_s, mass_kg, p.motor_time_constant_s, self.initial_thrust, self.device, self.dtype, preset
             )
             if self.thrust_scale is not None:
                 self.motor_gain = torch.ones(n, **kw)

@@ -69,7 +69,8 @@ def _start_server(cfg: DictConfig, params: DeployParams, thrust: ThrustParams, l
         raise ConfigError(f"deploy.uri: the simulated Crazyflie listens on udp://host:port, got {params.uri!r}")
     server_cfg = {k: (tuple(v) if isinstance(v, list) else v) for k, v in params.server.items()}
     # the simulated vehicle's own motors and mass (never the controller's map or calibration)
-    motor_keys = {k: server_cfg.pop(k) for k in ("mass_kg", "thrust_max_n", "thrust_gain") if k in server_cfg}
+    keys = ("vehicle", "mass_kg", "thrust_max_n", "thrust_gain")
+    motor_keys = {k: server_cfg.pop(k) for k in keys if k in server_cfg}
     motor_keys["mass_kg"] = float(motor_keys.get("mass_kg") or thrust.mass_kg)
     server_cfg["onboard_library"] = library  # the vehicle's firmware carries the app (deploy.onboard)
     sim_params = SimCrazyflieParams(host=url.hostname, port=url.port, motors=MotorParams(**motor_keys), **server_cfg)

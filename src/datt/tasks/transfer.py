@@ -15,7 +15,8 @@ from __future__ import annotations
 import random
 from pathlib import Path
 
-from datt.configuration import compose, load_option
+from datt.configuration import compose
+from datt.sim.vehicles import VEHICLES
 from datt.tasks.deploy import run_deploy
 from datt.tasks.eval import run_eval
 
@@ -59,13 +60,14 @@ def _free_port() -> int:
 
 
 # the simulated vehicle's rate loop -> the training simulator's rate model that evaluates the same loop
-EVAL_RATE_MODEL = {"training_model": "first_order", "firmware": "firmware"}
+EVAL_RATE_MODEL = {"pi_first_order": "first_order", "firmware": "firmware"}
 
 
-def eval_star_error(checkpoint: str, out: Path, rate_loop: str = "training_model") -> float:
+def eval_star_error(checkpoint: str, out: Path, rate_loop: str = "firmware", vehicle: str = "cf21") -> float:
     """``eval.py``'s star error of the policy with L1 (the bank's star group: the reference
     ``deploy.py`` flies), no disturbance, nominal simulator; with ``rate_loop="firmware"`` on the
-    simulator's firmware rate model (the loop the flights then fly)."""
+    simulator's firmware rate model of ``vehicle`` (the loop the flights then fly), fed through
+    that vehicle's thrust ceiling."""
     overrides = [
         f"checkpoint={checkpoint}",
         "controller=datt_l1",
@@ -73,10 +75,14 @@ def eval_star_error(checkpoint: str, out: Path, rate_loop: str = "training_model
         "eval.save_trace=false",
         "eval.timing.steps=0",
     ]
-    if rate_loop != "training_model":
+    if rate_loop != "pi_first_order":
         # the firmware loop is fed through the vehicle's thrust ceiling, as the policy was trained
-        ceiling = load_option("randomization", "deploy").env.quad.max_thrust_mps2
-        overrides += [f"env.quad.rate_model={EVAL_RATE_MODEL[rate_loop]}", f"env.quad.max_thrust_mps2={ceiling}"]
+        ceiling = round(VEHICLES[vehicle].ceiling_mps2(), 2)
+        overrides += [
+            f"env.quad.rate_model={EVAL_RATE_MODEL[rate_loop]}",
+            f"env.quad.max_thrust_mps2={ceiling}",
+            f"env.quad.vehicle={vehicle}",
+        ]
     cfg = compose("eval", overrides)
     metrics = run_eval(cfg, run_dir=out)
     (cond,) = metrics["conditions"].values()
@@ -96,7 +102,10 @@ def fly(checkpoint: str, conditions: dict, out: Path, seed: int, extra: tuple = 
     summary = run_deploy(compose("deploy", overrides), run_dir=out)
     return {
         "outcome": summary["outcome"],
+        "outcome_kind": summary["outcome_kind"],
+        "thrust_check": summary.get("thrust_check"),
         "track_error_m": summary["track_error_m"],
+        "track_steps": summary["track_steps"],
         # the estimate against the reference of the tick it arrived in (the former pairing)
         "track_error_received_m": summary.get("track_error_received_m"),
         "jitter_ms": summary["jitter_ms"],
@@ -118,3 +127,35 @@ def calibrate(conditions: dict, out: Path, seed: int = 0) -> tuple[str, ...]:
         f"deploy.thrust.hover_command={fit['hover_command']:.2f}",
         f"deploy.thrust.slope_mps2_per_command={fit['slope_mps2_per_command']:.8g}",
     )
+
+
+# the transfer grid (benchmarks/transfer_grid.py): radio round trip, vehicle heavier than the map
+# believes, motors weaker than the firmware's fit, packet loss
+GRID = {"rtt_ms": (20, 40, 60), "mass_pct": (0, 10, 15), "motor_pct": (0, -10), "loss_pct": (0, 2, 5)}
+
+
+def cell_conditions(vehicle: str, rtt_ms: float, mass_pct: float, motor_pct: float, loss_pct: float) -> dict:
+    """``deploy.*`` overrides of one grid cell for the preset ``vehicle``: the simulated vehicle
+    ``mass_pct`` heavier than the preset's flying mass (what the host's map believes), its motors
+    ``motor_pct`` from the firmware's fit, ``rtt_ms`` of radio round trip, ``loss_pct`` of packets lost."""
+    mass = VEHICLES[vehicle].mass_kg
+    return {
+        "deploy.vehicle": vehicle,
+        "deploy.server.radio_latency_s": round(rtt_ms / 2000.0, 6),
+        "deploy.server.mass_kg": round(mass * (1.0 + mass_pct / 100.0), 6),
+        "deploy.server.thrust_gain": round(1.0 + motor_pct / 100.0, 6),
+        "deploy.server.radio_loss": round(loss_pct / 100.0, 6),
+    }
+
+
+def verdict(outcome_kind: str, track_steps: int = 1) -> str:
+    """A flight's outcome as the grid counts it: landed (the whole track), landed early (a LAND
+    decision during TRACK), refused (the thrust check, the hover trim's limit or any refusal before
+    TRACK: ``track_steps`` 0), killed, or the outcome kind itself."""
+    if outcome_kind in ("landed", "landed_onboard"):
+        return "landed"
+    if outcome_kind == "landed_early":
+        return "landed early" if track_steps else "refused"
+    if outcome_kind in ("refused_reference", "refused", "refused_setting"):
+        return "refused"
+    return outcome_kind

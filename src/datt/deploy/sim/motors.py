@@ -2,7 +2,7 @@
 vehicle then gets. Never the controller's :class:`~datt.deploy.thrust.ThrustMap`: a calibration
 or a wrong mass on the controller side must show up as a tracking error, not cancel out.
 
-Firmware (``motors.c``, battery-compensated build; ``platform_defaults_cf2.h``, 2.1+ propellers):
+Firmware (``motors.c``, battery-compensated build; ``platform_defaults_cf2.h``, the preset's propellers):
 per motor the command ``c`` asks for ``F = c / 65535 * THRUST_MAX`` N; below ``THRUST_MIN`` the
 motor is off; otherwise the firmware solves the cubic ``F(v) = p0 + p1 v + p2 v² + p3 v³`` for the
 motor voltage ``v`` and sets the PWM ratio ``v / v_battery``, which cannot exceed 1: with a low
@@ -15,37 +15,44 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from datt.configuration import NON_NEGATIVE, POSITIVE, POSITIVE_OR_NONE, check_ranges, ranged
+from datt.configuration import POSITIVE, POSITIVE_OR_NONE, Range, check_ranges, ranged
 from datt.errors import ConfigError
+from datt.sim.vehicles import DEFAULT_VEHICLE, VEHICLES, Vehicle, vehicle
 
 UINT16_MAX = 65535
-# VMOTOR2THRUST0..3 of the firmware for 2.1+ propellers (N per motor against motor volts)
-VMOTOR2THRUST_21_PLUS = (-0.02476537915958403, 0.06523793527519485, -0.026792504967750107, 0.006776789303971145)
 
 
 @dataclass
 class MotorParams:
     """``deploy.server`` motor keys: the simulated vehicle and the firmware it runs."""
 
-    mass_kg: float | None = ranged(0.034, POSITIVE_OR_NONE)  # null in the config: deploy.thrust.mass_kg
-    thrust_max_n: float = ranged(0.12, POSITIVE)  # the simulated firmware's THRUST_MAX (0.1125 before 2025-11)
-    thrust_min_n: float = ranged(0.012817578393224994, NON_NEGATIVE)  # THRUST_MIN: below it the motor stops
+    vehicle: str = ranged(DEFAULT_VEHICLE, Range(choices=tuple(VEHICLES)))  # the preset (deploy.vehicle)
+    mass_kg: float | None = ranged(None, POSITIVE_OR_NONE)  # None: the preset's flying mass
+    thrust_max_n: float | None = ranged(None, POSITIVE_OR_NONE)  # the firmware's THRUST_MAX; None: the preset's
+    thrust_min_n: float | None = ranged(None, Range(0.0, optional=True))  # THRUST_MIN; None: the preset's
     thrust_gain: float = ranged(1.0, POSITIVE)  # real motor force / the firmware's fit
 
     def validate(self) -> None:
         check_ranges(self, "deploy.server")
-        if self.mass_kg is None:
-            raise ConfigError("deploy.server.mass_kg: the simulated vehicle needs a mass")
+        preset = vehicle(self.vehicle)
+        self.mass_kg = preset.mass_kg if self.mass_kg is None else self.mass_kg
+        self.thrust_max_n = preset.thrust_max_n if self.thrust_max_n is None else self.thrust_max_n
+        self.thrust_min_n = preset.thrust_min_n if self.thrust_min_n is None else self.thrust_min_n
+        if not self.thrust_min_n < self.thrust_max_n:
+            raise ConfigError(
+                f"deploy.server.thrust_min_n: must be below thrust_max_n ({self.thrust_max_n}), got {self.thrust_min_n}"
+            )
 
 
 class FirmwareMotors:
     def __init__(self, p: MotorParams | None = None) -> None:
         self.p = p or MotorParams()
         self.p.validate()
+        self.vehicle: Vehicle = vehicle(self.p.vehicle)
 
-    @staticmethod
-    def fit_force_n(volts: float) -> float:
-        p0, p1, p2, p3 = VMOTOR2THRUST_21_PLUS
+    def fit_force_n(self, volts: float) -> float:
+        """The firmware's motor fit (the preset's VMOTOR2THRUST0..3): N per motor at ``volts``."""
+        p0, p1, p2, p3 = self.vehicle.vmotor2thrust
         return p0 + volts * (p1 + volts * (p2 + volts * p3))
 
     def motor_force_n(self, command: int, battery_v: float) -> float:

@@ -25,10 +25,12 @@ Firmware behaviour that matters for safety is emulated:
 * **yaw**: the legacy commander's yaw rate is integrated into a yaw-angle setpoint and the
   attitude PID (``controller_pid.c``: kp 6, ki 1 per second) turns the error into the yaw rate
   flown, so yaw lags the command;
-* **below the commander** (``rate_loop``): ``training_model`` flies the rate setpoint through the
-  training simulator's rate model (:mod:`datt.sim`); ``firmware`` through the firmware's rate PIDs,
-  motor mixing with its cap, per-motor forces and a rigid body (:mod:`datt.deploy.sim.stabilizer`),
-  where a hard rate demand near full thrust takes its torque from the collective;
+* **below the commander** (``rate_loop``, by default the vehicle preset's: ``deploy.vehicle``):
+  ``firmware`` (a stock Crazyflie) flies the rate setpoint through the firmware's rate PIDs, motor
+  mixing with its cap, per-motor forces and a rigid body (:mod:`datt.deploy.sim.stabilizer`), where
+  a hard rate demand near full thrust takes its torque from the collective; ``pi_first_order``
+  through the training simulator's first-order rate response (:mod:`datt.sim`), the model of the
+  paper's custom PI rate controller;
 * **radio**: every packet is delayed by ``radio_latency_s`` each way, and setpoints, mocap and
   log data are lost with probability ``radio_loss`` (the radio's own retries make other losses
   rare; cflib resends requests that expect a reply);
@@ -119,7 +121,7 @@ COMPLEMENTARY, KALMAN = 1, 2
 # the host's table: a host that types an id this firmware does not mean flies the wrong controller
 # here too. OutOfTree exists only in a build with CONFIG_CONTROLLER_OOT (the DATT app's).
 CONTROLLERS = ("AutoSelect", "PID", "Mellinger", "INDI", "Brescianini", "Lee", "OutOfTree")
-RATE_LOOPS = ("firmware", "training_model")
+RATE_LOOPS = ("firmware", "pi_first_order")  # datt.sim.vehicles.RATE_LOOPS, the simulated firmware's own copy
 RATE_CONTROLLERS = ("PID", "INDI", "OutOfTree")  # fly roll/pitch-rate setpoints (OutOfTree: the PID)
 ATTITUDE_KP = 8.0  # the attitude-holding controllers' levelling gain (rad/s per rad), as the watchdog's
 APP_CHANNEL_QUEUE = 10  # app_channel.c: xQueueCreate(10, sizeof(CRTPPacket)); a full queue drops
@@ -207,9 +209,10 @@ class SimCrazyflieParams:
     )  # the estimate's roll/pitch/yaw error (first-order, 0.2 s correlation)
     boot_params: dict = field(default_factory=dict)  # parameter values at power-on ("group.name": value),
     # e.g. what an earlier flight left: parameters persist until a reboot
-    rate_loop: str = ranged(
-        "training_model", Range(choices=RATE_LOOPS)
-    )  # firmware: rate PIDs, mixing, motors, rigid body (datt.deploy.sim.stabilizer); training_model: datt.sim's
+    # below the commander; None: the vehicle preset's (deploy.vehicle): firmware = rate PIDs, mixing,
+    # motors, rigid body (datt.deploy.sim.stabilizer); pi_first_order = the training simulator's
+    # first-order rate response, a model of the paper's custom PI rate controller
+    rate_loop: str | None = ranged(None, Range(choices=RATE_LOOPS, optional=True))
     motor_time_constant_s: float = ranged(0.03, Range(0.0, 1.0))  # each motor's spin-up (an estimate; 0: instant)
 
 
@@ -470,7 +473,7 @@ class SimCrazyflie:
         d = torch.zeros(1, 3)
         if self.disturbance is not None and self.motors_on:
             d = self.disturbance.current_mps2
-        if self.p.rate_loop == "firmware":
+        if self.rate_loop == "firmware":
             self._fly_stabilizer(command, (wx, wy, wz), d[0].tolist())
         else:
             thrust = self.motors.thrust_mps2(command, self.battery_v)
@@ -494,6 +497,11 @@ class SimCrazyflie:
         else:  # dead reckoning until the next external measurement
             self.pos_error_m[0] += self.p.dead_reckoning_drift_mps * self.p.dt_s
         self.sim_time_s += self.p.dt_s
+
+    @property
+    def rate_loop(self) -> str:
+        """The loop below the commander: ``deploy.server.rate_loop``, or (None) the vehicle preset's."""
+        return self.p.rate_loop or self.motors.vehicle.rate_loop
 
     def _flown_setpoint(self) -> tuple[int, tuple[float, float, float]]:
         """The thrust command and body rates the firmware flies this step: the watchdogs, the

@@ -17,8 +17,9 @@ Read from crazyflie-firmware 2026.08:
   ``THRUST_MIN``, capped by the battery, the vehicle's motor gain); the force follows the command
   with a first-order lag (``motor_time_constant_s``: an estimate of the motors' spin-up, not a
   firmware number);
-* **body**: the X frame of ``platform_defaults_cf2.h`` (``ARM_LENGTH`` 0.046 m from the centre to a
-  motor, ``THRUST2TORQUE`` 0.00699 m of the 2.1+ propellers) and the inertia of ``controller_lee.c``.
+* **body**: the X frame of ``platform_defaults_cf2.h`` (``ARM_LENGTH`` from the centre to a
+  motor, ``THRUST2TORQUE`` of the propellers) and the inertia of ``controller_lee.c``: the numbers
+  of the vehicle preset (``deploy.vehicle``, :mod:`datt.sim.vehicles`), as are the rate PID gains.
 
 Frames: body rates and torques are body-frame FLU (x forward, y left, z up); the firmware's own
 pitch sign (``-gyro.y``, the commander's inverted pitch) cancels out, so positive outputs here are
@@ -31,14 +32,10 @@ from __future__ import annotations
 import math
 
 from datt.deploy.sim.motors import UINT16_MAX, FirmwareMotors
+from datt.sim.vehicles import CF21, Vehicle
 
 INT16_MAX = 32767
 ATTITUDE_RATE_HZ = 500  # stabilizer.h: ATTITUDE_RATE
-ARM_LENGTH_M = 0.046  # platform_defaults_cf2.h
-THRUST2TORQUE_M = 0.0069928948992470565  # platform_defaults_cf2.h (2.1+ propellers): yaw torque per newton
-INERTIA_KGM2 = (16.571710e-6, 16.655602e-6, 29.261652e-6)  # controller_lee.c: J
-# platform_defaults_cf2.h: (kp, ki, kd, integration limit) of the roll, pitch and yaw rate PIDs
-RATE_PID_CF2 = ((250.0, 500.0, 2.5, 33.3), (250.0, 500.0, 2.5, 33.3), (120.0, 16.7, 0.0, 166.7))
 # legacy mixing (power_distribution_quadrotor.c) in body torque terms: the sign each motor's
 # command takes from the roll, pitch and yaw outputs that turn the body about +x, +y and +z
 MIX_ROLL = (-0.5, -0.5, 0.5, 0.5)  # M3, M4 on the left (+y) lift to roll about +x
@@ -75,12 +72,12 @@ def mix_and_cap(thrust_cmd: float, roll: int, pitch: int, yaw: int) -> list[floa
     return [max(0.0, m - excess) for m in motors]
 
 
-def body_torques_nm(forces_n: list[float]) -> tuple[float, float, float]:
-    """Torques about body x, y, z of the four rotor forces on the X frame."""
-    arm = ARM_LENGTH_M / math.sqrt(2.0)
+def body_torques_nm(forces_n: list[float], vehicle: Vehicle = CF21) -> tuple[float, float, float]:
+    """Torques about body x, y, z of the four rotor forces on ``vehicle``'s X frame."""
+    arm = vehicle.arm_length_m / math.sqrt(2.0)
     tx = sum(MOTOR_XY[i][1] * arm * f for i, f in enumerate(forces_n))
     ty = -sum(MOTOR_XY[i][0] * arm * f for i, f in enumerate(forces_n))
-    tz = sum(MIX_YAW[i] * THRUST2TORQUE_M * f for i, f in enumerate(forces_n))
+    tz = sum(MIX_YAW[i] * vehicle.thrust2torque_m * f for i, f in enumerate(forces_n))
     return tx, ty, tz
 
 
@@ -93,9 +90,10 @@ class Stabilizer:
 
     def __init__(self, motors: FirmwareMotors, motor_time_constant_s: float = 0.03) -> None:
         self.motors = motors
+        self.vehicle = motors.vehicle  # gains, frame and inertia of the motors' preset
         self.motor_time_constant_s = motor_time_constant_s
         self.tick_s = 1.0 / ATTITUDE_RATE_HZ
-        self.pids = [PidAxis(*gains, self.tick_s) for gains in RATE_PID_CF2]
+        self.pids = [PidAxis(*gains, self.tick_s) for gains in self.vehicle.rate_pid]
         self.rate_radps = [0.0, 0.0, 0.0]
         self.forces_n = [0.0, 0.0, 0.0, 0.0]
         self.motor_cmds = [0.0, 0.0, 0.0, 0.0]  # the last tick's capped commands (uint16 units)
@@ -125,12 +123,13 @@ class Stabilizer:
         tau = self.motor_time_constant_s
         blend = 1.0 if tau <= 0 else 1.0 - math.exp(-self.tick_s / tau)
         self.forces_n = [f + blend * (t - f) for f, t in zip(self.forces_n, target)]
-        self._rotate(body_torques_nm(self.forces_n))
+        self._rotate(body_torques_nm(self.forces_n, self.vehicle))
         return sum(self.forces_n)
 
     def _rotate(self, torque_nm: tuple[float, float, float]) -> None:
         """Euler's equations, J dw/dt = tau - w x (J w), over one tick."""
         w = self.rate_radps
-        jw = [INERTIA_KGM2[i] * w[i] for i in range(3)]
+        inertia = self.vehicle.inertia_kgm2
+        jw = [inertia[i] * w[i] for i in range(3)]
         gyro = (w[1] * jw[2] - w[2] * jw[1], w[2] * jw[0] - w[0] * jw[2], w[0] * jw[1] - w[1] * jw[0])
-        self.rate_radps = [w[i] + self.tick_s * (torque_nm[i] - gyro[i]) / INERTIA_KGM2[i] for i in range(3)]
+        self.rate_radps = [w[i] + self.tick_s * (torque_nm[i] - gyro[i]) / inertia[i] for i in range(3)]
