@@ -12,7 +12,6 @@ import torch
 
 from datt.deploy.feasibility import SLOW_STEP, peak_ask, slow_factor, slowed, thrust_asked
 from datt.deploy.outcome import Kind
-from datt.deploy.safety import LAND, OK
 from tests.deploy import bookkeeping_runner
 
 G, DT = 9.81, 0.02
@@ -119,9 +118,7 @@ def checking_runner(tmp_path, infeasible: str = "refuse", max_slow: float = 2.0)
         max_slow_factor=max_slow,
     )
     thrust = SimpleNamespace(p=SimpleNamespace(gravity_mps2=G))
-    return bookkeeping_runner(
-        tmp_path, p=p, thrust=thrust, summary_extra={}, _track_table=None, _refused_reference=None
-    )
+    return bookkeeping_runner(tmp_path, p=p, thrust=thrust, summary_extra={}, _track_table=None)
 
 
 def corner_model(v_mps: float = 1.5):
@@ -134,7 +131,7 @@ def corner_model(v_mps: float = 1.5):
 def test_a_reference_within_the_ceiling_is_flown_and_says_so(tmp_path):
     runner = checking_runner(tmp_path)
     model, ask = corner_model()
-    assert runner._thrust_check(model, ask + 0.5 + 1e-9, can_slow=True) == OK  # at ceiling - reserve
+    assert runner._thrust_check(model, ask + 0.5 + 1e-9, can_slow=True) is None  # at ceiling - reserve
     (event,) = runner.log.events
     assert event["kind"] == "thrust check" and event["text"].endswith(": flown")
     assert runner.summary_extra["thrust_check"]["ask_mps2"] == pytest.approx(ask)
@@ -145,13 +142,13 @@ def test_a_reference_past_the_ceiling_is_refused_naming_both_figures_and_the_opt
     runner = checking_runner(tmp_path)
     model, ask = corner_model()
     ceiling = ask + 0.49
-    assert runner._thrust_check(model, ceiling, can_slow=True) == LAND
+    refusal = runner._thrust_check(model, ceiling, can_slow=True)
     (event,) = runner.log.events
     assert event["kind"] == "LAND"
     text = event["text"]
     assert f"asks for {ask:.2f} m/s²" in text and f"ceiling is {ceiling:.2f} m/s²" in text
     assert "deploy.flight.infeasible=slow" in text and "deploy.flight.thrust_window_s 0.4 s" in text
-    assert runner._refused_reference == text and model.env.replaced is None
+    assert refusal == text and model.env.replaced is None
 
 
 def test_slow_flies_the_reference_slower_by_the_first_factor_that_fits(tmp_path):
@@ -159,7 +156,7 @@ def test_slow_flies_the_reference_slower_by_the_first_factor_that_fits(tmp_path)
     model, ask = corner_model()
     original = model.env.ref_table[0].double().numpy().copy()
     ceiling = G + 0.5 + 0.8 * (ask - G)  # a corner's ask falls as 1 / s: somewhat slower fits
-    assert runner._thrust_check(model, ceiling, can_slow=True) == OK
+    assert runner._thrust_check(model, ceiling, can_slow=True) is None
     factor = runner.summary_extra["thrust_check"]["slow_factor"]
     assert 1.0 < factor <= 2.0
     np.testing.assert_allclose(model.env.replaced[0].numpy(), slowed(original, DT, factor), atol=1e-12)
@@ -167,7 +164,7 @@ def test_slow_flies_the_reference_slower_by_the_first_factor_that_fits(tmp_path)
     assert peak_ask(slower, DT, 0.4, G, points=61).peak_mps2 <= ceiling - 0.5
     assert peak_ask(slowed(original, DT, factor - SLOW_STEP), DT, 0.4, G, points=61).peak_mps2 > ceiling - 0.5
     # a second check (after the next trim) slows the reference as drawn, not the slowed one
-    assert runner._thrust_check(model, ceiling, can_slow=True) == OK
+    assert runner._thrust_check(model, ceiling, can_slow=True) is None
     assert runner.summary_extra["thrust_check"]["slow_factor"] == factor
 
 
@@ -175,7 +172,7 @@ def test_slow_flies_the_reference_slower_by_the_first_factor_that_fits(tmp_path)
 def test_a_reference_that_no_allowed_slowing_fits_is_refused(tmp_path, infeasible, can_slow):
     runner = checking_runner(tmp_path, infeasible=infeasible, max_slow=1.2)
     model, ask = corner_model()
-    assert runner._thrust_check(model, G + 0.6, can_slow=can_slow) == LAND
+    assert runner._thrust_check(model, G + 0.6, can_slow=can_slow) is not None
     text = runner.log.events[-1]["text"]
     if infeasible == "slow" and can_slow:
         assert "not even 1.2 times slower (deploy.flight.max_slow_factor)" in text

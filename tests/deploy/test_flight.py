@@ -140,7 +140,8 @@ def test_a_vehicle_that_sinks_to_the_floor_while_tracking_is_killed_not_landed(t
 
         after(0.3, halve, runner)
 
-    summary, server = fly(tmp_path, ["controller=pid"], hook=weaken)
+    # the sink check (deploy.safety.track_sink_m) would land it first: off, so the floor is what is tested
+    summary, server = fly(tmp_path, ["controller=pid", "deploy.safety.track_sink_m=null"], hook=weaken)
     assert summary["outcome"].startswith("killed: on the floor while tracking (z "), summary["outcome"]
     assert summary["outcome"].endswith(" m < track_floor_m 0.05 m)")
     assert motors_stopped(server) and server.true_state()["pos_m"][2] < 0.05
@@ -346,6 +347,7 @@ def test_hover_calibration_finds_the_true_hover_command_and_slope(tmp_path):
             "deploy.server.mass_kg=0.036",
             "deploy.server.thrust_gain=0.95",
             "deploy.calibrate_hover_s=3.0",
+            "deploy.server.rate_loop=pi_first_order",  # the fit's figures (docs/deploy.md) are this loop's
         ],
     )
     summary = run_deploy(cfg, run_dir=tmp_path)
@@ -382,6 +384,13 @@ def test_hover_calibration_finds_the_true_hover_command_and_slope(tmp_path):
 
 
 HEAVY_WEAK = ["deploy.server.mass_kg=0.0374", "deploy.server.thrust_gain=0.9"]  # the transfer test's vehicle
+# a flight meant to fly at its ceiling: the thrust check lets the star through (corners averaged
+# over 2 s, no reserve), on the training model's loop its figures were measured on
+AT_CEILING = [
+    "deploy.flight.thrust_window_s=2.0",
+    "deploy.flight.thrust_reserve_mps2=0.0",
+    "deploy.server.rate_loop=pi_first_order",
+]
 
 
 def _true_hover_command(mass_kg: float, thrust_gain: float) -> float:
@@ -402,7 +411,10 @@ def test_the_tracking_error_is_the_vehicles_own_not_the_age_of_its_estimate(tmp_
     import numpy as np
 
     summary, server, runner = fly_sim(
-        tmp_path, next(ports), ["deploy.server.radio_latency_s=0.02", "deploy.flight.track_s=4.0"]
+        tmp_path,
+        next(ports),
+        # the training model's loop: timing, not the stock loop's margin at 40 ms, is what this flight measures
+        ["deploy.server.radio_latency_s=0.02", "deploy.flight.track_s=4.0", "deploy.server.rate_loop=pi_first_order"],
     )
     assert summary["outcome"] == "landed", summary["outcome"]
     track = [r for r in runner.rows if r["phase"] == "TRACK"]
@@ -443,7 +455,14 @@ def test_the_hover_trim_finds_a_heavy_weak_vehicles_hover_command_and_tracks_on_
     nominal = ThrustMap().hover_command
     assert true_hover / nominal > 1.2
     hover = ["deploy.flight.hover_s=1.0", "deploy.flight.hover_trim_settle_s=2.0"]  # the defaults
-    summary, server = fly(tmp_path, [*HEAVY_WEAK, *hover])
+    # its ceiling after the trim (10.5 m/s²) is under the star's ask: the thrust check slows the star
+    # (datt.deploy.feasibility); the training model's loop, on which the trim's figures were measured
+    slow = [
+        "deploy.flight.infeasible=slow",
+        "deploy.flight.max_slow_factor=5",
+        "deploy.server.rate_loop=pi_first_order",
+    ]
+    summary, server = fly(tmp_path, [*HEAVY_WEAK, *hover, *slow])
     assert summary["outcome"] == "landed", summary["outcome"]
     trims = [e for e in summary["events"] if e["kind"] == "trim"]
     assert [e["phase"] for e in trims] == ["TAKEOFF", "HOVER"]  # the takeoff's hover, refined in HOVER
@@ -485,7 +504,7 @@ def test_the_ceiling_guard_levels_a_vehicle_at_its_thrust_ceiling_and_says_how_o
 
     summary, _ = fly(
         tmp_path,
-        [*SHORT, *HEAVY_WEAK, "deploy.thrust.max_command=58000", "deploy.flight.ceiling_guard=true"],
+        [*SHORT, *HEAVY_WEAK, "deploy.thrust.max_command=58000", "deploy.flight.ceiling_guard=true", *AT_CEILING],
     )
     guarded = summary["ceiling_guarded_ticks"]
     assert guarded > 0, summary["outcome"]
@@ -626,7 +645,8 @@ def test_the_preflight_checks_the_reference_up_to_the_last_tick_flown_and_no_fur
     ref = tmp_path / "jump.csv"
     ref.write_text("t,x,y,z\n0,0,0,0\n2.98,0,0,0\n3.0,3.0,0,0\n10,3.0,0,0\n")
     # the PID flies it: DATT's look-ahead would chase the jump it sees coming past the last tick
-    traj = ["traj=csv", f"traj.path={ref}", "controller=pid"]
+    # the jump right after the last tick is within the thrust check's window: averaged over 2 s it fits
+    traj = ["traj=csv", f"traj.path={ref}", "controller=pid", "deploy.flight.thrust_window_s=2.0"]
     (tmp_path / "a").mkdir()
     (tmp_path / "b").mkdir()
     refused, _ = fly(tmp_path / "a", [*traj, "deploy.flight.track_s=3.0"])

@@ -59,8 +59,9 @@ class OnboardFlight(FlightRunner):
                 return  # killed, or already landed
             # the uploaded reference (slowed before the upload if it had to be) against the trimmed map's
             # ceiling at the app's own maxCmd; the app cannot be given another table now: fit or LAND
-            if self._thrust_check(track, self._app_ceiling_mps2(), can_slow=False) != OK:
-                self._land(origin)
+            refusal = self._thrust_check(track, self._app_ceiling_mps2(), can_slow=False)
+            if refusal is not None:
+                self._land(origin, refused=refusal)
                 return
             if not self._app_heard():
                 self._land(origin)

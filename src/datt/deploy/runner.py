@@ -253,7 +253,6 @@ class FlightRunner:
         self.stop_request = stop_request  # datt.runs.StopRequest active while the flight was prepared
         self.summary_extra = dict(summary_extra or {})  # recorded in events.json with the summary
         self._track_table = None  # the track's reference table as drawn (the thrust check slows a copy)
-        self._refused_reference: str | None = None  # the thrust check's refusal: the outcome's detail
 
     # -- helpers ---------------------------------------------------------------------------
     @property
@@ -505,8 +504,9 @@ class FlightRunner:
             takeoff, hover, track = built
             if self._climb(origin, takeoff, hover, [track]) != OK:
                 return  # killed, or already landed
-            if self._thrust_check(track, self.thrust.ceiling_mps2, can_slow=True) != OK:
-                self._land(origin)
+            refusal = self._thrust_check(track, self.thrust.ceiling_mps2, can_slow=True)
+            if refusal is not None:
+                self._land(origin, refused=refusal)
                 return
             self._set_phase("TRACK")
             ended = self._fly_phase(track, self.p.track_s, origin)
@@ -517,16 +517,14 @@ class FlightRunner:
 
         return self._flight(build, airborne)
 
-    def _thrust_check(self, track: FlightModel, ceiling_mps2: float, can_slow: bool) -> str:
-        """Before TRACK: :meth:`_fit_reference`, and a reference that does not fit is not flown (a
-        LAND event names both figures and the option; the outcome is ``refused_reference``).
-        Returns OK or LAND."""
+    def _thrust_check(self, track: FlightModel, ceiling_mps2: float, can_slow: bool) -> str | None:
+        """Before TRACK: :meth:`_fit_reference`; a reference that does not fit is not flown (a LAND
+        event names both figures and the option). Returns None (fly) or the refusal, for
+        :meth:`_land` (the outcome ``refused_reference``)."""
         refusal = self._fit_reference(track, ceiling_mps2, can_slow)
-        if refusal is None:
-            return OK
-        self._refused_reference = refusal
-        self._event("LAND", refusal)
-        return LAND
+        if refusal is not None:
+            self._event("LAND", refusal)
+        return refusal
 
     def _fit_reference(self, track: FlightModel, ceiling_mps2: float, can_slow: bool) -> str | None:
         """Whether the vehicle can follow the track's reference (:mod:`datt.deploy.feasibility`):
@@ -894,7 +892,9 @@ class FlightRunner:
             table = np.concatenate((table, np.repeat(table[-1:], points - len(table), axis=0)))
         return table
 
-    def _land(self, origin: np.ndarray) -> None:
+    def _land(self, origin: np.ndarray, refused: str | None = None) -> None:
+        """LAND with the PID from where the vehicle is; ``refused``: the thrust check's refusal
+        (the outcome: landed without tracking)."""
         self._set_phase("LAND")
         state = self.link.state()
         here = (np.array(state.pos_m) if state is not None else origin) - origin
@@ -904,8 +904,8 @@ class FlightRunner:
         if result == OK:
             self.link.send_rates(0.0, 0.0, 0.0, 0)
             reasons = [e["text"] for e in self.events if e["kind"] == "LAND"]
-            if self._refused_reference is not None:
-                self.outcome = Outcome(Kind.REFUSED_REFERENCE, self._refused_reference)
+            if refused is not None:
+                self.outcome = Outcome(Kind.REFUSED_REFERENCE, refused)
             else:
                 self.outcome = Outcome(Kind.LANDED_EARLY, reasons[0]) if reasons else Outcome(Kind.LANDED)
 
