@@ -48,7 +48,7 @@ class SafetyParams:
     battery_filter_s: float = ranged(1.0, NON_NEGATIVE)  # time constant of the battery voltage low-pass
     max_estimate_mocap_m: float = ranged(0.05, POSITIVE)  # preflight: the onboard estimate must agree with mocap
     track_floor_m: float | None = ranged(0.05, POSITIVE_OR_NONE)  # TRACK below this height: KILL (null: off)
-    track_sink_m: float | None = ranged(0.3, POSITIVE_OR_NONE)  # TRACK this far below the reference: LAND (null: off)
+    track_sink_m: float | None = ranged(0.4, POSITIVE_OR_NONE)  # TRACK this far below the reference: LAND (null: off)
 
     def validate(self) -> None:
         from datt.errors import ConfigError
