@@ -10,11 +10,12 @@ vehicle 10 % heavier than ``deploy.thrust.mass_kg``, 2 % of setpoint, mocap and 
 lost; in each mode of ``datt.tasks.transfer.MODES`` (off-board / onboard on the nominal map /
 onboard after a calibration flight under the same conditions), on the simulated vehicle's timing
 (it logs the estimate of now before its 20 ms step; ``--log-after-step``: the former timing, a step
-early); ``--rate-loop firmware`` flies the firmware's rate loop below the commander instead of the
-training model. Reports per flight the outcome,
-star error (each estimate against the reference when it was measured, as ``eval.py``; off-board
-also against the reference of the tick it arrived in, the figure before 2026-12-05), its ratio
-to the eval error, tick jitter and per-tick compute, and writes
+early); below the commander the simulated vehicle flies the default preset's loop (``cf21``: the
+firmware's rate loop), ``--rate-loop pi_first_order`` the training simulator's first-order model.
+The grid over round trip, mass, motors and loss per preset: ``benchmarks/transfer_grid.py``.
+Reports per flight the outcome, star error (each estimate against the reference when it was
+measured, as ``eval.py``; off-board also against the reference of the tick it arrived in, the
+figure before 2026-12-05), its ratio to the eval error, tick jitter and per-tick compute, and writes
 ``benchmarks/results/transfer.json`` (``--out``). Real time: ~20 s per flight; run it alone.
 """
 
@@ -27,6 +28,7 @@ from pathlib import Path
 from _common import write_result
 
 from datt.paths import resolve_path
+from datt.sim.vehicles import VEHICLES
 from datt.tasks.transfer import CHECKPOINTS, CONDITIONS, EVAL_RATE_MODEL, MODES, calibrate, eval_star_error, fly
 
 
@@ -38,9 +40,10 @@ def main() -> None:
     ap.add_argument("--modes", nargs="+", default=list(MODES), choices=list(MODES))
     ap.add_argument(
         "--rate-loop",
-        default="training_model",
+        default=None,
         choices=list(EVAL_RATE_MODEL),
-        help="the simulated vehicle below its commander (deploy.server.rate_loop); firmware also "
+        help="the simulated vehicle below its commander (deploy.server.rate_loop; default: the cf21 preset's, "
+        "firmware); firmware also "
         "evaluates on the simulator's firmware rate model",
     )
     ap.add_argument(
@@ -55,8 +58,8 @@ def main() -> None:
     if args.log_after_step:
         conditions["deploy.server.log_before_step"] = False
         conditions["deploy.predictor.vehicle_tick_s"] = 0.0
-    if args.rate_loop != "training_model":
-        conditions["deploy.server.rate_loop"] = args.rate_loop
+    rate_loop = args.rate_loop or VEHICLES["cf21"].rate_loop  # deploy.vehicle's default preset
+    conditions["deploy.server.rate_loop"] = rate_loop
     results = {}
     missing = [c for c in args.checkpoints if not resolve_path(c).exists()]
     for ckpt in missing:
@@ -68,7 +71,7 @@ def main() -> None:
             print(f"calibration flight: {' '.join(calibration)}")
         for k, ckpt in enumerate(c for c in args.checkpoints if c not in missing):
             base = Path(tmp) / f"policy{k}"
-            eval_err = eval_star_error(ckpt, base / "eval", args.rate_loop)
+            eval_err = eval_star_error(ckpt, base / "eval", rate_loop)
             results[ckpt] = {"eval_star_error_m": eval_err, "modes": {}}
             print(f"{ckpt}: eval.py star {eval_err:.3f} m")
             for mode in args.modes:

@@ -667,3 +667,23 @@ def test_a_vehicle_outside_the_geofence_is_refused_before_arming(tmp_path):
     summary, server = fly(tmp_path, ["deploy.server.start_pos_m=[2.5,0.0,0.0]"])
     assert summary["outcome"].startswith("preflight failed: ") and not server.armed
     assert "start position outside the geofence" in summary["outcome"].split("; ")
+
+
+def test_a_reference_beyond_the_trimmed_ceiling_is_refused_from_the_hover_or_flown_slower(tmp_path):
+    """The transfer test's vehicle (10 % heavy, motors 10 % weak) on the stock loop: after the trim
+    its ceiling (~10.5 m/s²) is under the star's ask (10.89 + 0.5 reserve). By default it lands
+    from the hover without tracking, the outcome naming both figures (exit 2, never a floor KILL);
+    with deploy.flight.infeasible=slow the star is flown slower by the first factor that fits."""
+    (tmp_path / "a").mkdir()
+    (tmp_path / "b").mkdir()
+    refused, server = fly(tmp_path / "a", [*SHORT, *HEAVY_WEAK])
+    assert refused["outcome_kind"] == "refused_reference" and refused["track_steps"] == 0, refused["outcome"]
+    check = refused["thrust_check"]
+    assert check["ask_mps2"] + check["reserve_mps2"] > check["ceiling_mps2"] > 10.0
+    assert f"the vehicle's ceiling is {check['ceiling_mps2']:.2f} m/s²" in refused["outcome"]
+    assert motors_stopped(server) and server.true_state()["pos_m"][2] < 0.05
+    slowed, _ = fly(
+        tmp_path / "b", [*SHORT, *HEAVY_WEAK, "deploy.flight.infeasible=slow", "deploy.flight.max_slow_factor=5"]
+    )
+    assert slowed["outcome"] == "landed", slowed["outcome"]
+    assert 1.0 < slowed["thrust_check"]["slow_factor"] <= 5.0

@@ -679,3 +679,15 @@ def test_a_repeated_acknowledgement_is_harmless():
     upload.on_packet(ack)
     upload.on_packet(ack)
     assert upload.pending == {} and upload.errors == []
+
+
+@pytest.mark.flight
+def test_the_app_is_not_started_on_a_reference_beyond_its_ceiling(tmp_path):
+    """Onboard the same thrust check runs after the trim, at the app's own ceiling: with the app
+    capped at 60000 the transfer vehicle (10 % heavy, motors 10 % weak) cannot follow the star;
+    the app is never started (``datt.run`` stays 0) and the PID lands from the hover."""
+    heavy_weak = ["deploy.server.mass_kg=0.0374", "deploy.server.thrust_gain=0.9"]
+    summary, server = fly(tmp_path, ["deploy.onboard=true", "deploy.thrust.app_max_command=60000", *heavy_weak])
+    assert summary["outcome_kind"] == "refused_reference", summary["outcome"]
+    assert summary["track_steps"] == 0 and server.app.phase == onboard.IDLE
+    assert "deploy.flight.infeasible=slow" in summary["outcome"]

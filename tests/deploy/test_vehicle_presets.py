@@ -66,3 +66,48 @@ def test_the_paper_vehicle_has_the_papers_thrust_to_weight():
     limited by the legacy commander's MAX_THRUST to a ceiling of 12.9 m/s² at 34 g."""
     assert 1.8 < VEHICLES["cf21_upgrade"].thrust_to_weight() < 2.0
     assert VEHICLES["cf21"].ceiling_mps2() == pytest.approx(12.925, abs=1e-3)
+
+
+@pytest.mark.parametrize("name", sorted(VEHICLES))
+def test_every_preset_has_a_policy_per_mode_that_is_shipped(name):
+    from datt.paths import resolve_path
+    from datt.tasks.deploy import default_checkpoint, resolve_checkpoint
+
+    for onboard in (False, True):
+        path = default_checkpoint(name, onboard)
+        assert resolve_path(path).is_file(), path
+        cfg = compose("deploy", [f"deploy.vehicle={name}", f"deploy.onboard={str(onboard).lower()}"])
+        resolve_checkpoint(cfg)
+        assert cfg.checkpoint == path
+
+
+@pytest.mark.parametrize(
+    "kind, track_steps, counted",
+    [
+        ("landed", 500, "landed"),
+        ("landed_onboard", 500, "landed"),
+        ("landed_early", 357, "landed early"),  # a LAND decision in TRACK (sinking, stale mocap ...)
+        ("landed_early", 0, "refused"),  # landed before TRACK: the hover trim's limit
+        ("refused_reference", 0, "refused"),
+        ("refused", 0, "refused"),
+        ("killed", 120, "killed"),
+        ("link_lost", 10, "link_lost"),
+    ],
+)
+def test_the_transfer_grid_counts_each_outcome_where_it_belongs(kind, track_steps, counted):
+    from datt.tasks.transfer import verdict
+
+    assert verdict(kind, track_steps) == counted
+
+
+def test_a_grid_cell_is_the_presets_vehicle_made_worse():
+    from datt.tasks.transfer import cell_conditions
+
+    cell = cell_conditions("cf21_upgrade", 60, 15, -10, 5)
+    assert cell == {
+        "deploy.vehicle": "cf21_upgrade",
+        "deploy.server.radio_latency_s": 0.03,  # each way
+        "deploy.server.mass_kg": pytest.approx(0.046),
+        "deploy.server.thrust_gain": 0.9,
+        "deploy.server.radio_loss": 0.05,
+    }

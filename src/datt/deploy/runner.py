@@ -100,6 +100,7 @@ class FlightModel:
         self.env.reset()
         controller.reset(self.env)
         self.last_cmd = self.env.hover_action.clone()
+        self.last_state_t: float | None = None  # arrival time of the estimate the last command answered
 
     def act(self, pos_m, vel_mps, quat, predicted=None, lead_steps: float = 0.0) -> np.ndarray:
         """The command for the measured state; ``predicted`` ((pos, vel, quat), the state rolled
@@ -120,6 +121,17 @@ class FlightModel:
         self.env.record_command(cmd)  # policies with obs.action_history see the commands sent
         self.last_cmd = cmd
         return cmd[0].detach().numpy().astype(float)  # as the env would apply it (NaN stays NaN)
+
+    def hold(self) -> np.ndarray:
+        """The last command again, for a tick whose estimate is the one the last command answered
+        (its log packet was lost or late): there is nothing new to act on, and a policy fed the
+        same state again, rolled over a longer latency, answers it with rates it never learned
+        (measured: the stock loop's oscillation at the ceiling). The adaptation is not updated;
+        the command history and the commands in flight record it as sent."""
+        cmd = self.last_cmd
+        self.env.sim.latency.push(cmd)
+        self.env.record_command(cmd)
+        return cmd[0].detach().numpy().astype(float)
 
     def _keep_altitude(self, cmd: torch.Tensor, quat: list[float]) -> torch.Tensor:
         """``cmd`` (1, 4) with the roll and pitch rates :func:`keep_altitude_at_ceiling` leaves."""
@@ -675,7 +687,19 @@ class FlightRunner:
     def _act(self, model: FlightModel, state, now: float, origin: np.ndarray, k: int, predict: bool) -> np.ndarray:
         """The controller's command for a finite measured ``state`` (world frame; the model flies
         relative to ``origin``), seen through the latency predictor when ``predict``, plus the
-        calibration's thrust excitation at tick ``k``."""
+        calibration's thrust excitation at tick ``k``. The estimate the last command already answered
+        (no fresh one came this tick) gets that command again (:meth:`FlightModel.hold`)."""
+        if state.t_s == model.last_state_t:
+            action = model.hold()
+        else:
+            model.last_state_t = state.t_s
+            action = self._answer(model, state, now, origin, predict)
+        if self._excitation is not None:
+            action[0] += self._excitation(k)
+        return action
+
+    def _answer(self, model: FlightModel, state, now: float, origin: np.ndarray, predict: bool) -> np.ndarray:
+        """The controller's command for a fresh ``state``, through the predictor when ``predict``."""
         predicted, lead_steps = None, 0.0
         if predict:
             p, v, q = self.predictor.predict(
@@ -683,10 +707,7 @@ class FlightRunner:
             )
             predicted = (np.array(p) - origin, v, q)
             lead_steps = self.predictor.lead_at(now) * self.p.rate_hz
-        action = model.act(np.array(state.pos_m) - origin, state.vel_mps, state.quat, predicted, lead_steps)
-        if self._excitation is not None:
-            action[0] += self._excitation(k)
-        return action
+        return model.act(np.array(state.pos_m) - origin, state.vel_mps, state.quat, predicted, lead_steps)
 
     def _send_tick(self, model: FlightModel, action) -> int:
         """Send the tick's command (and the e-stop watchdog); the predictor records what was sent.

@@ -26,20 +26,29 @@ from datt.errors import ConfigError, FlightAborted, FlightStopped
 from datt.runs import StopRequest, stop_signals
 from datt.tasks.common import console, hydra_run_dir, set_threads
 
-# the policy ``checkpoint: null`` flies, per mode (docs/deploy.md, "A cost on the rate command's
-# change"): off-board the predictor policy fine-tuned with the cost (experiment=deploy_smooth), flown
-# behind the state predictor, which no longer sinks at the transfer vehicle's thrust ceiling; onboard
+# the policy ``checkpoint: null`` flies, per vehicle preset (deploy.vehicle) and mode
+# (src/datt/checkpoints/MANIFEST.md): on the stock cf21, off-board the predictor policy fine-tuned with
+# a cost on the rate command's change (experiment=deploy_smooth), behind the state predictor, onboard
 # the predictor policy itself (experiment=deploy_predictor; the cost made its onboard flights worse)
-DEFAULT_CHECKPOINTS = {"off-board": "checkpoints/datt_h10_smooth.pt", "onboard": "checkpoints/datt_h10_predictor.pt"}
+DEFAULT_CHECKPOINTS = {
+    "cf21": {"off-board": "checkpoints/datt_h10_smooth.pt", "onboard": "checkpoints/datt_h10_predictor.pt"},
+    "cf21_upgrade": {"off-board": "checkpoints/datt_h10_smooth.pt", "onboard": "checkpoints/datt_h10_predictor.pt"},
+}
+
+
+def default_checkpoint(vehicle: str, onboard: bool) -> str:
+    """The policy :data:`DEFAULT_CHECKPOINTS` flies on preset ``vehicle`` in that mode."""
+    return DEFAULT_CHECKPOINTS[vehicle]["onboard" if onboard else "off-board"]
 
 
 def resolve_checkpoint(cfg: DictConfig) -> None:
-    """``checkpoint: null`` (the default) becomes the mode's policy of :data:`DEFAULT_CHECKPOINTS`
-    (``deploy.onboard`` true: onboard); a checkpoint given is kept. The flight's summary names
-    the one that flew (``controller.checkpoint``)."""
+    """``checkpoint: null`` (the default) becomes the policy of :data:`DEFAULT_CHECKPOINTS` for the
+    vehicle preset (``deploy.vehicle``) and the mode (``deploy.onboard``); a checkpoint given is
+    kept. The flight's summary names the one that flew (``controller.checkpoint``)."""
     if cfg.get("checkpoint") is None:
         onboard = OmegaConf.select(cfg, "deploy.onboard", default=False) is True
-        cfg.checkpoint = DEFAULT_CHECKPOINTS["onboard" if onboard else "off-board"]
+        vehicle = OmegaConf.select(cfg, "deploy.vehicle", default="cf21")
+        cfg.checkpoint = default_checkpoint(vehicle if vehicle in DEFAULT_CHECKPOINTS else "cf21", onboard)
 
 
 def _onboard_app(cfg: DictConfig, run_dir: Path, simulated: bool) -> tuple[int, str | None]:

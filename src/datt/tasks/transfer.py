@@ -65,9 +65,10 @@ EVAL_RATE_MODEL = {"pi_first_order": "first_order", "firmware": "firmware"}
 
 def eval_star_error(checkpoint: str, out: Path, rate_loop: str = "firmware", vehicle: str = "cf21") -> float:
     """``eval.py``'s star error of the policy with L1 (the bank's star group: the reference
-    ``deploy.py`` flies), no disturbance, nominal simulator; with ``rate_loop="firmware"`` on the
-    simulator's firmware rate model of ``vehicle`` (the loop the flights then fly), fed through
-    that vehicle's thrust ceiling."""
+    ``deploy.py`` flies), no disturbance, nominal simulator fed through ``vehicle``'s thrust
+    ceiling (its off-board ``max_command``, as the policies are trained); with
+    ``rate_loop="firmware"`` on the simulator's firmware rate model of ``vehicle``, with
+    ``pi_first_order`` on the first-order model (the loop the flights then fly)."""
     overrides = [
         f"checkpoint={checkpoint}",
         "controller=datt_l1",
@@ -75,14 +76,12 @@ def eval_star_error(checkpoint: str, out: Path, rate_loop: str = "firmware", veh
         "eval.save_trace=false",
         "eval.timing.steps=0",
     ]
-    if rate_loop != "pi_first_order":
-        # the firmware loop is fed through the vehicle's thrust ceiling, as the policy was trained
-        ceiling = round(VEHICLES[vehicle].ceiling_mps2(), 2)
-        overrides += [
-            f"env.quad.rate_model={EVAL_RATE_MODEL[rate_loop]}",
-            f"env.quad.max_thrust_mps2={ceiling}",
-            f"env.quad.vehicle={vehicle}",
-        ]
+    ceiling = round(VEHICLES[vehicle].ceiling_mps2(), 2)
+    overrides += [
+        f"env.quad.rate_model={EVAL_RATE_MODEL[rate_loop]}",
+        f"env.quad.max_thrust_mps2={ceiling}",
+        f"env.quad.vehicle={vehicle}",
+    ]
     cfg = compose("eval", overrides)
     metrics = run_eval(cfg, run_dir=out)
     (cond,) = metrics["conditions"].values()
