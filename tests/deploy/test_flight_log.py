@@ -519,6 +519,36 @@ def test_the_landing_ramps_from_where_the_vehicle_is_to_the_floor_below_it(tmp_p
     assert runner.outcome.kind is Kind.LANDED_EARLY and runner.outcome.text == "landed early: speed 5.0 m/s > 4.0 m/s"
 
 
+def test_a_hover_that_sank_to_the_floor_lands_before_its_trim(tmp_path):
+    """A vehicle too heavy for its ceiling sinks during HOVER: its trim would read a hover command
+    off the floor and TRACK would start there (a floor KILL). Below half the hover height at the
+    end of HOVER it lands, naming the height and the commands, and no trim is taken."""
+    from datt.deploy.safety import LAND, OK
+
+    runner = bookkeeping_runner(tmp_path, p=SimpleNamespace(hover_trim=True, takeoff_height_m=1.0))
+    trims = []
+    runner._trim = lambda phase, models, final: trims.append(phase) or OK
+    runner._land = lambda origin: trims.append("landed")
+
+    def fly_phase(model, duration, origin):
+        z = 1.0 if runner.log.phase == "TAKEOFF" else 0.003
+        runner.log.rows.append(
+            {**row(len(runner.log.rows), runner.log.phase, 0.0, 1.0), "pos": [0.0, 0.0, z], "thrust_cmd": 60000}
+        )
+        return OK
+
+    runner._fly_phase = fly_phase
+    takeoff, hover = ("TAKEOFF", "takeoff model", 2.0), ("HOVER", "hover model", 2.0)
+    assert runner._climb(np.zeros(3), takeoff, hover, ["track model"]) == LAND
+    assert trims == ["TAKEOFF", "landed"]
+    assert runner.log.events[-1] == {
+        **runner.log.events[-1],
+        "kind": "LAND",
+        "text": "the vehicle could not hold its hover: the hover ended at z 0.00 m (hover at 1 m) with commands up "
+        "to 60000; it needs more thrust than it has (deploy.thrust.mass_kg, the battery, the motors)",
+    }
+
+
 def test_each_trim_reaches_the_models_still_to_fly(tmp_path):
     """``_climb``: TAKEOFF, its trim (a first pass: the HOVER model and the later ones get the new
     ceiling), HOVER, the final trim (the later ones); without HOVER the takeoff's trim is final."""

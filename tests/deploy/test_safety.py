@@ -315,3 +315,47 @@ def test_sinking_below_the_reference_while_tracking_lands(z_m, reference_z_m, tr
     assert decision.action == action
     if action == safety.LAND:
         assert decision.reason.startswith("sinking while tracking") and "track_sink_m" in decision.reason
+
+
+def test_the_estimate_already_answered_gets_the_last_command_again_without_adapting():
+    """A tick whose estimate is the one the last command answered (its log packet lost): the
+    command is repeated, L1's d-hat stays, and the history records it as sent; a fresh estimate
+    is answered as before."""
+    import torch
+
+    from datt.control.pid import PidController
+    from datt.deploy.runner import FlightModel
+    from datt.envs.factory import make_env
+    from datt.refs import Polygon
+
+    cfg = compose("sim", ["env.obs.action_history=3", "adaptation=l1"])
+    model = FlightModel(lambda family: make_env(cfg, num_envs=1, seed=0, traj=family), PidController(), Polygon())
+    first = model.act([0.1, -0.2, 0.0], [0.5, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0])
+    model.act([0.12, -0.2, 0.0], [0.9, 0.3, 0.0], [1.0, 0.0, 0.0, 0.0])
+    d_hat, last = model.d_hat.copy(), model.last_cmd.clone()
+    held = model.hold()
+    assert held.tolist() == pytest.approx(last[0].tolist()) and not np.allclose(held, first)
+    np.testing.assert_array_equal(model.d_hat, d_hat)
+    torch.testing.assert_close(model.env.cmd_history[0, -1], model.env.scaled_command(last)[0])
+    torch.testing.assert_close(model.env.cmd_history[0, -2], model.env.scaled_command(last)[0])
+
+
+def test_the_runner_holds_on_an_estimate_it_already_answered_and_answers_a_fresh_one(tmp_path):
+    from types import SimpleNamespace
+
+    from tests.deploy import bookkeeping_runner
+
+    class Model:
+        last_state_t = None
+
+        def hold(self):
+            return np.array([1.0, 0.0, 0.0, 0.0])
+
+    runner = bookkeeping_runner(tmp_path, _excitation=lambda k: 0.5 * k)
+    answered = []
+    runner._answer = lambda model, state, now, origin, predict: answered.append(state.t_s) or np.array([9.0, 0, 0, 0])
+    model, origin = Model(), np.zeros(3)
+    samples = [SimpleNamespace(t_s=t) for t in (1.00, 1.00, 1.02, 1.02, 1.02, 1.04)]
+    sent = [runner._act(model, s, 0.0, origin, k, False)[0] for k, s in enumerate(samples)]
+    assert answered == [1.00, 1.02, 1.04]
+    assert sent == [9.0, 1.5, 10.0, 2.5, 3.0, 11.5]  # the excitation is added either way (calibration)

@@ -284,6 +284,7 @@ class ActingModel:
 
     def __init__(self):
         self.given = []
+        self.last_state_t = None  # no estimate answered yet
 
     def act(self, pos, vel, quat, predicted, lead_steps):
         self.given.append((np.asarray(pos).tolist(), vel, quat, predicted, lead_steps))

@@ -111,3 +111,13 @@ def test_a_grid_cell_is_the_presets_vehicle_made_worse():
         "deploy.server.thrust_gain": 0.9,
         "deploy.server.radio_loss": 0.05,
     }
+
+
+@pytest.mark.parametrize("experiment, name", [("deploy_smooth", "cf21"), ("deploy_upgrade", "cf21_upgrade")])
+def test_a_deploy_policys_training_vehicle_is_its_presets(experiment, name):
+    """The training side of a preset's policy: the preset's firmware-loop constants
+    (env.quad.vehicle) and its off-board ceiling (MAX_THRUST on the flying mass, to the YAML's
+    two decimals)."""
+    cfg = compose("train", [f"experiment={experiment}"])
+    assert cfg.env.quad.vehicle == name
+    assert cfg.env.quad.max_thrust_mps2 == pytest.approx(VEHICLES[name].ceiling_mps2(), abs=0.006)

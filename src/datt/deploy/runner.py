@@ -499,7 +499,7 @@ class FlightRunner:
         result = self._fly_phase(hover[1], hover[2], origin)
         if result != OK:
             return result
-        if self._trim(hover[0], later, final=True) != OK:
+        if not self._lifted_off(hover[0]) or self._trim(hover[0], later, final=True) != OK:
             self._land(origin)
             return LAND
         return OK
@@ -807,20 +807,26 @@ class FlightRunner:
         )
 
     def _lifted_off(self, phase: str) -> bool:
-        """Whether the takeoff ``phase`` ended at least half of ``takeoff_height_m`` up (the
-        ground is z = 0); if not, a LAND event says so. A vehicle still on the ground would
-        otherwise have the hover trim read the ceiling as its hover command and blame the map."""
+        """Whether ``phase`` (the takeoff, or the hover after it) ended at least half of
+        ``takeoff_height_m`` up (the ground is z = 0); if not, a LAND event says so. A vehicle on
+        the ground would otherwise have the hover trim read a hover command off the floor and
+        TRACK start there."""
         rows = [r for r in self.rows if r["phase"] == phase]
         height_m = rows[-1]["pos"][2] if rows else 0.0
         if height_m >= 0.5 * self.p.takeoff_height_m:
             return True
         top = max((r["thrust_cmd"] for r in rows), default=0)
-        self._event(
-            "LAND",
-            f"the vehicle did not lift off: the takeoff ended at z {round(height_m, 2) + 0.0:.2f} m "  # + 0.0: no -0.00
-            f"(hover at {self.p.takeoff_height_m:g} m) with commands up to {top}; the firmware's thrust lock "
-            "(no setpoint with thrust 0 arrived after arming), or motors and propellers",
+        ended = (
+            f"the {phase.lower()} ended at z {round(height_m, 2) + 0.0:.2f} m "  # + 0.0: no -0.00
+            f"(hover at {self.p.takeoff_height_m:g} m) with commands up to {top}"
         )
+        if phase == "TAKEOFF":
+            why = "the vehicle did not lift off: " + ended + "; the firmware's thrust lock (no setpoint with thrust 0 "
+            why += "arrived after arming), or motors and propellers"
+        else:
+            why = "the vehicle could not hold its hover: " + ended + "; it needs more thrust than it has "
+            why += "(deploy.thrust.mass_kg, the battery, the motors)"
+        self._event("LAND", why)
         return False
 
     def _trim(self, phase: str, models: list[FlightModel], final: bool) -> str:
