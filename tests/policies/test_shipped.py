@@ -74,6 +74,7 @@ def drop_added_keys(trained: dict, expected: dict) -> None:
         ("deploy_firmware", "checkpoints/datt_h10_firmware.pt", "checkpoints/datt_h10_deploy.pt"),
         ("deploy_predictor", "checkpoints/datt_h10_predictor.pt", "checkpoints/datt_h10_firmware.pt"),
         ("deploy_smooth", "checkpoints/datt_h10_smooth.pt", "checkpoints/datt_h10_predictor.pt"),
+        ("deploy_upgrade", "checkpoints/datt_h10_upgrade.pt", "checkpoints/datt_h10_smooth.pt"),
     ],
 )
 def test_deploy_grade_checkpoint_is_the_output_of_its_experiment(experiment, checkpoint, parent):
