@@ -476,7 +476,7 @@ def test_the_runner_hands_the_controller_the_prediction_and_its_reference_lead(r
     runner.predictor.round_trip_s = 0.04  # the lead is the down-link: 70 - 20 ms
     runner.predictor.record(0.0, [12.0, 0.5, 0.0, 0.0])
     calls = []
-    model = SimpleNamespace(d_hat=[0.0, 0.0, 0.0], act=lambda *a: calls.append(a) or np.zeros(4))
+    model = SimpleNamespace(d_hat=[0.0, 0.0, 0.0], act=lambda *a: calls.append(a) or np.zeros(4), last_state_t=None)
     state = SimpleNamespace(
         t_s=0.01, pos_m=(1.0, 2.0, 1.5), vel_mps=(0.2, 0.0, 0.0), quat=(1.0, 0.0, 0.0, 0.0), vehicle_s=None
     )
@@ -487,5 +487,6 @@ def test_the_runner_hands_the_controller_the_prediction_and_its_reference_lead(r
     want = runner.predictor.predict(0.03, state.t_s, state.pos_m, state.vel_mps, state.quat, [0.0] * 3, None)
     assert np.allclose(predicted[0], np.array(want[0]) - origin) and predicted[0][0] != pos[0]
     assert lead_steps == pytest.approx(runner.predictor.lead_at(0.03) * rate_hz) and lead_steps > 0
-    runner._act(model, state, 0.03, origin, 0, predict=False)
+    fresh = SimpleNamespace(**{**vars(state), "t_s": 0.03})  # the same one again would be held (FlightModel.hold)
+    runner._act(model, fresh, 0.05, origin, 1, predict=False)
     assert calls[-1][3:] == (None, 0.0)
