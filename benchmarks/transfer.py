@@ -28,7 +28,7 @@ from pathlib import Path
 from _common import write_result
 
 from datt.paths import resolve_path
-from datt.sim.vehicles import VEHICLES
+from datt.sim.vehicles import DEFAULT_VEHICLE, VEHICLES
 from datt.tasks.transfer import CHECKPOINTS, CONDITIONS, EVAL_RATE_MODEL, MODES, calibrate, eval_star_error, fly
 
 
@@ -58,7 +58,7 @@ def main() -> None:
     if args.log_after_step:
         conditions["deploy.server.log_before_step"] = False
         conditions["deploy.predictor.vehicle_tick_s"] = 0.0
-    rate_loop = args.rate_loop or VEHICLES["cf21"].rate_loop  # deploy.vehicle's default preset
+    rate_loop = args.rate_loop or VEHICLES[DEFAULT_VEHICLE].rate_loop  # deploy.vehicle's default preset
     conditions["deploy.server.rate_loop"] = rate_loop
     results = {}
     missing = [c for c in args.checkpoints if not resolve_path(c).exists()]

@@ -54,8 +54,6 @@ _ESTIMATOR_H = "src/modules/interface/estimator/estimator.h"
 _SUPERVISOR_H = "src/modules/interface/crtp_supervisor.h"
 _SUPERVISOR_C = "src/modules/src/supervisor.c"
 _RPYT_C = "src/modules/src/crtp_commander_rpyt.c"
-_CF2_H = "src/platform/interface/platform_defaults_cf2.h"
-_LEE_C = "src/modules/src/controller/controller_lee.c"
 _PID_C = "src/modules/src/controller/controller_pid.c"
 
 

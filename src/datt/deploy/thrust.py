@@ -35,6 +35,7 @@ import numpy as np
 
 from datt.configuration import POSITIVE, POSITIVE_OR_NONE, check_ranges, ranged
 from datt.deploy.firmware import FIRMWARE_VERSION, fact
+from datt.sim.vehicles import CF21
 
 UINT16_MAX = 65535
 
@@ -43,10 +44,10 @@ UINT16_MAX = 65535
 class ThrustParams:
     """``conf/deploy/*.yaml`` key ``thrust`` (the ``cf21`` preset's numbers by default)."""
 
-    mass_kg: float = ranged(0.034, POSITIVE)  # deploy.thrust.mass_kg: null in the YAML = the preset's (deploy.vehicle)
+    mass_kg: float = ranged(CF21.mass_kg, POSITIVE)  # null in the YAML = the preset's (deploy.vehicle)
     gravity_mps2: float = ranged(9.81, POSITIVE)
     # the firmware's THRUST_MAX per motor (datt.sim.vehicles; null in the YAML = the preset's)
-    thrust_max_n: float = ranged(0.12, POSITIVE)
+    thrust_max_n: float = ranged(CF21.thrust_max_n, POSITIVE)
     hover_command: float | None = ranged(None, POSITIVE_OR_NONE)  # calibrated; None = the firmware map's own (g / k)
     # calibrated k; None = 4 THRUST_MAX / (65535 m)
     slope_mps2_per_command: float | None = ranged(None, POSITIVE_OR_NONE)

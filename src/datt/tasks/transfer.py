@@ -16,7 +16,7 @@ import random
 from pathlib import Path
 
 from datt.configuration import compose
-from datt.sim.vehicles import VEHICLES
+from datt.sim.vehicles import DEFAULT_VEHICLE, VEHICLES
 from datt.tasks.deploy import run_deploy
 from datt.tasks.eval import run_eval
 
@@ -31,7 +31,7 @@ CHECKPOINTS = [
     "checkpoints/datt_h10_predictor.pt",
     "checkpoints/datt_h10_smooth.pt",
 ]
-MASS_KG = 0.034  # deploy.thrust.mass_kg's default: what the controller believes
+MASS_KG = VEHICLES[DEFAULT_VEHICLE].mass_kg  # deploy.thrust.mass_kg's default: what the controller believes
 CONDITIONS = {
     "deploy.server.radio_latency_s": 0.02,  # each way: 40 ms round trip
     "deploy.server.thrust_gain": 0.9,
