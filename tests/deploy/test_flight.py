@@ -24,7 +24,7 @@ pytest.importorskip("cflib")
 from datt.configuration import compose  # noqa: E402
 from datt.tasks.deploy import run_deploy  # noqa: E402
 
-from . import SHORT_FLIGHT, fly_sim, ports  # noqa: E402
+from . import FULL_SPEED, SHORT_FLIGHT, fly_sim, ports  # noqa: E402
 
 pytestmark = pytest.mark.flight  # real flights (seconds each): not in the mutation-testing selection
 
@@ -80,7 +80,7 @@ def test_nominal_flight_tracks_and_lands(tmp_path, monkeypatch):
         for name in ("freeze", "unfreeze"):
             monkeypatch.setattr(gc, name, recorded(name))
 
-    summary, server = fly(tmp_path, hook=watch)
+    summary, server = fly(tmp_path, FULL_SPEED, hook=watch)  # the default flight: the star at the paper's speed
     assert summary["outcome"] == "landed"
     # from CONNECT on, the collector skips the heap the host had before the flight (a full
     # collection of it pauses every thread for several ticks); it is handed back after the flight

@@ -316,9 +316,12 @@ def fly(tmp_path, overrides=()):
     pytest.importorskip("cflib")
     from datt.tasks.deploy import run_deploy
 
-    from . import SHORT_FLIGHT
+    from . import SHORT_FLIGHT, reference_overrides
 
-    cfg = compose("deploy", [f"deploy.uri=udp://127.0.0.1:{next(ports)}", *SHORT_FLIGHT, *overrides])
+    cfg = compose(
+        "deploy",
+        [f"deploy.uri=udp://127.0.0.1:{next(ports)}", *SHORT_FLIGHT, *reference_overrides(overrides), *overrides],
+    )
     seen = {}
     summary = run_deploy(cfg, run_dir=tmp_path, server_hook=lambda server, runner: seen.setdefault("server", server))
     return summary, seen["server"]

@@ -190,26 +190,46 @@ def test_safety_params_are_the_deploy_config_defaults():
         ({"kill_battery_v": 3.4}, "deploy.safety.kill_battery_v: must be <= land_battery_v"),
         ({"kill_state_age_s": 0.1}, None),
         ({"kill_state_age_s": 0.05}, "deploy.safety.kill_state_age_s: must be >= max_state_age_s (0.1), got 0.05"),
-        ({"battery_filter_s": -1.0}, "deploy.safety.battery_filter_s: must be a finite number >= 0, got -1.0"),
+        ({"battery_filter_s": -1.0}, "deploy.safety.battery_filter_s: must be a finite number in [0, 10], got -1.0"),
         ({"battery_filter_s": 0.0}, None),  # 0 = no filter
         ({"battery_filter_s": 0.5}, None),
-        ({"max_state_age_s": 0.0}, "deploy.safety.max_state_age_s: must be a finite number > 0, got 0.0"),
+        ({"max_state_age_s": 0.0}, "deploy.safety.max_state_age_s: must be a finite number in (0, 2], got 0.0"),
         ({"track_floor_m": None}, None),
-        ({"track_floor_m": 0.0}, "deploy.safety.track_floor_m: must be a finite number > 0 or null, got 0.0"),
+        ({"track_floor_m": 0.0}, "deploy.safety.track_floor_m: must be a finite number in (0, 1] or null, got 0.0"),
         # values that would disable a check (NaN compares false, inf never breached): refused
-        ({"max_tilt_deg": math.nan}, "deploy.safety.max_tilt_deg: must be a finite number in (0, 180], got nan"),
-        ({"max_tilt_deg": 181.0}, "deploy.safety.max_tilt_deg: must be a finite number in (0, 180], got 181.0"),
-        ({"geofence_margin_m": math.nan}, "deploy.safety.geofence_margin_m: must be a finite number >= 0, got nan"),
+        ({"max_tilt_deg": math.nan}, "deploy.safety.max_tilt_deg: must be a finite number in (0, 90], got nan"),
+        ({"max_tilt_deg": 91.0}, "deploy.safety.max_tilt_deg: must be a finite number in (0, 90], got 91.0"),
+        ({"geofence_margin_m": math.nan}, "deploy.safety.geofence_margin_m: must be a finite number in [0, 2], got nan"),
         (
             {"geofence_max_m": [math.inf, math.inf, math.inf]},
-            "deploy.safety.geofence_max_m: must be a list, each a finite number, got [inf, inf, inf]",
+            "deploy.safety.geofence_max_m: must be a list, each a finite number in [-20, 20], got [inf, inf, inf]",
         ),
-        ({"max_speed_mps": math.inf}, "deploy.safety.max_speed_mps: must be a finite number > 0, got inf"),
-        ({"kill_battery_v": math.nan}, "deploy.safety.kill_battery_v: must be a finite number >= 0, got nan"),
+        ({"max_speed_mps": math.inf}, "deploy.safety.max_speed_mps: must be a finite number in (0, 10], got inf"),
+        ({"kill_battery_v": math.nan}, "deploy.safety.kill_battery_v: must be a finite number in [3, 4.2], got nan"),
         (
             {"max_rate_radps": [20.0, math.nan, 2.0]},
-            "deploy.safety.max_rate_radps: must be a list, each a finite number > 0, got [20.0, nan, 2.0]",
+            "deploy.safety.max_rate_radps: must be a list, each a finite number in (0, 34.9066], got [20.0, nan, 2.0]",
         ),
+        # finite values that would switch a check off (issue: a range that only says "finite"):
+        # refused by the range that says what the limit can mean
+        (
+            {"geofence_min_m": [-1e30, -2.0, -0.1]},
+            "deploy.safety.geofence_min_m: must be a list, each a finite number in [-20, 20], got [-1e+30, -2.0, -0.1]",
+        ),
+        ({"geofence_margin_m": 1e30}, "deploy.safety.geofence_margin_m: must be a finite number in [0, 2], got 1e+30"),
+        (
+            {"geofence_margin_m": 1.5, "geofence_min_m": [-2.0, -2.0, 0.0], "geofence_max_m": [2.0, 2.0, 1.5]},
+            "deploy.safety.geofence_margin_m: must be less than the fence's smallest side (1.5 m), got 1.5",
+        ),
+        ({"max_speed_mps": 1e30}, "deploy.safety.max_speed_mps: must be a finite number in (0, 10], got 1e+30"),
+        ({"kill_state_age_s": 1e30}, "deploy.safety.kill_state_age_s: must be a finite number in (0, 2], got 1e+30"),
+        ({"max_mocap_age_s": 1e30}, "deploy.safety.max_mocap_age_s: must be a finite number in (0, 2], got 1e+30"),
+        ({"kill_battery_v": 0.0}, "deploy.safety.kill_battery_v: must be a finite number in [3, 4.2], got 0.0"),
+        (
+            {"max_rate_radps": [1e30, 20.0, 2.0]},
+            "deploy.safety.max_rate_radps: must be a list, each a finite number in (0, 34.9066], got [1e+30, 20.0, 2.0]",
+        ),
+        ({"kill_battery_v": 3.0, "land_battery_v": 4.2, "max_tilt_deg": 90.0}, None),  # the ranges' edges
     ],
 )
 def test_safety_params_validation(kwargs, message):
@@ -279,11 +299,11 @@ def test_battery_filter_step_response_by_hand():
     assert [unfiltered.update(v, 0.02) for v in (4.0, 3.1, 3.9)] == [4.0, 3.1, 3.9]
 
 
-def _sinking(z_m, reference_z_m, tracking=True, sink=0.3):
+def _sinking(z_m, reference_z_m, tracking=True, sink=0.3, vz_mps=0.0):
     from datt.deploy.link import StateSample
 
     p = safety.SafetyParams(track_sink_m=sink)
-    state = StateSample(t_s=10.0, pos_m=[0.0, 0.0, z_m], vel_mps=[0.0, 0.0, 0.0], quat=[1.0, 0.0, 0.0, 0.0], vbat_v=4.0)
+    state = StateSample(t_s=10.0, pos_m=[0.0, 0.0, z_m], vel_mps=[0.0, 0.0, vz_mps], quat=[1.0, 0.0, 0.0, 0.0], vbat_v=4.0)
     return safety.check(
         p,
         now_s=10.0,
@@ -298,20 +318,22 @@ def _sinking(z_m, reference_z_m, tracking=True, sink=0.3):
 
 
 @pytest.mark.parametrize(
-    "z_m, reference_z_m, tracking, sink, action",
+    "z_m, reference_z_m, tracking, sink, vz_mps, action",
     [
-        (0.8, 1.0, True, 0.25, "OK"),  # 0.2 below
-        (0.75, 1.0, True, 0.25, "OK"),  # at the edge (exact in binary): 0.25 below is still flown
-        (0.74, 1.0, True, 0.25, "LAND"),
-        (0.69, 1.0, False, 0.3, "OK"),  # takeoff and hover: the PID's own business
-        (0.69, None, True, 0.3, "OK"),  # no reference known: no sink check
-        (0.69, 1.0, True, None, "OK"),  # off
-        (1.40, 1.0, True, 0.3, "OK"),  # above the reference: not sinking
-        (0.9, float("nan"), True, 0.3, "LAND"),  # a reference that is not a number is not "close enough"
+        (0.8, 1.0, True, 0.25, 0.0, "OK"),  # 0.2 below
+        (0.75, 1.0, True, 0.25, 0.0, "OK"),  # at the edge (exact in binary): 0.25 below is still flown
+        (0.74, 1.0, True, 0.25, 0.0, "LAND"),  # below and level
+        (0.74, 1.0, True, 0.25, -0.2, "LAND"),  # below and falling
+        (0.74, 1.0, True, 0.25, 0.05, "OK"),  # below but climbing back (a takeoff the thrust lock delayed)
+        (0.69, 1.0, False, 0.3, 0.0, "OK"),  # takeoff and hover: the PID's own business
+        (0.69, None, True, 0.3, 0.0, "OK"),  # no reference known: no sink check
+        (0.69, 1.0, True, None, 0.0, "OK"),  # off
+        (1.40, 1.0, True, 0.3, 0.0, "OK"),  # above the reference: not sinking
+        (0.9, float("nan"), True, 0.3, 0.0, "LAND"),  # a reference that is not a number is not "close enough"
     ],
 )
-def test_sinking_below_the_reference_while_tracking_lands(z_m, reference_z_m, tracking, sink, action):
-    decision = _sinking(z_m, reference_z_m, tracking, sink)
+def test_sinking_below_the_reference_while_tracking_lands(z_m, reference_z_m, tracking, sink, vz_mps, action):
+    decision = _sinking(z_m, reference_z_m, tracking, sink, vz_mps)
     assert decision.action == action
     if action == safety.LAND:
         assert decision.reason.startswith("sinking while tracking") and "track_sink_m" in decision.reason

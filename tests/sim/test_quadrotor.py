@@ -210,6 +210,8 @@ REFUSED_PARAMS = [
     ({"kw_rate": 1.2}, f"kw_rate: {IN_0_1} 1.2"),
     ({"kt_rate": 0.0}, f"kt_rate: {IN_0_1} 0.0"),
     ({"kt_rate": 1.2}, f"kt_rate: {IN_0_1} 1.2"),
+    ({"command_loss_max": 0.6}, "command_loss_max: must be a finite number in [0, 0.5], got 0.6"),
+    ({"command_loss_max": -0.1}, "command_loss_max: must be a finite number in [0, 0.5], got -0.1"),
 ]
 
 
@@ -231,6 +233,8 @@ def test_the_params_at_the_edges_of_their_rules_are_accepted():
         {"mass_spread": 0.99, "thrust_gain_spread": 0.99},
         {"latency_steps": 1, "latency_steps_max": 1},
         {"latency_steps": 1, "latency_steps_max": 3.0},
+        {"command_loss_max": 0.0},
+        {"command_loss_max": 0.5},
         *({"rate_model": m} for m in ("first_order", "second_order", "mixed")),
     ]
     for kwargs in edges:
@@ -310,3 +314,45 @@ def test_compile_passes_its_options_to_torch_compile(monkeypatch):
     assert quad.compile(backend="eager", mode="reduce-overhead") is quad
     assert seen == {"fn": integrate, "backend": "eager", "mode": "reduce-overhead"}
     assert quad._integrate is not integrate
+
+
+def _lossy(n: int, loss: float, latency_steps: int = 1) -> Quadrotor:
+    """``n`` drones losing each command with probability ``loss`` (drawn, then pinned)."""
+    quad = Quadrotor(n, QuadrotorParams(command_loss_max=0.5, latency_steps=latency_steps))
+    quad.randomise(torch.arange(n), torch.Generator().manual_seed(0))
+    quad.command_loss.fill_(loss)
+    return quad
+
+
+def test_a_lost_command_leaves_the_actuators_on_the_one_before_and_the_sender_unaware():
+    """Every command lost: the actuators keep the idle (hover) command; the latency buffer, what the
+    sender and the training predictor know, holds the commands sent."""
+    quad = _lossy(3, 1.0, latency_steps=2)
+    for k in range(5):
+        quad.step(cmd(3, G + 1.0 + k))
+    assert torch.equal(quad.last_applied_cmd, quad.idle_cmd.expand(3, 4))
+    assert quad.state.thrust_mps2 == pytest.approx([G] * 3)
+    assert [row[0, 0].item() for row in quad.latency.in_flight()] == pytest.approx([G + 4.0, G + 5.0])
+
+
+def test_commands_are_lost_at_each_drones_drawn_rate():
+    """A command differing from the last at every step: the share of steps whose applied command
+    is the previous one is the drone's loss probability (4000 draws: 3 sigma is 0.02)."""
+    quad = _lossy(2, 0.0, latency_steps=0)
+    quad.command_loss.copy_(torch.tensor([0.0, 0.3]))
+    held = torch.zeros(2)
+    steps = 4000
+    for k in range(steps):
+        before = quad.last_applied_cmd.clone()
+        quad.step(cmd(2, G + float(k % 7) - 3.0))
+        held += (quad.last_applied_cmd[:, 0] == before[:, 0]).float()
+    assert held[0].item() == 0.0
+    assert held[1].item() / steps == pytest.approx(0.3, abs=0.02)
+
+
+def test_each_drone_draws_its_loss_within_the_configured_bound():
+    quad = Quadrotor(1000, QuadrotorParams(command_loss_max=0.2))
+    quad.randomise(torch.arange(1000), torch.Generator().manual_seed(1))
+    assert 0.0 <= quad.command_loss.min().item() and quad.command_loss.max().item() < 0.2
+    assert quad.command_loss.mean().item() == pytest.approx(0.1, abs=0.01)
+    assert Quadrotor(2).command_loss is None  # off by default: nothing drawn, nothing lost

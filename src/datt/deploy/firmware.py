@@ -123,6 +123,16 @@ FACTS: dict[str, Fact] = {
     "attitude_rate_hz": Fact(
         500, "src/modules/interface/stabilizer_types.h", "regex", r"#define ATTITUDE_RATE RATE_(\d+)_HZ"
     ),
+    # the gyro's full scale as the firmware sets it up (deploy.safety.max_rate_radps stays inside it)
+    "gyro_full_scale_dps": Fact(
+        2000, "src/hal/src/sensors_bmi088_bmp3xx.c", "regex", r"SENSORS_BMI088_DEG_PER_LSB_CFG\s+\(2\.0f \*(\d+)\.0f\)"
+    ),
+    # a Crazyflie 2.x's battery thresholds: below the critical one the firmware shuts the vehicle
+    # down; deploy.safety's battery limits stay above it
+    "battery_low_v": Fact(3.2, "src/platform/interface/platform_defaults_cf2.h", "define", "DEFAULT_BAT_LOW_VOLTAGE"),
+    "battery_critical_v": Fact(
+        3.0, "src/platform/interface/platform_defaults_cf2.h", "define", "DEFAULT_BAT_CRITICAL_LOW_VOLTAGE"
+    ),
     # each vehicle preset's numbers (datt.sim.vehicles): "<preset>.<field>"
     **vehicle_facts(),
 }

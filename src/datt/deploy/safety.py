@@ -10,8 +10,9 @@ LAND: a state estimate older than ``max_state_age_s`` (a late log packet: land o
       estimate before giving up at ``kill_state_age_s``); outside the geofence box; speed above
       ``max_speed_mps``; external position (mocap) older than ``max_mocap_age_s`` while a mocap
       source is configured; while tracking, more than ``track_sink_m`` below the reference's
-      height (the vehicle cannot hold its height: at its thrust ceiling a policy that keeps
-      turning sinks; the PID lands it before it reaches ``track_floor_m``); command out of range
+      height and not climbing (the vehicle cannot hold its height: at its thrust ceiling a policy
+      that keeps turning sinks; the PID lands it before it reaches ``track_floor_m``; a vehicle
+      still climbing back, as after a takeoff the thrust lock delayed, is not sinking); command out of range
       (thrust or rates beyond the policy's bounds);
       battery below ``land_battery_v``.
 
@@ -26,29 +27,52 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from datt.configuration import FINITE, NON_NEGATIVE, POSITIVE, POSITIVE_OR_NONE, Range, check_ranges, ranged
+from datt.configuration import Range, check_ranges, ranged
+from datt.deploy.firmware import fact
 
 OK, LAND, KILL = "OK", "LAND", "KILL"
 
 
+# The ranges say what a limit can mean, so that no finite value switches its check off: a value
+# outside them is refused in one line (datt.configuration.check_ranges). Each with its reason.
+# A flight space is a room: a fence beyond 20 m of the origin is no fence for a Crazyflie.
+ROOM = Range(-20.0, 20.0)
+# The LAND band beyond the fence before a breach KILLs: at most 2 m (and less than the fence's
+# smallest side, validate()), or a far breach would only LAND.
+MARGIN = Range(0.0, 2.0)
+# An estimate or a mocap frame older than 2 s is no estimate: limits on ages stay below it.
+AGE = Range(0.0, 2.0, low_open=True)
+# A Crazyflie 2.x's cell: the firmware's critical voltage (it cuts off below) to a full cell (4.2 V,
+# the LiPo chemistry's charge end); a battery limit outside it never fires.
+CELL = Range(float(fact("battery_critical_v")), 4.2)
+# body rates within the gyro's full scale (beyond it the estimate saturates: a limit there never fires)
+GYRO = Range(0.0, math.radians(float(fact("gyro_full_scale_dps"))), low_open=True)
+
+
 @dataclass
 class SafetyParams:
-    geofence_min_m: list = ranged([-2.0, -2.0, -0.1], FINITE)
-    geofence_max_m: list = ranged([2.0, 2.0, 2.5], FINITE)
-    geofence_margin_m: float = ranged(0.5, NON_NEGATIVE)
-    max_tilt_deg: float = ranged(75.0, Range(0.0, 180.0, low_open=True))
-    max_speed_mps: float = ranged(4.0, POSITIVE)
-    max_state_age_s: float = ranged(0.1, POSITIVE)
-    kill_state_age_s: float = ranged(0.5, POSITIVE)
-    max_mocap_age_s: float = ranged(0.1, POSITIVE)
-    land_battery_v: float = ranged(3.3, NON_NEGATIVE)
-    kill_battery_v: float = ranged(3.0, NON_NEGATIVE)
-    max_thrust_mps2: float = ranged(39.81, POSITIVE)
-    max_rate_radps: list = ranged([20.0, 20.0, 2.0], POSITIVE)
-    battery_filter_s: float = ranged(1.0, NON_NEGATIVE)  # time constant of the battery voltage low-pass
-    max_estimate_mocap_m: float = ranged(0.05, POSITIVE)  # preflight: the onboard estimate must agree with mocap
-    track_floor_m: float | None = ranged(0.05, POSITIVE_OR_NONE)  # TRACK below this height: KILL (null: off)
-    track_sink_m: float | None = ranged(0.4, POSITIVE_OR_NONE)  # TRACK this far below the reference: LAND (null: off)
+    geofence_min_m: list = ranged([-2.0, -2.0, -0.1], ROOM)
+    geofence_max_m: list = ranged([2.0, 2.0, 2.5], ROOM)
+    geofence_margin_m: float = ranged(0.5, MARGIN)
+    # beyond 90 deg the vehicle is upside down: a tilt limit there never fires before the floor
+    max_tilt_deg: float = ranged(75.0, Range(0.0, 90.0, low_open=True))
+    # a Crazyflie tracks references of 1-3 m/s; 10 m/s in a room is already a crash
+    max_speed_mps: float = ranged(4.0, Range(0.0, 10.0, low_open=True))
+    max_state_age_s: float = ranged(0.1, AGE)
+    kill_state_age_s: float = ranged(0.5, AGE)
+    max_mocap_age_s: float = ranged(0.1, AGE)
+    land_battery_v: float = ranged(3.3, CELL)
+    kill_battery_v: float = ranged(3.0, CELL)
+    # the policy's command bound (g + 30 m/s²); the vehicle's own ceiling is lower and the thrust map clips there
+    max_thrust_mps2: float = ranged(39.81, Range(0.0, 40.0, low_open=True))
+    max_rate_radps: list = ranged([20.0, 20.0, 2.0], GYRO)
+    battery_filter_s: float = ranged(1.0, Range(0.0, 10.0))  # time constant of the battery voltage low-pass
+    # preflight: the onboard estimate must agree with mocap (beyond 0.5 m they disagree about the room)
+    max_estimate_mocap_m: float = ranged(0.05, Range(0.0, 0.5, low_open=True))
+    # TRACK below this height: KILL (null: off); above 1 m the floor check would fire in a normal flight
+    track_floor_m: float | None = ranged(0.05, Range(0.0, 1.0, low_open=True, optional=True))
+    # TRACK this far below the reference: LAND (null: off); at most 2 m, a room's height
+    track_sink_m: float | None = ranged(0.4, Range(0.0, 2.0, low_open=True, optional=True))
 
     def validate(self) -> None:
         from datt.errors import ConfigError
@@ -58,6 +82,12 @@ class SafetyParams:
             raise ConfigError("deploy.safety.geofence_min_m/max_m: need 3 values each with min < max")
         if len(self.geofence_max_m) != 3 or len(self.max_rate_radps) != 3:
             raise ConfigError("deploy.safety.geofence_max_m / max_rate_radps: need 3 values each")
+        side_m = min(hi - lo for lo, hi in zip(self.geofence_min_m, self.geofence_max_m))
+        if not self.geofence_margin_m < side_m:
+            raise ConfigError(
+                f"deploy.safety.geofence_margin_m: must be less than the fence's smallest side ({side_m:g} m), "
+                f"got {self.geofence_margin_m}"
+            )
         if not self.kill_battery_v <= self.land_battery_v:
             raise ConfigError("deploy.safety.kill_battery_v: must be <= land_battery_v")
         if not self.max_state_age_s <= self.kill_state_age_s:
@@ -129,7 +159,7 @@ def check(
     speed = math.sqrt(sum(v * v for v in state.vel_mps))
     if speed > p.max_speed_mps:
         return Decision(LAND, f"speed {speed:.1f} m/s > {p.max_speed_mps} m/s")
-    if tracking and (sinking := _sinking(p, state.pos_m[2], reference_z_m)) is not None:
+    if tracking and (sinking := _sinking(p, state.pos_m[2], state.vel_mps[2], reference_z_m)) is not None:
         return sinking
     if mocap_age_s is not None and mocap_age_s > p.max_mocap_age_s:
         return Decision(LAND, f"mocap stale ({mocap_age_s * 1e3:.0f} ms > {p.max_mocap_age_s * 1e3:.0f} ms)")
@@ -142,12 +172,12 @@ def check(
     return Decision(OK)
 
 
-def _sinking(p: SafetyParams, z_m: float, reference_z_m: float | None) -> Decision | None:
+def _sinking(p: SafetyParams, z_m: float, vz_mps: float, reference_z_m: float | None) -> Decision | None:
     """LAND when the vehicle is more than ``track_sink_m`` below the reference's height (a
-    reference that is not a number counts as too far), else None (also with no reference or the
-    check off)."""
+    reference that is not a number counts as too far) and not climbing (``vz_mps`` <= 0, world z
+    up), else None (also with no reference or the check off)."""
     sink = p.track_sink_m
-    if sink is None or reference_z_m is None or reference_z_m - z_m <= sink:
+    if sink is None or reference_z_m is None or reference_z_m - z_m <= sink or vz_mps > 0.0:
         return None
     return Decision(
         LAND,

@@ -76,6 +76,11 @@ class QuadrotorParams:
     ``vehicle_mass_kg`` (None: the preset's) and ``motor_time_constant_s`` are its vehicle, and
     its motors' lag replaces ``k_thrust``, ``k_rate`` and ``max_rate_radps``).
 
+    ``command_loss_max``: each drone loses a share ``U(0, command_loss_max)`` of its commands on
+    the way (a radio that drops setpoints): at a lost step the actuators keep the command they
+    had, while the latency buffer (what the sender, and the training predictor, know was sent)
+    keeps the one sent, as a host that cannot see which setpoints arrived.
+
     ``thrust_map_trimmed``: the vehicle flies behind a thrust map trimmed to it, as a deployed one
     after ``deploy.flight.hover_trim``: the commanded thrust is divided by the trim's estimate of
     ``gain / mass`` (that ratio times ``U(1 − trim_error_spread, 1 + trim_error_spread)``) before
@@ -103,6 +108,8 @@ class QuadrotorParams:
     vehicle: str = ranged(DEFAULT_VEHICLE, Range(choices=tuple(VEHICLES)))  # firmware rate model: the preset
     vehicle_mass_kg: float | None = ranged(None, Range(0.005, 5.0, optional=True))  # None: the preset's
     motor_time_constant_s: float = ranged(0.03, Range(0.0, 1.0))
+    # below one half: a radio that loses every other setpoint is not one to fly with
+    command_loss_max: float = ranged(0.0, Range(0.0, 0.5))
 
     @property
     def max_latency_steps(self) -> int:
@@ -255,6 +262,9 @@ class Quadrotor:
         self.map_scale: Tensor | None = None
         if p.thrust_map_trimmed and (self.thrust_scale is not None or p.trim_error_spread):
             self.map_scale = torch.ones(n, **kw)
+        # [N] command_loss_max: each drone's chance of losing a command; the generator its losses draw from
+        self.command_loss: Tensor | None = torch.zeros(n, **kw) if p.command_loss_max > 0 else None
+        self._loss_generator: torch.Generator | None = None
         self.motor_gain: Tensor | None = None  # [N] firmware rate model: motor force / nominal
         self.firmware: FirmwareRateLoop | None = None
         if p.rate_model == "firmware":
@@ -309,6 +319,9 @@ class Quadrotor:
             self.latency.set_delay(idx, torch.randint(p.latency_steps, p.max_latency_steps + 1, (k,), **kw))
         if p.rate_model == "mixed":
             self.second_order[idx] = torch.rand(k, **kw) < 0.5
+        if self.command_loss is not None:
+            self.command_loss[idx] = p.command_loss_max * torch.rand(k, dtype=self.dtype, **kw)
+            self._loss_generator = generator
 
     @property
     def command_ceiling_mps2(self) -> Tensor | None:
@@ -324,6 +337,9 @@ class Quadrotor:
         """
         p = self.params
         applied = self.latency.push(cmd)
+        if self.command_loss is not None:  # a lost command: the actuators keep the one they had
+            draw = torch.rand(self.n, device=self.device, dtype=self.dtype, generator=self._loss_generator)
+            applied = torch.where((draw < self.command_loss).unsqueeze(-1), self.last_applied_cmd, applied)
         self.last_applied_cmd = applied
         if self.map_scale is not None:  # the trimmed map: the actuator's thrust for the one commanded
             applied = torch.cat((applied[:, :1] / self.map_scale.unsqueeze(-1), applied[:, 1:]), dim=-1)
