@@ -303,6 +303,37 @@ def test_05_eval_flies_the_given_traj(tmp_path, monkeypatch, capsys):
     assert list(cond["groups"]) == ["csv"] and cond["groups"]["csv"]["episodes"] == 1
 
 
+def test_04_a_signal_during_an_evaluation_keeps_the_finished_seeds(tmp_path, monkeypatch, capsys):
+    """SIGTERM (as the entry point raises it) after seed 0 of three finished: seed 0 is in a strict,
+    whole metrics.json marked incomplete, the line says so, exit 130; ``tables.py`` reads the run as
+    incomplete, not as a result."""
+    import datt.tasks.eval as eval_task
+    from datt.eval.tables import read_job
+
+    real = eval_task.evaluate_conditions
+    calls = []
+
+    def stopped_at_the_second(*args, **kwargs):
+        calls.append(kwargs["seed"])
+        if len(calls) == 2:
+            raise KeyboardInterrupt("SIGTERM")
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(eval_task, "evaluate_conditions", stopped_at_the_second)
+    ref = write_csv(tmp_path / "mine.csv", SMALL_CSV)
+    args = ["controller=pid", "traj=csv", f"traj.path={ref}", "eval.timing.steps=0", "eval.plots=false"]
+    result = run_cli("eval", [*args, "eval.seeds=[0,1,2]", "hydra.run.dir=e"], tmp_path, monkeypatch, capsys)
+    metrics_path = tmp_path / "e" / "metrics.json"
+    one_line(
+        result, f"error: interrupted by SIGTERM: seeds [0] of [0, 1, 2] are in {metrics_path} (complete: false)", 130
+    )
+    metrics = json.loads(metrics_path.read_text(), parse_constant=lambda c: pytest.fail(f"not strict JSON: {c}"))
+    assert metrics["complete"] is False and metrics["seeds_done"] == [0] and len(metrics["conditions"]) == 1
+    assert not [p for p in (tmp_path / "e").iterdir() if p.name.endswith(".tmp")]
+    job = read_job(tmp_path / "e")
+    assert job.status == "incomplete" and job.metrics is None
+
+
 def test_05_eval_of_a_missing_csv_is_one_line(tmp_path, monkeypatch, capsys):
     result = run_cli(
         "eval", ["traj=csv", "traj.path=/nonexistent.csv", "hydra.run.dir=e"], tmp_path, monkeypatch, capsys
@@ -619,4 +650,5 @@ def test_10_sigterm_ends_an_evaluation_in_one_line(tmp_path):
     proc.send_signal(signal.SIGTERM)
     _, err = proc.communicate(timeout=120)
     lines = [ln for ln in err.splitlines() if ln.strip() and "warn" not in ln.lower()]
-    assert proc.returncode == 130 and lines == ["error: interrupted by SIGTERM"], err[-2000:]
+    assert proc.returncode == 130 and len(lines) == 1, err[-2000:]
+    assert lines[0].startswith("error: interrupted by SIGTERM: ") and lines[0].endswith("(complete: false)"), lines

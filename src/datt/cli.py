@@ -74,10 +74,70 @@ def _argv_search_roots(argv: list[str]) -> list[Path]:
     return [*roots, conf_dir()]
 
 
+def check_config_dirs(argv: list[str]) -> None:
+    """Each ``--config-dir`` is a directory whose YAML files parse: one line naming the dir or the
+    file (and the YAML's own line) instead of Hydra's traceback."""
+    import yaml
+
+    for text in _split_argv(argv)[0]:
+        path = Path(text).expanduser()
+        if not path.exists():
+            raise ConfigError(f"--config-dir: {path} does not exist; give the directory that holds your config tree")
+        if not path.is_dir():
+            raise ConfigError(f"--config-dir: {path} is a file; give the directory that holds your config tree")
+        for file in sorted(path.rglob("*.yaml")):
+            try:
+                yaml.safe_load(file.read_text())
+            except yaml.YAMLError as exc:
+                mark = getattr(exc, "problem_mark", None)
+                where = f" (line {mark.line + 1}: {getattr(exc, 'problem', None) or 'invalid'})" if mark else ""
+                raise ConfigError(f"--config-dir: {file} is not valid YAML{where}") from None
+            except (OSError, UnicodeDecodeError) as exc:
+                raise ConfigError(f"--config-dir: {file} cannot be read ({one_line(exc)})") from None
+
+
+def hydra_group_options(group: str, roots: list[Path]) -> list[str]:
+    """The options of Hydra's own config group ``group`` (``hydra/launcher``: Hydra's and its
+    plugins', the package's, a ``--config-dir`` tree's)."""
+    from hydra import initialize_config_module
+    from hydra.core.global_hydra import GlobalHydra
+
+    options = set()
+    with initialize_config_module(config_module=CONF_PACKAGE, version_base="1.3"):
+        options.update(GlobalHydra.instance().config_loader().get_group_options(group))
+    for root in roots:
+        options.update(p.stem for p in (root / group).glob("*.yaml"))
+    return sorted(options)
+
+
+def check_hydra_options(argv: list[str]) -> None:
+    """Hydra's own groups (``hydra/launcher=...``) and the launcher's job count, in one line."""
+    for arg in argv:
+        if arg.startswith("-") or "=" not in arg:
+            continue
+        key, value = arg.split("=", 1)
+        key = key.lstrip("+~")
+        if key.startswith("hydra/") and "," not in value:
+            allowed = hydra_group_options(key, _argv_search_roots(argv))
+            if value not in allowed:
+                raise ConfigError(f"{key}: unknown option {value!r}; allowed: {', '.join(allowed)}")
+        if key == "hydra.launcher.n_jobs":
+            try:
+                jobs = int(value)
+            except ValueError:
+                jobs = 0
+            if jobs == 0 or str(jobs) != value.strip():
+                raise ConfigError(
+                    f"hydra.launcher.n_jobs: must be an integer >= 1 (or -1: one job per core), got {value!r}"
+                )
+
+
 def preflight(argv: list[str]) -> None:
     """Reject unknown config-group options (over the whole search path) in one line, before
     Hydra prints a multi-line error."""
     refuse_retired_keys([arg for arg in argv if "=" in arg and not arg.startswith("-")])
+    check_config_dirs(argv)
+    check_hydra_options(argv)
     roots = _argv_search_roots(argv)
     groups = config_groups(roots)
     for arg in argv:
@@ -167,6 +227,55 @@ def check_output_dir(argv: list[str]) -> None:
             problem = f"cannot write in {base} ({exc.strerror})"
     if problem:
         raise ConfigError(f"{key}: {path}: {problem}; run from a writable directory or set {key}=<writable dir>")
+
+
+# What a run of any entry point leaves in its dir: a dir holding one of these holds a run, and no
+# command writes into it (Hydra would replace its .hydra/ before the task starts, a training its
+# checkpoints, an evaluation its metrics.json).
+RUN_RECORDS = (
+    ".hydra",
+    "last.pt",
+    "best.pt",
+    "metrics.json",
+    "metrics.csv",
+    "flight.csv",
+    "events.json",
+    "failed.json",
+)
+
+
+def run_records(path: Path) -> list[str]:
+    """The names of :data:`RUN_RECORDS` that ``path`` holds."""
+    return [name for name in RUN_RECORDS if (path / name).exists()]
+
+
+def check_run_dir(argv: list[str]) -> None:
+    """The run-dir contract of every entry point: an explicit ``hydra.run.dir`` (or, for a
+    multirun, ``hydra.sweep.dir``) is new, empty or holds no run's records; one that holds a run
+    is refused in one line naming ``resume=`` and how to start a fresh one, and an empty value is
+    refused. The default dirs are new by construction (a timestamp and 4 random hex digits)."""
+    multirun = any(a in ("-m", "--multirun") for a in argv) or any(a.lstrip("+").startswith("sweep=") for a in argv)
+    key = "hydra.sweep.dir" if multirun else "hydra.run.dir"
+    given = [a.split("=", 1)[1] for a in argv if a.startswith(key + "=")]
+    if not given:
+        return
+    text = given[-1].strip().strip("'\"")
+    if not text:
+        raise ConfigError(f"{key}: empty; give a directory, or leave {key} unset for a new one under outputs/")
+    if "${" in text:  # interpolated (a timestamp, a job's override): a new dir per command
+        return
+    path = Path(text).expanduser().absolute()
+    if not path.is_dir():
+        return
+    held = run_records(path)
+    if multirun:
+        held += [f"{job.name}/{name}" for job in sorted(path.iterdir()) if job.is_dir() for name in run_records(job)]
+    if held:
+        raise ConfigError(
+            f"{key}: {path} already holds a run ({', '.join(held[:3])}{' ...' if len(held) > 3 else ''}); "
+            f"nothing is written over it: carry a training on with resume={path} (without {key}), "
+            f"or leave {key} unset for a new dir under outputs/, or give one that holds no run"
+        )
 
 
 # what the machine, not the code, refuses: a full disk, a read-only mount, no permission
@@ -271,12 +380,25 @@ def sigterm_as_interrupt() -> contextlib.AbstractContextManager:
     return stop_signals(_interrupt, (signal.SIGTERM,))
 
 
-def _run_job(task: Callable[[DictConfig], object], cfg: DictConfig) -> None:
+def _job_lock(lock: bool) -> contextlib.AbstractContextManager:
+    """The job's run dir held for the task (``lock``), so that a second command on the same dir is
+    refused in one line naming the holder instead of mixing its records in; training takes the
+    lock itself (on the dir it trains in, which a resume changes)."""
+    if not lock:
+        return contextlib.nullcontext()
+    from hydra.core.hydra_config import HydraConfig
+
+    from datt.runs import RunLock
+
+    return RunLock(HydraConfig.get().runtime.output_dir)
+
+
+def _run_job(task: Callable[[DictConfig], object], cfg: DictConfig, lock: bool = True) -> None:
     """Run ``task`` as one Hydra job, mapping each error to its exit line and status (see
     :func:`hydra_main`); a job of a multirun records ``failed.json`` instead of exiting."""
     multirun = _in_multirun()
     try:
-        with sigterm_as_interrupt():
+        with sigterm_as_interrupt(), _job_lock(lock):
             task(cfg)
     except ConfigError as exc:
         if not multirun:
@@ -317,7 +439,7 @@ def _run_job(task: Callable[[DictConfig], object], cfg: DictConfig) -> None:
         _job_failed("errored", f"{type(exc).__name__}: {one_line(exc)}", traceback.format_exc())
 
 
-def hydra_main(config_name: str, task: Callable[[DictConfig], object]) -> Callable[[], None]:
+def hydra_main(config_name: str, task: Callable[[DictConfig], object], lock: bool = True) -> Callable[[], None]:
     """``task`` wrapped in ``@hydra.main`` (config tree from the package) with one-line errors.
 
     A single run exits 2 on a user error, 3 on a divergence, 4 on a flight that did not land,
@@ -328,7 +450,7 @@ def hydra_main(config_name: str, task: Callable[[DictConfig], object]) -> Callab
 
     @hydra.main(config_path=f"pkg://{CONF_PACKAGE}", config_name=config_name, version_base="1.3")
     def _main(cfg: DictConfig) -> None:
-        _run_job(task, cfg)
+        _run_job(task, cfg, lock)
 
     def entry() -> None:
         global _failed_jobs
@@ -337,6 +459,7 @@ def hydra_main(config_name: str, task: Callable[[DictConfig], object]) -> Callab
             preflight(sys.argv[1:])
             check_composition(config_name, sys.argv[1:])
             check_output_dir(sys.argv[1:])
+            check_run_dir(sys.argv[1:])
         except ConfigError as exc:
             _fail(str(exc), 2)
         _main()
@@ -368,7 +491,7 @@ def _tables_entry(inner: Callable[[], None]) -> Callable[[], None]:
     return entry
 
 
-train_main = hydra_main("train", _task("datt.tasks.train", "run_train"))
+train_main = hydra_main("train", _task("datt.tasks.train", "run_train"), lock=False)  # locks its own dir
 eval_main = hydra_main("eval", _task("datt.tasks.eval", "run_eval"))
 tables_main = _tables_entry(hydra_main("tables", _task("datt.tasks.tables", "run_tables")))
 deploy_main = hydra_main("deploy", _task("datt.tasks.deploy", "run_deploy_command"))

@@ -199,7 +199,10 @@ def test_safety_params_are_the_deploy_config_defaults():
         # values that would disable a check (NaN compares false, inf never breached): refused
         ({"max_tilt_deg": math.nan}, "deploy.safety.max_tilt_deg: must be a finite number in (0, 90], got nan"),
         ({"max_tilt_deg": 91.0}, "deploy.safety.max_tilt_deg: must be a finite number in (0, 90], got 91.0"),
-        ({"geofence_margin_m": math.nan}, "deploy.safety.geofence_margin_m: must be a finite number in [0, 2], got nan"),
+        (
+            {"geofence_margin_m": math.nan},
+            "deploy.safety.geofence_margin_m: must be a finite number in [0, 2], got nan",
+        ),
         (
             {"geofence_max_m": [math.inf, math.inf, math.inf]},
             "deploy.safety.geofence_max_m: must be a list, each a finite number in [-20, 20], got [inf, inf, inf]",
@@ -227,7 +230,8 @@ def test_safety_params_are_the_deploy_config_defaults():
         ({"kill_battery_v": 0.0}, "deploy.safety.kill_battery_v: must be a finite number in [3, 4.2], got 0.0"),
         (
             {"max_rate_radps": [1e30, 20.0, 2.0]},
-            "deploy.safety.max_rate_radps: must be a list, each a finite number in (0, 34.9066], got [1e+30, 20.0, 2.0]",
+            "deploy.safety.max_rate_radps: must be a list, each a finite number in (0, 34.9066], "
+            "got [1e+30, 20.0, 2.0]",
         ),
         ({"kill_battery_v": 3.0, "land_battery_v": 4.2, "max_tilt_deg": 90.0}, None),  # the ranges' edges
     ],
@@ -303,7 +307,8 @@ def _sinking(z_m, reference_z_m, tracking=True, sink=0.3, vz_mps=0.0):
     from datt.deploy.link import StateSample
 
     p = safety.SafetyParams(track_sink_m=sink)
-    state = StateSample(t_s=10.0, pos_m=[0.0, 0.0, z_m], vel_mps=[0.0, 0.0, vz_mps], quat=[1.0, 0.0, 0.0, 0.0], vbat_v=4.0)
+    level = [1.0, 0.0, 0.0, 0.0]
+    state = StateSample(t_s=10.0, pos_m=[0.0, 0.0, z_m], vel_mps=[0.0, 0.0, vz_mps], quat=level, vbat_v=4.0)
     return safety.check(
         p,
         now_s=10.0,

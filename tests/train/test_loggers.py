@@ -239,3 +239,23 @@ def test_online_with_an_api_key_and_no_netrc_login_goes_on_to_start_wandb(tmp_pa
     with pytest.raises(ConfigError) as failed:
         WandbLogger(tmp_path, {}, mode="online")
     assert str(failed.value) == "logger: wandb could not start the run (logger.mode=online: no network in this test)"
+
+
+@pytest.mark.parametrize(
+    "body, problem",
+    [
+        ("step,x\n1,0.5\nabc,0.4\n", "line 3 has step 'abc', not a number"),
+        ("step,x\n1,0.5\n2,0.4,9\n", "line 3 has not as many cells as the header"),
+        ("step,x\n1\n", "line 2 has not as many cells as the header"),
+    ],
+)
+def test_a_hand_edited_metrics_csv_is_one_line_naming_the_line_and_is_kept(tmp_path, body, problem):
+    from datt.errors import ConfigError
+    from datt.train.loggers import CsvLogger
+
+    path = tmp_path / "metrics.csv"
+    path.write_text(body)
+    with pytest.raises(ConfigError) as info:
+        CsvLogger(tmp_path).keep_until(1)
+    assert str(info.value).startswith(f"{path}: {problem}; a resume keeps the rows") and "\n" not in str(info.value)
+    assert path.read_text() == body

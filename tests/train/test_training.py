@@ -216,3 +216,21 @@ def test_train_py_end_to_end_writes_run_dir(tmp_path):
     assert set(groups) == {"zigzag", "zigzag_fast", "smooth", "star"} and groups["zigzag"]["episodes"] == 10
     hover = metrics["hover_reference"]["groups"]["zigzag"]
     assert hover["crashes"] == 0 and 0.4 < hover["mean_m"] < 0.8  # distance of the zigzags from the origin
+
+
+def test_a_rollout_larger_than_the_machine_is_refused_before_allocating():
+    """The memory a rollout needs (at least 376 B a frame) against the machine's: the issue's
+    ``algo.num_envs=1048576 algo.rollout_steps=256`` is inside each key's range, not the machine."""
+    from datt.errors import ConfigError
+    from datt.train.ppo import check_rollout_memory
+
+    check_rollout_memory(1024, 32, memory_bytes=8 * 10**9)  # the default: 12 MB
+    with pytest.raises(ConfigError) as info:
+        check_rollout_memory(1048576, 256, memory_bytes=8 * 10**9)
+    assert str(info.value) == (
+        "algo.num_envs x algo.rollout_steps: 268,435,456 frames a rollout need at least 100.9 GB "
+        "(376 B a frame); this machine has 8.0 GB: lower algo.num_envs or algo.rollout_steps"
+    )
+    with pytest.raises(ConfigError):  # the edge: one frame more than fits
+        check_rollout_memory(10**6 + 1, 1, memory_bytes=376 * 10**6)
+    check_rollout_memory(10**6, 1, memory_bytes=376 * 10**6)

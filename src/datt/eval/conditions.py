@@ -101,8 +101,10 @@ def measure_inference(cfg: DictConfig, controller, timing) -> dict | None:
 
 
 def write_metrics_csv(path: Path, conditions: dict) -> None:
-    """One row per (condition, group): mean_m, std_m, crashes, episodes."""
-    with open(path, "w", newline="") as f:
+    """One row per (condition, group): mean_m, std_m, crashes, episodes (written atomically)."""
+    from datt.runs import atomic_write
+
+    with atomic_write(path, "w", newline="") as f:
         w = csv.writer(f)
         w.writerow(["condition", "group", "mean_m", "std_m", "crashes", "episodes"])
         for cond, res in conditions.items():

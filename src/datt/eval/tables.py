@@ -210,6 +210,8 @@ def read_job(path: Path) -> Job:
             return Job(path, overrides, None, "errored", _unreadable(metrics_file, exc))
         if not isinstance(metrics, dict):
             return Job(path, overrides, None, "errored", f"{metrics_file.name}: not a metrics record")
+        if metrics.get("complete") is False:  # an evaluation stopped part-way: its finished seeds only
+            return Job(path, overrides, None, "incomplete", f"stopped after seeds {metrics.get('seeds_done')}")
         return Job(path, overrides, metrics, "finished")
     return Job(path, overrides, None, "incomplete", _progress(path))
 
@@ -266,7 +268,8 @@ def _group_error(metrics: dict, condition: str | None, group: str) -> float | No
         return None
     row = cond["groups"][group]
     if _counts_every_episode(row):
-        return row["mean_m"] if math.isfinite(row["mean_m"]) else None
+        mean = row["mean_m"]
+        return mean if mean is not None and math.isfinite(mean) else None
     return None if row["crashes"] == row["episodes"] else row["mean_m"]
 
 
@@ -279,8 +282,8 @@ def _episodes(metrics: dict, group: str) -> tuple[list[float], int]:
         if row is None:
             continue
         crashed = row.get("per_episode_crashed", [False] * len(row["per_episode_m"]))
-        if _counts_every_episode(row):  # a non-finite episode fails
-            crashed = [not math.isfinite(e) for e in row["per_episode_m"]]
+        if _counts_every_episode(row):  # a non-finite episode (null in strict JSON) fails
+            crashed = [e is None or not math.isfinite(e) for e in row["per_episode_m"]]
         values += [e for e, c in zip(row["per_episode_m"], crashed) if not c]
         failed += sum(crashed)
     return values, failed

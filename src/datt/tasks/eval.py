@@ -3,7 +3,6 @@ inference time at batch 1."""
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 from omegaconf import DictConfig, OmegaConf
@@ -13,6 +12,7 @@ from datt.control.factory import build_controller
 from datt.eval.conditions import evaluate_conditions, measure_inference, print_metrics, write_metrics_csv
 from datt.eval.schema import EvalParams
 from datt.paths import resolve_path
+from datt.runs import write_json
 from datt.tasks.common import console, hydra_run_dir, set_threads, sweep_group, wandb_run_id
 from datt.tasks.validation import validate_config
 from datt.train.loggers import RESULT_COLUMNS, eval_summary, log_results_run, result_rows
@@ -46,34 +46,48 @@ def run_eval(cfg: DictConfig, run_dir: Path | None = None) -> dict:
     cond = {"disturbance": merged.disturbance, "adaptation": merged.adaptation}
     label = f"{name} {labels['disturbance']}/{labels['adaptation']}"
     results, wandb_names = {}, {}
-    for seed in params.seeds:
-        trace = run_dir / f"trace_seed{seed}.pt" if params.save_trace else None
-        results.update(
-            evaluate_conditions(
-                merged,
-                controller,
-                {f"{label} seed {seed}": cond},
-                run_dir,
-                params.plots,
-                name,
-                seed=int(seed),
-                trace_path=trace,
+    metrics = {**labels, "conditions": results, "complete": False, "seeds_done": []}
+    try:
+        for seed in params.seeds:
+            trace = run_dir / f"trace_seed{seed}.pt" if params.save_trace else None
+            results.update(
+                evaluate_conditions(
+                    merged,
+                    controller,
+                    {f"{label} seed {seed}": cond},
+                    run_dir,
+                    params.plots,
+                    name,
+                    seed=int(seed),
+                    trace_path=trace,
+                )
             )
-        )
-        wandb_names[f"{label} seed {seed}"] = f"{labels['disturbance']}-{labels['adaptation']}-seed{seed}"
-    metrics = {**labels, "conditions": results}
-    print_metrics(console, f"{name} on the seeded bank", results)
-    inference = measure_inference(merged, controller, params.timing)
+            wandb_names[f"{label} seed {seed}"] = f"{labels['disturbance']}-{labels['adaptation']}-seed{seed}"
+            metrics["seeds_done"].append(int(seed))
+            _write_records(run_dir, metrics, results)  # each finished seed is on disk as it finishes
+        print_metrics(console, f"{name} on the seeded bank", results)
+        inference = measure_inference(merged, controller, params.timing)
+    except KeyboardInterrupt as exc:  # SIGINT, or SIGTERM through the entry point: what is done stays
+        signal_name = exc.args[0] if exc.args else "SIGINT"
+        done = metrics["seeds_done"]
+        kept = f"seeds {done} of {list(params.seeds)} are in {run_dir / 'metrics.json'}" if done else "no seed finished"
+        raise KeyboardInterrupt(f"{signal_name}: {kept} (complete: false)") from None
     if inference is not None:
         metrics["inference_ms"] = inference
         console.print(
             f"inference at batch 1: median {inference['median_ms']:.3f} ms, p95 {inference['p95_ms']:.3f} ms "
             f"({inference['steps']} steps after warm-up, {inference['threads']} threads)"
         )
-    (run_dir / "metrics.json").write_text(json.dumps(metrics, indent=2, default=str) + "\n")
-    write_metrics_csv(run_dir / "metrics.csv", results)
+    metrics["complete"] = True
+    _write_records(run_dir, metrics, results)
     _log_to_wandb(cfg, run_dir, metrics, {wandb_names[k]: v for k, v in results.items()})
     return metrics
+
+
+def _write_records(run_dir: Path, metrics: dict, results: dict) -> None:
+    """``metrics.json`` (strict JSON: a NaN is null) and ``metrics.csv``, each written atomically."""
+    write_json(run_dir / "metrics.json", metrics)
+    write_metrics_csv(run_dir / "metrics.csv", results)
 
 
 def training_run(checkpoint: str) -> tuple[str | None, str | None]:

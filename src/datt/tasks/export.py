@@ -28,6 +28,15 @@ def check_export_options(cfg: DictConfig) -> None:
         raise ConfigError(f"prefix: format=app uses the prefix datt (its sources call datt_*), got {prefix!r}")
 
 
+def check_out_dir(out: Path) -> None:
+    """``out_dir`` is (or can be made as) a directory: one line before anything is built."""
+    base = out
+    while not base.exists() and base != base.parent:
+        base = base.parent
+    if not base.is_dir():
+        raise ConfigError(f"out_dir: {base} is a file, not a directory; give a directory (it is made if missing)")
+
+
 def run_export(cfg: DictConfig, run_dir: Path | None = None) -> list[Path]:
     from datt.tasks.validation import validate_config
 
@@ -37,6 +46,7 @@ def run_export(cfg: DictConfig, run_dir: Path | None = None) -> list[Path]:
     out = Path(str(cfg.out_dir)) if cfg.out_dir else (run_dir or hydra_run_dir())
     if not out.is_absolute():
         out = original_cwd() / out
+    check_out_dir(out)
     spec, controller, merged = export_spec(cfg)
     if fmt == "c":
         paths = list(write_c(spec, out, prefix))

@@ -90,6 +90,27 @@ class CsvLogger(Logger):
         if self.path.exists():
             with self.path.open(newline="") as f:
                 self.rows = list(csv.DictReader(f))
+            for n, row in enumerate(self.rows, start=2):  # line 1 is the header
+                self._check_row(row, n)
+
+    def _check_row(self, row: dict, line: int) -> None:
+        """A row read back (a resume appends to the file): as many cells as the header, a numeric
+        step; else one line naming the file and line (a hand edit), nothing rewritten."""
+        from datt.errors import ConfigError
+
+        problem = None
+        if None in row or any(v is None for v in row.values()):
+            problem = "has not as many cells as the header"
+        else:
+            try:
+                float(row.get("step") or 0)
+            except ValueError:
+                problem = f"has step {row.get('step')!r}, not a number"
+        if problem:
+            raise ConfigError(
+                f"{self.path}: line {line} {problem}; a resume keeps the rows up to its checkpoint and "
+                "appends: restore the file as the run wrote it, or move it away (the resume starts a new one)"
+            )
 
     def keep_until(self, step: int) -> None:
         """Drop the rows logged after ``step`` (a resume trains them again from its checkpoint)."""

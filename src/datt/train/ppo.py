@@ -18,6 +18,7 @@ error) hold everything to resume: ``resume=true`` continues the run dir to the s
 from __future__ import annotations
 
 import math
+import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -114,6 +115,7 @@ class AlgoParams:
                 raise ConfigError(f"algo.{key}: {msg}")
 
         check_ranges(self, "algo")
+        check_rollout_memory(self.num_envs, self.rollout_steps)
         need(
             self.lr_schedule != "adaptive_kl" or self.lr_min <= self.lr <= self.lr_cap,
             "lr",
@@ -129,6 +131,35 @@ class AlgoParams:
     def lr_cap(self) -> float:
         """adaptive_kl's upper bound: ``lr_max``, or the starting lr when it is null."""
         return self.lr if self.lr_max is None else self.lr_max
+
+
+# A lower bound on what one frame of a rollout holds (float32): the observation and the next one
+# (13 state entries + 10 reference points x 3 at the default horizon, each), the action, its
+# log-probability, the value and its target, the reward and the done flags: (2 x 43 + 4 + 4) x 4 B.
+ROLLOUT_BYTES_PER_FRAME_MIN = 376
+
+
+def machine_memory_bytes() -> int | None:
+    """The machine's physical memory (not what is free now: a check that hangs on the load of
+    the moment would pass or fail by chance); None where the platform does not say."""
+    try:
+        return int(os.sysconf("SC_PHYS_PAGES")) * int(os.sysconf("SC_PAGE_SIZE"))
+    except (AttributeError, OSError, ValueError):
+        return None
+
+
+def check_rollout_memory(num_envs: int, rollout_steps: int, memory_bytes: int | None = None) -> None:
+    """Refuse in one line a rollout that cannot fit in the machine's memory, before anything is
+    allocated (an allocation that size ends in the kernel's out-of-memory kill, or a swap storm)."""
+    memory_bytes = machine_memory_bytes() if memory_bytes is None else memory_bytes
+    frames = int(num_envs) * int(rollout_steps)
+    need_bytes = frames * ROLLOUT_BYTES_PER_FRAME_MIN
+    if memory_bytes is not None and need_bytes > memory_bytes:
+        raise ConfigError(
+            f"algo.num_envs x algo.rollout_steps: {frames:,} frames a rollout need at least "
+            f"{need_bytes / 1e9:.1f} GB ({ROLLOUT_BYTES_PER_FRAME_MIN} B a frame); this machine has "
+            f"{memory_bytes / 1e9:.1f} GB: lower algo.num_envs or algo.rollout_steps"
+        )
 
 
 ACTION_NAMES = ("thrust", "wx", "wy", "wz")
