@@ -115,9 +115,12 @@ def main() -> None:
     ap.add_argument("--workers", type=int, default=3)
     for key, values in GRID.items():
         ap.add_argument("--" + key.replace("_", "-"), nargs="+", type=float, default=list(values))
-    ap.add_argument("--out", default=None)
+    ap.add_argument("--out", default=None, help="the result's name (benchmarks/results/<name>.json), not a path")
     ap.add_argument("--report", action="store_true", help="write docs/results/transfer_grid.md from the results")
     args = ap.parse_args()
+    if args.out is not None and (not args.out or "/" in args.out or args.out.endswith(".json")):
+        # checked before any flight: a grid flies for half an hour and writes its result at the end
+        ap.error(f"--out: a name such as transfer_grid_mine (benchmarks/results/<name>.json), got {args.out!r}")
     if args.report:
         print(f"wrote {report(Path(__file__).resolve().parent / 'results')}")
         return

@@ -86,3 +86,69 @@ def test_bad_values_through_the_command_line_are_one_line_exit_2(tmp_path, entry
     lines = [ln for ln in proc.stderr.splitlines() if ln.strip() and "warn" not in ln.lower()]
     assert proc.returncode == 2 and len(lines) == 1 and lines[0].startswith(line), proc.stderr[-2000:]
     assert not (tmp_path / "run").exists()  # refused before any work: no run dir
+
+
+def _declared_ranges():
+    """(where, field, Range) of every schema field (``ranged``) and every ``ARG_RANGES`` entry in
+    the package's modules."""
+    import dataclasses
+    import importlib
+    import inspect
+    import pkgutil
+
+    import datt
+    from datt.configuration import Range
+
+    found, modules = [], 0
+    for info in pkgutil.walk_packages(datt.__path__, "datt."):
+        if info.name.endswith(".__main__"):
+            continue
+        module = importlib.import_module(info.name)
+        modules += 1
+        for name, obj in vars(module).items():
+            if not inspect.isclass(obj) or obj.__module__ != module.__name__:
+                continue
+            if dataclasses.is_dataclass(obj):
+                for f in dataclasses.fields(obj):
+                    if isinstance(f.metadata.get("range"), Range):
+                        found.append((f"{module.__name__}.{name}", f.name, f.metadata["range"]))
+            for arg, rng in (getattr(obj, "ARG_RANGES", None) or {}).items():
+                found.append((f"{module.__name__}.{name}", arg, rng))
+    return found, modules
+
+
+def test_every_declared_range_has_two_finite_bounds():
+    """The class behind "a range that only says finite": no numeric range of any schema or
+    ``_target_`` argument is open-ended, so no finite value can switch off what its key feeds."""
+    import math
+
+    found, modules = _declared_ranges()
+    assert modules > 80 and len(found) > 200, (modules, len(found))  # 93 modules, 237 ranges
+    open_ended = [
+        f"{where}.{name}: {rng.text()}"
+        for where, name, rng in found
+        if not rng.choices and not (math.isfinite(rng.low) and math.isfinite(rng.high))
+    ]
+    assert open_ended == []
+
+
+@pytest.mark.slow  # every numeric key of every entry point x 6 values: ~30 s
+def test_the_key_walk_refuses_huge_values_everywhere_and_accepts_the_ranges_edges():
+    from tools.config_fuzz import key_walk
+
+    table = key_walk(list(ENTRY_POINTS))
+    # an edge a rule across keys refuses: the memory a rollout needs (on this machine), a hover
+    # shorter than the trim's window, a kill voltage above the landing one, a gravity the thrust's
+    # lower bound (-9.8 m/s²) would pull down with
+    crossed = {
+        "algo.rollout_steps": "hi",
+        "deploy.flight.hover_s": "lo",
+        "deploy.safety.kill_battery_v": "hi",
+        "env.quad.gravity_mps2": "lo",
+    }
+    for entry, rows in table.items():
+        for key, row in rows.items():
+            assert row["1e30"] == "refused" and row["-1e30"] == "refused", (entry, key, row)
+            for side in ("lo", "hi"):
+                if side in row and crossed.get(key) != side:
+                    assert row[side] == "accepted", (entry, key, side, row)

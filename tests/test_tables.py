@@ -8,6 +8,7 @@ from pathlib import Path
 import pytest
 
 from datt.configuration import available_options
+from datt.errors import ConfigError
 from datt.eval import tables
 
 REPO = Path(__file__).resolve().parents[1]
@@ -220,3 +221,19 @@ def test_the_documented_sweep_override_form_parses_and_the_bare_form_says_how_to
     out = run("tables.py", "main", "run=true", "sweep_overrides=[budget=0.2]", cwd=tmp_path)
     assert out.returncode == 2 and out.stderr.strip().count("\n") == 0
     assert "quote each item of a list that holds overrides" in out.stderr
+
+
+@pytest.mark.parametrize("table, ran_by", [("main", "train"), ("ablation", "eval"), ("rma", "train")])
+def test_a_sweep_of_another_entry_point_is_refused_in_one_line(tmp_path, table, ran_by):
+    """Before: ``tables.py main runs=<a training sweep>`` printed a table with a ``?`` row, exit 0."""
+    job = _job(tmp_path, 0, ["seed=0"], _train_metrics(0.05))
+    (job / ".hydra" / "hydra.yaml").write_text(f"hydra:\n  job:\n    config_name: {ran_by}\n")
+    spec = tables.get_spec(table)
+    with pytest.raises(ConfigError) as info:
+        tables.check_jobs_are_the_tables(spec, tables.find_jobs([tmp_path]))
+    assert str(info.value) == (
+        f"runs: {job} is a {ran_by}.py job; table {table} is made from {spec.entry} jobs "
+        f"(python {spec.entry} +sweep={table}, or tables.py {table} run=true)"
+    )
+    (job / ".hydra" / "hydra.yaml").write_text(f"hydra:\n  job:\n    config_name: {spec.entry[:-3]}\n")
+    tables.check_jobs_are_the_tables(spec, tables.find_jobs([tmp_path]))  # its own: accepted

@@ -107,3 +107,33 @@ def test_the_registry_is_every_target_of_the_config_tree_and_a_users_config_dir(
         check_targets({"traj": {"_target_": "datt.refs.Mixed", "families": {"a": {"_target_": "os.system"}}}}, "cfg")
     with pytest.raises(ConfigError, match=r"cfg\[1\]\._target_: 'posix\.system'"):
         check_targets([{"_target_": "datt.refs.Poly"}, {"_target_": "posix.system"}], "cfg")
+
+
+def _with_a_nan_weight(tmp_path: Path) -> Path:
+
+    data = load_checkpoint(ROOT / "src/datt/checkpoints/datt_h10_smooth.pt")
+    data.pop("format")
+    name = next(k for k, v in data["actor"].items() if v.is_floating_point())
+    data["actor"][name] = data["actor"][name].clone()
+    data["actor"][name].view(-1)[3] = float("nan")
+    return save_checkpoint(tmp_path / "diverged.pt", data)
+
+
+def test_a_checkpoint_with_non_finite_weights_is_refused_naming_the_tensor(tmp_path):
+    path = _with_a_nan_weight(tmp_path)
+    with pytest.raises(ConfigError) as info:
+        load_checkpoint(path, key="checkpoint")
+    message = str(info.value)
+    assert message.startswith(f"checkpoint: {str(path)!r} holds non-finite values (actor.") and "1 of " in message
+    assert "use an earlier checkpoint (its best.pt) or train again" in message
+
+
+@pytest.mark.parametrize("entry, args", [("deploy", []), ("eval", ["eval.timing.steps=0"]), ("export", [])])
+def test_no_entry_point_uses_a_checkpoint_with_non_finite_weights(tmp_path, monkeypatch, capsys, entry, args):
+    """Before: ``deploy.py`` flew it (armed, took off, KILLed at 1 m)."""
+    from .test_faults import one_line, run_cli
+
+    path = _with_a_nan_weight(tmp_path)
+    result = run_cli(entry, [f"checkpoint={path}", *args, "hydra.run.dir=r"], tmp_path, monkeypatch, capsys)
+    one_line(result, f"error: checkpoint: {str(path)!r} holds non-finite values (actor.")
+    assert not (tmp_path / "r" / "flight.csv").exists()

@@ -12,7 +12,13 @@ Every case ends in one of:
   inside the declared range); the config records exactly the value given;
 * ``traceback``: any other exception (a defect);
 * ``silent_wrong``: accepted although non-finite (nan/inf) for a key whose value is a number
-  (or a list of numbers), or the config records a different value than the one given (a defect).
+  (or a list of numbers), or the config records a different value than the one given (a defect);
+* ``unbounded``: a numeric key accepted ``1e30`` or ``-1e30``: a range that only says "finite"
+  lets a finite value switch off what the key feeds (a geofence of 1e30 m, an age limit of 1e30 s).
+  Every numeric key's range is the meaningful one (a defect otherwise).
+
+The key walk (``--walk-table out.md``) sets every numeric key to {0, -1, 1e30, -1e30} and to the two
+edges of the range its refusal names (``in [lo, hi]``), which must be accepted.
 
 A key that accepts every bad value has no check at all: the report lists these ``unchecked``
 keys (free text by design, such as a wandb project name, or a gap).
@@ -27,6 +33,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import re
 import sys
 from collections import Counter
 from dataclasses import dataclass, field
@@ -55,6 +62,7 @@ BAD_VALUES: dict[str, str] = {
     "minus_one": "-1",
     "zero": "0",
     "huge": "1e30",
+    "minus_huge": "-1e30",
     "wrong_type": "not_a_value",
     "empty_list": "[]",
     "missing_file": "/nonexistent/datt-fuzz/missing.pt",
@@ -84,12 +92,12 @@ class Report:
             out[entry] = {
                 "keys": len({c.key for c in mine}),
                 "cases": len(mine),
-                **{k: tally.get(k, 0) for k in ("refused", "accepted", "traceback", "silent_wrong")},
+                **{k: tally.get(k, 0) for k in ("refused", "accepted", "traceback", "silent_wrong", "unbounded")},
             }
         return out
 
     def defects(self) -> list[Case]:
-        return [c for c in self.cases if c.outcome in ("traceback", "silent_wrong")]
+        return [c for c in self.cases if c.outcome in ("traceback", "silent_wrong", "unbounded")]
 
     def unchecked(self) -> dict[str, list[str]]:
         """Entry point -> keys that accepted every bad value."""
@@ -180,7 +188,82 @@ def try_case(config_name: str, base: DictConfig, key: str, text: str, numeric: b
         return "silent_wrong", f"recorded {recorded!r} for {value!r}"
     if numeric and _non_finite(recorded):
         return "silent_wrong", f"non-finite {recorded!r} accepted"
+    if numeric and _huge(recorded):
+        return "unbounded", f"{recorded!r} accepted: the range has no meaningful bound"
     return "accepted", repr(recorded)
+
+
+def _huge(value: Any) -> bool:
+    items = value if isinstance(value, (list, tuple, ListConfig)) else [value]
+    return any(isinstance(v, (int, float)) and not isinstance(v, bool) and abs(v) >= 1e29 for v in items)
+
+
+_RANGE = re.compile(r"in ([\[(])(-?[\d.e+-]+), (-?[\d.e+-]+)([\])])")
+
+
+def range_edges(message: str) -> list[str]:
+    """The closed edges of the range a refusal names (``in [lo, hi]`` / ``(lo, hi]`` ...)."""
+    m = _RANGE.search(message)
+    if m is None:
+        return []
+    lo_closed, lo, hi, hi_closed = m.group(1) == "[", m.group(2), m.group(3), m.group(4) == "]"
+    return [v for v, closed in ((lo, lo_closed), (hi, hi_closed)) if closed]
+
+
+# the values of the key walk, in its table's column order
+WALK_VALUES = {"0": "0", "-1": "-1", "1e30": "1e30", "-1e30": "-1e30"}
+
+
+def key_walk(entries: list[str]) -> dict[str, dict[str, dict[str, str]]]:
+    """Entry -> numeric key -> value -> outcome (``refused`` / ``accepted`` / a defect), the
+    values of :data:`WALK_VALUES` and the edges of the key's declared range (``lo``, ``hi``)."""
+    table: dict[str, dict[str, dict[str, str]]] = {}
+    for entry in entries:
+        config_name, args = ENTRY_POINTS[entry]
+        base = compose(config_name, args)
+        rows = table.setdefault(entry, {})
+        for key in leaf_keys(base):
+            value = OmegaConf.select(base, key, throw_on_resolution_failure=False)
+            if not is_numeric(value):
+                continue
+            row = rows.setdefault(key, {})
+            edges: list[str] = []
+            for name, text in WALK_VALUES.items():
+                outcome, detail = try_case(config_name, base, key, text)
+                row[name] = outcome
+                edges = edges or (range_edges(detail) if outcome == "refused" else [])
+            if len(edges) == 2:
+                lo, hi = float(edges[0]), float(edges[1])
+                for side, text, inward in (("lo", edges[0], 1.0), ("hi", edges[1], -1.0)):
+                    row[side] = try_case(config_name, base, key, text)[0]
+                    if row[side] == "refused":  # the message rounds the edge (34.9066 for 34.906585...)
+                        nudged = float(text) + inward * 1e-4 * (hi - lo)
+                        row[side] = try_case(config_name, base, key, repr(nudged))[0]
+    return table
+
+
+def walk_markdown(table: dict[str, dict[str, dict[str, str]]]) -> str:
+    """The key walk as Markdown: one table per entry point, R = refused in one line, A = accepted
+    (0 and -1 only where the range means them), the range's edges accepted; anything else named."""
+    short = {"refused": "R", "accepted": "A"}
+    cols = [*WALK_VALUES, "lo", "hi"]
+    out = [
+        "# The key walk (`python tools/config_fuzz.py --walk-table docs/results/config_key_walk.md`)",
+        "",
+        "Every numeric key of each entry point set to 0, -1, 1e30, -1e30 and to the two edges of the range",
+        "its refusal names. R: refused in one line naming the key; A: accepted (the range means it);",
+        "blank: the range has an open edge or names none. No key accepts 1e30 or -1e30: a finite value",
+        "cannot switch off what the key feeds (`tests/test_config_fuzz.py`). An edge refused is refused by a rule",
+        "across keys: `algo.rollout_steps` at 100,000 with 1024 drones needs more memory than the machine has,",
+        "`deploy.flight.hover_s` 0 is shorter than the hover trim's window, `deploy.safety.kill_battery_v` 4.2 V",
+        "is above `land_battery_v`, `env.quad.gravity_mps2` 0.1 is below the thrust's lower bound (-9.8 m/s²).",
+    ]
+    for entry, rows in table.items():
+        out += ["", f"## {entry} ({len(rows)} numeric keys)", "", "| key | " + " | ".join(cols) + " |"]
+        out.append("|---|" + "---|" * len(cols))
+        for key, row in rows.items():
+            out.append(f"| `{key}` | " + " | ".join(short.get(row.get(c, ""), row.get(c, "")) for c in cols) + " |")
+    return "\n".join(out) + "\n"
 
 
 def walk(entries: list[str], bad_values: dict[str, str] | None = None) -> Report:
@@ -200,13 +283,21 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("entries", nargs="*", choices=[*ENTRY_POINTS, []], help="default: all")
     parser.add_argument("--json", type=Path, help="write every case here")
+    parser.add_argument("--walk-table", type=Path, help="write the key walk of the numeric keys here (Markdown)")
     args = parser.parse_args(argv)
+    if args.walk_table:
+        args.walk_table.write_text(walk_markdown(key_walk(args.entries or list(ENTRY_POINTS))))
+        print(f"wrote {args.walk_table}")
+        return 0
     report = walk(args.entries or list(ENTRY_POINTS))
-    print(f"{'entry':8} {'keys':>5} {'cases':>6} {'refused':>8} {'accepted':>9} {'traceback':>10} {'silent_wrong':>13}")
+    print(
+        f"{'entry':8} {'keys':>5} {'cases':>6} {'refused':>8} {'accepted':>9} {'traceback':>10} "
+        f"{'silent_wrong':>13} {'unbounded':>10}"
+    )
     for entry, c in report.counts().items():
         print(
             f"{entry:8} {c['keys']:>5} {c['cases']:>6} {c['refused']:>8} {c['accepted']:>9} "
-            f"{c['traceback']:>10} {c['silent_wrong']:>13}"
+            f"{c['traceback']:>10} {c['silent_wrong']:>13} {c['unbounded']:>10}"
         )
     for case in report.defects():
         print(f"DEFECT {case.entry} {case.key}={BAD_VALUES[case.bad]}: {case.outcome}: {case.detail}")

@@ -47,4 +47,28 @@ def load_checkpoint(path: str | Path, key: str = "checkpoint") -> dict[str, Any]
         raise ConfigError(f"{key}: {str(path)!r} is not a readable checkpoint ({first})") from None
     if not isinstance(data, dict) or data.get("format") != FORMAT:
         raise ConfigError(f"{key}: {str(path)!r} is not a datt checkpoint (expected format {FORMAT})")
+    bad = first_non_finite(data)
+    if bad is not None:
+        name, count, numel = bad
+        raise ConfigError(
+            f"{key}: {str(path)!r} holds non-finite values ({name}: {count} of {numel} are NaN or inf); "
+            "the run that wrote it diverged: use an earlier checkpoint (its best.pt) or train again"
+        )
     return data
+
+
+def first_non_finite(value: Any, name: str = "") -> tuple[str, int, int] | None:
+    """The first floating tensor in ``value`` (dicts and lists walked) with a NaN or inf, as
+    (its dotted name, how many, of how many values); None when every one is finite."""
+    if isinstance(value, torch.Tensor):
+        if value.is_floating_point():
+            bad = int((~torch.isfinite(value)).sum())
+            if bad:
+                return name or "tensor", bad, value.numel()
+        return None
+    items = value.items() if isinstance(value, dict) else enumerate(value) if isinstance(value, (list, tuple)) else ()
+    for k, v in items:
+        found = first_non_finite(v, f"{name}.{k}" if name else str(k))
+        if found is not None:
+            return found
+    return None

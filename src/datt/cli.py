@@ -354,9 +354,17 @@ except ImportError:  # pragma: no cover - hydra-core is a dependency
     _HydraCallback = object  # type: ignore[assignment,misc]
 
 
+# The sweep dir of the multirun this process launches (set when it starts, for the line a signal prints).
+_sweep_dir: Path | None = None
+
+
 class SweepReport(_HydraCallback):
     """Hydra callback (``conf/hydra/default.yaml``): after a multirun, one line per state and the
     number of failed jobs for the exit status."""
+
+    def on_multirun_start(self, config: DictConfig, **kwargs: object) -> None:
+        global _sweep_dir
+        _sweep_dir = Path(str(config.hydra.sweep.dir))
 
     def on_multirun_end(self, config: DictConfig, **kwargs: object) -> None:
         global _failed_jobs
@@ -365,6 +373,15 @@ class SweepReport(_HydraCallback):
         _failed_jobs = counts["diverged"] + counts["errored"] + counts["incomplete"]
         states = ", ".join(f"{n} {state}" for state, n in counts.items() if n)
         print(f"sweep {sweep_dir}: {sum(counts.values())} jobs: {states or 'none'}", file=sys.stderr)
+
+
+def _sweep_state() -> str:
+    """``: sweep <dir>: <n> jobs: <k> done, ...`` for a multirun this process launched, else ''."""
+    if _sweep_dir is None or not _sweep_dir.is_dir():
+        return ""
+    counts = sweep_summary(_sweep_dir)
+    states = ", ".join(f"{n} {state}" for state, n in counts.items() if n)
+    return f": sweep {_sweep_dir}: {sum(counts.values())} jobs: {states or 'none started'}"
 
 
 def _interrupt(signum: int, frame: object) -> None:
@@ -453,8 +470,8 @@ def hydra_main(config_name: str, task: Callable[[DictConfig], object], lock: boo
         _run_job(task, cfg, lock)
 
     def entry() -> None:
-        global _failed_jobs
-        _failed_jobs = 0
+        global _failed_jobs, _sweep_dir
+        _failed_jobs, _sweep_dir = 0, None
         try:
             preflight(sys.argv[1:])
             check_composition(config_name, sys.argv[1:])
@@ -462,7 +479,15 @@ def hydra_main(config_name: str, task: Callable[[DictConfig], object], lock: boo
             check_run_dir(sys.argv[1:])
         except ConfigError as exc:
             _fail(str(exc), 2)
-        _main()
+        try:
+            # the launching process too: SIGTERM becomes the KeyboardInterrupt on which joblib's
+            # launcher stops its worker processes (by default the signal ended this process alone
+            # and the workers trained on); a job of the basic launcher ends itself (_run_job)
+            with sigterm_as_interrupt():
+                _main()
+        except KeyboardInterrupt as exc:
+            ignore_stop_signals()
+            _fail(f"interrupted by {exc.args[0] if exc.args else 'SIGINT'}{_sweep_state()}", 130)
         if _failed_jobs:
             sys.exit(min(_failed_jobs, 100))
 

@@ -257,10 +257,26 @@ def check_arg_ranges(cls: type, args: dict[str, Any], key: str) -> None:
             ranges[name].check(value, f"{key}.{name}")
 
 
-POSITIVE = Range(0.0, low_open=True)
-POSITIVE_OR_NONE = Range(0.0, low_open=True, optional=True)
-NON_NEGATIVE = Range(0.0)
-FINITE = Range()
+# Every numeric range has two finite bounds (tests/test_config_fuzz.py walks them all): a range that
+# only says "finite" lets a finite value switch off what the key feeds (a geofence of 1e30 m, a
+# timeout of 1e30 s). The kinds of quantity below carry the bound a person could mean, each with
+# its reason; a field with a tighter meaning declares its own.
+DISTANCE_M = Range(0.0, 20.0)  # a flight room's extent (metres)
+LENGTH_M = Range(0.0, 20.0, low_open=True)
+SPEED_MPS = Range(0.0, 20.0)  # a Crazyflie flies 1-5 m/s; 20 m/s is beyond any indoor flight
+POSITIVE_SPEED_MPS = Range(0.0, 20.0, low_open=True)
+ACCEL_MPS2 = Range(0.0, 200.0)  # 20 g: beyond any quadrotor's motors
+POSITIVE_ACCEL_MPS2 = Range(0.0, 200.0, low_open=True)
+GRAVITY_MPS2 = Range(0.1, 30.0)  # from a small moon's to Jupiter's surface
+RATE_RADPS = Range(0.0, 100.0, low_open=True)  # beyond any gyro's full scale (a Crazyflie's: 34.9 rad/s)
+TIME_S = Range(0.0, 3600.0)  # durations and time constants: an hour is longer than any flight or episode
+POSITIVE_TIME_S = Range(0.0, 3600.0, low_open=True)
+WEIGHT = Range(0.0, 1000.0)  # a cost weight, gain or scale: above 1e3 it swamps every other term
+POSITIVE_WEIGHT = Range(0.0, 1000.0, low_open=True)
+MASS_KG = Range(0.005, 5.0, low_open=True)  # a micro quadrotor's to a large one's
+# an Adam step size above 10 leaves every scale of the data (1e-5..1e-2 is what trains)
+LEARNING_RATE = Range(0.0, 10.0, low_open=True)
+NOISE = Range(0.0, 10.0)  # a noise std (m, m/s, rad): beyond 10 there is no measurement left
 UNIT_INTERVAL = Range(0.0, 1.0)
 FRACTION = Range(0.0, 1.0, low_open=True)  # (0, 1]
 # Counts get a ceiling as well: a typo of a few zeros must be one line, not an hour of

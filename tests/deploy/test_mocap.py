@@ -39,6 +39,34 @@ def test_the_motioncapture_source_publishes_only_its_body_with_the_quaternion_w_
     assert len(got) == n  # stopped: no more frames
 
 
+@pytest.mark.parametrize("system", ["vicon", "optitrack"])
+def test_an_unreachable_mocap_host_ends_in_one_line_at_the_deadline_and_leaves_no_client(system):
+    """The vendor SDKs block without returning to the interpreter on a host that does not answer
+    (Vicon's frame wait, OptiTrack's connect; in the flying process this ignored SIGINT and
+    SIGTERM): the client runs in a process of its own, which the deadline kills."""
+    pytest.importorskip("motioncapture")
+    import subprocess
+
+    with pytest.raises(ConfigError) as info:
+        MotionCaptureMocap(system, "10.255.255.1", "cf1", connect_timeout_s=1.0)
+    message = str(info.value)
+    assert message.startswith("deploy.mocap: ") and "\n" not in message
+    assert "deploy.mocap.connect_timeout_s (1 s)" in message or "library refused" in message, message
+    ps = subprocess.run(["ps", "-eo", "args"], capture_output=True, text=True).stdout
+    assert "datt.deploy.mocap_stream" not in ps
+
+
+def test_frames_without_the_body_are_refused_naming_the_bodies_seen():
+    pytest.importorskip("motioncapture")
+    bodies = "other(9.0,9.0,9.0,1.0,0.0,0.0,0.0)"
+    with pytest.raises(ConfigError) as info:
+        MotionCaptureMocap("mock", "localhost", "cf1", {"rigid_bodies": bodies}, connect_timeout_s=1.0)
+    assert str(info.value) == (
+        "deploy.mocap: frames from mock at localhost hold no rigid body 'cf1' (bodies seen: other) within "
+        "deploy.mocap.connect_timeout_s (1 s); check the host, that the system streams, and deploy.mocap.body"
+    )
+
+
 def test_the_motioncapture_source_without_its_library_is_one_line(monkeypatch):
     monkeypatch.setitem(sys.modules, "motioncapture", None)  # import motioncapture raises ImportError
     with pytest.raises(

@@ -262,7 +262,7 @@ def test_the_default_policy_is_the_modes_own_and_off_board_it_flies_behind_the_p
     cfg = compose("deploy", [])
     assert cfg.checkpoint is None
     resolve_checkpoint(cfg)
-    assert cfg.checkpoint == "checkpoints/datt_h10_smooth.pt"
+    assert cfg.checkpoint == "checkpoints/datt_h10_radio.pt"
     params = deploy_params(cfg.deploy)[0]
     assert params.predictor.enabled is None
     _, merged, labels = build_controller(cfg)

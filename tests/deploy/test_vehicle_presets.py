@@ -113,7 +113,9 @@ def test_a_grid_cell_is_the_presets_vehicle_made_worse():
     }
 
 
-@pytest.mark.parametrize("experiment, name", [("deploy_smooth", "cf21"), ("deploy_upgrade", "cf21_upgrade")])
+@pytest.mark.parametrize(
+    "experiment, name", [("deploy_smooth", "cf21"), ("deploy_radio", "cf21"), ("deploy_upgrade", "cf21_upgrade")]
+)
 def test_a_deploy_policys_training_vehicle_is_its_presets(experiment, name):
     """The training side of a preset's policy: the preset's firmware-loop constants
     (env.quad.vehicle) and its off-board ceiling (MAX_THRUST on the flying mass, to the YAML's

@@ -76,6 +76,7 @@ def drop_added_keys(trained: dict, expected: dict) -> None:
         ("deploy_predictor", "checkpoints/datt_h10_predictor.pt", "checkpoints/datt_h10_firmware.pt"),
         ("deploy_smooth", "checkpoints/datt_h10_smooth.pt", "checkpoints/datt_h10_predictor.pt"),
         ("deploy_upgrade", "checkpoints/datt_h10_upgrade.pt", "checkpoints/datt_h10_smooth.pt"),
+        ("deploy_radio", "checkpoints/datt_h10_radio.pt", "checkpoints/datt_h10_smooth.pt"),
     ],
 )
 def test_deploy_grade_checkpoint_is_the_output_of_its_experiment(experiment, checkpoint, parent):

@@ -36,7 +36,7 @@ import torch
 from torch import Tensor
 
 from datt.adapt.base import Adaptation
-from datt.configuration import FRACTION, NON_NEGATIVE, Range, check_arg_ranges
+from datt.configuration import FRACTION, TIME_S, Range, check_arg_ranges
 from datt.sim.frames import BODY_Z_QUADRATIC_FORM, quat_body_z, quat_body_z_bilinear
 
 COMPILE_MIN_BATCH = 1024
@@ -44,8 +44,8 @@ COMPILE_MIN_BATCH = 1024
 
 class L1Adaptation(Adaptation):
     ARG_RANGES = {
-        "a_s": Range(high=0.0, high_open=True),  # Hurwitz
-        "cutoff_tau_s": NON_NEGATIVE,
+        "a_s": Range(-1000.0, 0.0, high_open=True),  # Hurwitz; beyond -1000 faster than any step
+        "cutoff_tau_s": TIME_S,
         "k_thrust": FRACTION,
         "latency_steps": Range(0, 100, integer=True),
     }

@@ -22,7 +22,7 @@ from __future__ import annotations
 import torch
 from tensordict import TensorDictBase
 
-from datt.configuration import BATCH, NON_NEGATIVE, POSITIVE, SEED, Range, check_arg_ranges
+from datt.configuration import BATCH, POSITIVE_WEIGHT, SEED, WEIGHT, Range, check_arg_ranges
 from datt.control.base import Controller
 from datt.sim.quadrotor import integrate
 
@@ -32,10 +32,10 @@ class MppiController(Controller):
     ARG_RANGES = {
         "num_samples": BATCH,
         "horizon_steps": Range(1, 10_000, integer=True),
-        "temperature": POSITIVE,
-        "noise_std": Range(0.0, length=4),  # thrust, wx, wy, wz
-        "pos_weight": NON_NEGATIVE,
-        "att_weight": NON_NEGATIVE,
+        "temperature": POSITIVE_WEIGHT,
+        "noise_std": Range(0.0, 100.0, length=4),  # thrust, wx, wy, wz
+        "pos_weight": WEIGHT,
+        "att_weight": WEIGHT,
         "seed": SEED,
     }
 

@@ -22,14 +22,14 @@ from __future__ import annotations
 import torch
 from tensordict import TensorDictBase
 
-from datt.configuration import NON_NEGATIVE, check_arg_ranges
+from datt.configuration import WEIGHT, check_arg_ranges
 from datt.control.base import Controller
 from datt.sim.frames import quat_rotate_inverse, quat_yaw, wrap_angle
 
 
 class PidController(Controller):
     name = "pid"
-    ARG_RANGES = dict.fromkeys(("kp", "ki", "kd", "k_tilt", "k_yaw", "integral_limit_m_s"), NON_NEGATIVE)
+    ARG_RANGES = dict.fromkeys(("kp", "ki", "kd", "k_tilt", "k_yaw", "integral_limit_m_s"), WEIGHT)
 
     def __init__(
         self,

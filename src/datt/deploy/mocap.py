@@ -14,9 +14,13 @@
 from __future__ import annotations
 
 import collections
+import json
 import random
+import subprocess
+import sys
 import threading
 import time
+import weakref
 
 
 class MocapSource:
@@ -98,38 +102,107 @@ class SimulatedMocap(MocapSource):
 
 
 class MotionCaptureMocap(MocapSource):
+    """Frames of rigid body ``body`` from the ``motioncapture`` library, read from a client process
+    of its own (:mod:`datt.deploy.mocap_stream`: a vendor SDK that blocks cannot hold the flying
+    process). The constructor waits at most ``connect_timeout_s`` for the first frame that holds
+    ``body``; without one the client is killed and the flight refused in one line."""
+
     name = "motioncapture"
 
-    def __init__(self, system: str, host: str, body: str, options: dict[str, str] | None = None) -> None:
+    def __init__(
+        self,
+        system: str,
+        host: str,
+        body: str,
+        options: dict[str, str] | None = None,
+        connect_timeout_s: float = 5.0,
+    ) -> None:
         """``system`` and ``host`` (and ``options``: the library's other settings, e.g. a Qualisys
         ``port``, all strings) go to ``motioncapture.connect``; ``body`` is the rigid body flown."""
-        try:
-            import motioncapture
-        except ImportError:
-            from datt.errors import ConfigError
+        from datt.errors import ConfigError
 
+        try:
+            import motioncapture  # noqa: F401  (checked here: the client process imports it again)
+        except ImportError:
             raise ConfigError("deploy.mocap: the motioncapture source needs `pip install motioncapture`") from None
         super().__init__()
-        self.mc = motioncapture.connect(system, {"hostname": host, **{k: str(v) for k, v in (options or {}).items()}})
         self.body = body
         self._latest = None
         self._running = threading.Event()
+        self._bodies_seen: list[str] | None = None
+        self._error: str | None = None
+        self._first = threading.Event()
+        settings = json.dumps({"hostname": host, **{k: str(v) for k, v in (options or {}).items()}})
+        self._proc = subprocess.Popen(
+            [sys.executable, "-m", "datt.deploy.mocap_stream", system, settings, body],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.DEVNULL,
+            stdin=subprocess.DEVNULL,
+            text=True,
+            preexec_fn=_die_with_parent if sys.platform.startswith("linux") else None,
+        )
+        weakref.finalize(self, _kill, self._proc)
+        threading.Thread(target=self._read, daemon=True).start()
+        try:
+            arrived = self._first.wait(connect_timeout_s)  # interruptible: a signal ends the wait
+        except BaseException:
+            _kill(self._proc)
+            raise
+        if not arrived:
+            _kill(self._proc)
+            seen = self._bodies_seen
+            if self._error is not None:
+                why = f"the motioncapture library refused: {self._error}"
+            elif seen is None:
+                limit = f"deploy.mocap.connect_timeout_s ({connect_timeout_s:g} s)"
+                why = f"no frame from {system} at {host} within {limit}"
+            else:
+                why = (
+                    f"frames from {system} at {host} hold no rigid body {body!r} (bodies seen: "
+                    f"{', '.join(seen) or 'none'}) within deploy.mocap.connect_timeout_s ({connect_timeout_s:g} s)"
+                )
+            raise ConfigError(f"deploy.mocap: {why}; check the host, that the system streams, and deploy.mocap.body")
+
+    def _read(self) -> None:
+        """The client's lines: frames are published once ``start`` ran (the first one always
+        marks the source alive)."""
+        for line in self._proc.stdout:
+            try:
+                item = json.loads(line)
+            except ValueError:
+                continue
+            if "error" in item:
+                self._error = str(item["error"])
+            elif "bodies" in item:
+                self._bodies_seen = [str(b) for b in item["bodies"]]
+            else:
+                p, q = item["p"], item.get("q")
+                sample = ((float(p[0]), float(p[1]), float(p[2])), None if q is None else tuple(q), time.monotonic())
+                self._first.set()
+                if self._running.is_set():
+                    self._publish(sample)
 
     def start(self) -> None:
         self._running.set()
-        threading.Thread(target=self._loop, daemon=True).start()
-
-    def _loop(self) -> None:
-        while self._running.is_set():
-            self.mc.waitForNextFrame()
-            for name, obj in self.mc.rigidBodies.items():
-                if name == self.body:
-                    p, q = obj.position, getattr(obj, "rotation", None)
-                    quat = None if q is None else (float(q.w), float(q.x), float(q.y), float(q.z))
-                    self._publish(((float(p[0]), float(p[1]), float(p[2])), quat, time.monotonic()))
 
     def read(self):
         return self._latest
 
     def stop(self) -> None:
         self._running.clear()
+        _kill(self._proc)
+
+
+def _die_with_parent() -> None:
+    """In the client process (Linux): the kernel kills it when the flying process dies, however."""
+    import ctypes
+    import signal
+
+    PR_SET_PDEATHSIG = 1
+    ctypes.CDLL("libc.so.6", use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
+
+
+def _kill(proc: subprocess.Popen) -> None:
+    if proc.poll() is None:
+        proc.kill()
+        proc.wait()

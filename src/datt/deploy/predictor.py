@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import torch
 
-from datt.configuration import NON_NEGATIVE, Range, check_ranges, ranged
+from datt.configuration import Range, check_ranges, ranged
 from datt.sim.frames import body_z_floats, quat_turned_floats
 
 
@@ -39,7 +39,7 @@ class PredictorParams:
     # the chain from the estimate's measurement to the command's effect (s); null = the radio round trip
     # measured at connect + policy_delay_s (a vehicle that actuates with the policy's trained delay)
     latency_s: float | None = ranged(None, Range(0.0, 0.5, optional=True))
-    policy_delay_s: float = ranged(0.02, NON_NEGATIVE)  # the command delay the policy was trained with
+    policy_delay_s: float = ranged(0.02, Range(0.0, 0.5))  # the command delay the policy was trained with
     substep_s: float = ranged(0.005, Range(0.0, 0.02, low_open=True))  # integration step
     # the period at which the vehicle picks up a setpoint that has arrived (its control loop): 0 for
     # a real Crazyflie (its stabilizer reads setpoints at 1 kHz, finer than the integration step);

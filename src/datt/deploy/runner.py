@@ -32,13 +32,13 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from datt.configuration import FINITE, NON_NEGATIVE, POSITIVE, POSITIVE_OR_NONE, Range, check_ranges, ranged
+from datt.configuration import Range, check_ranges, ranged
 from datt.deploy import firmware
 from datt.deploy.ceiling_guard import keep_altitude_at_ceiling
 from datt.deploy.feasibility import peak_ask, slow_factor, slowed
 from datt.deploy.flight_log import FlightLog, errors_when_measured, measured_at
 from datt.deploy.outcome import Kind, Outcome
-from datt.deploy.safety import KILL, LAND, OK, BatteryFilter, SafetyParams, check, tilt_deg
+from datt.deploy.safety import CELL, KILL, LAND, OK, ROOM, BatteryFilter, SafetyParams, check, tilt_deg
 from datt.deploy.thrust import ThrustMap, commands_acting, hover_command_from_hover
 from datt.errors import LinkError
 from datt.refs.base import RefFamily
@@ -162,26 +162,35 @@ class FlightModel:
 INFEASIBLE = ("refuse", "slow")  # deploy.flight.infeasible
 
 
+# The flight's ranges say what a setting can mean, so that none makes a wait without end or a check
+# that never fires (each with its reason; a value outside is refused in one line).
+PHASE_S = Range(0.0, 60.0, low_open=True)  # a takeoff, landing or wait longer than a minute is a mistake
+HOLD_S = Range(0.0, 600.0)  # a hover is at most a battery's flight (~7 min)
+
+
 @dataclass
 class FlightParams:
-    rate_hz: float = ranged(50.0, POSITIVE)
-    takeoff_height_m: float = ranged(1.0, POSITIVE)
-    takeoff_s: float = ranged(2.5, POSITIVE)
-    hover_s: float = ranged(1.0, NON_NEGATIVE)
-    track_s: float | None = ranged(None, POSITIVE_OR_NONE)  # None = the env's episode
-    land_s: float = ranged(2.5, POSITIVE)
-    preflight_timeout_s: float = ranged(3.0, POSITIVE)
-    arm_timeout_s: float = ranged(1.0, POSITIVE)  # the supervisor must report "armed" within this
-    min_battery_v: float = ranged(3.7, NON_NEGATIVE)
-    late_tick_ms: float = ranged(5.0, POSITIVE)
+    # the radio carries about 1000 packets/s, shared with the log and mocap: beyond 500 Hz the
+    # setpoints cannot get through and every tick runs late
+    rate_hz: float = ranged(50.0, Range(1.0, 500.0))
+    takeoff_height_m: float = ranged(1.0, Range(0.0, 5.0, low_open=True))  # a room's height
+    takeoff_s: float = ranged(2.5, PHASE_S)
+    hover_s: float = ranged(1.0, HOLD_S)
+    track_s: float | None = ranged(None, Range(0.0, 600.0, low_open=True, optional=True))  # None = the env's episode
+    land_s: float = ranged(2.5, PHASE_S)
+    preflight_timeout_s: float = ranged(3.0, PHASE_S)
+    arm_timeout_s: float = ranged(1.0, PHASE_S)  # the supervisor must report "armed" within this
+    min_battery_v: float = ranged(3.7, CELL)  # preflight: a Crazyflie 2.x cell (datt.deploy.safety.CELL)
+    late_tick_ms: float = ranged(5.0, Range(0.0, 1000.0, low_open=True))
     estop_watchdog: bool = True  # send the firmware's e-stop watchdog every tick (motors off 1 s after the last)
-    origin_m: list = ranged([0.0, 0.0], FINITE)  # hover point x, y (z = takeoff_height_m)
-    onboard_max_pos_std_m: float = ranged(0.1, NON_NEGATIVE)  # deploy.onboard: the app lands above this (0: never)
+    origin_m: list = ranged([0.0, 0.0], ROOM)  # hover point x, y (z = takeoff_height_m)
+    onboard_max_pos_std_m: float = ranged(0.1, Range(0.0, 1.0))  # deploy.onboard: the app lands above this (0: never)
     # rescale the thrust map to the command the takeoff's hover needed, before TRACK (FlightRunner._climb)
     hover_trim: bool = True
-    hover_trim_window_s: float = ranged(0.5, POSITIVE)  # the end of the hover the trim averages over
+    hover_trim_window_s: float = ranged(0.5, PHASE_S)  # the end of the hover the trim averages over
     hover_trim_max: float = ranged(0.25, Range(0.0, 1.0, low_open=True, high_open=True))  # larger change: LAND
-    hover_trim_settle_s: float = ranged(2.0, NON_NEGATIVE)  # HOVER on the trim, trimmed again, before TRACK (0: none)
+    # HOVER on the trim, trimmed again, before TRACK (0: none)
+    hover_trim_settle_s: float = ranged(2.0, Range(0.0, 60.0))
     # how long after it is sent a command shows in the logged velocity (s): the trim pairs each window's
     # velocity change with the commands sent this much earlier; null = the radio round trip measured at
     # connect + one control tick (the vehicle's actuation)
@@ -190,8 +199,8 @@ class FlightParams:
     # from an attitude tilted past acos((g + reserve) / ceiling) levels instead of tilting further
     # (off by default: not better in the transfer test, docs/deploy.md)
     ceiling_guard: bool = False
-    ceiling_climb_reserve_mps2: float = ranged(0.0, NON_NEGATIVE)
-    ceiling_level_gain_per_s: float = ranged(4.0, NON_NEGATIVE)
+    ceiling_climb_reserve_mps2: float = ranged(0.0, Range(0.0, 10.0))
+    ceiling_level_gain_per_s: float = ranged(4.0, Range(0.0, 100.0))
     # before TRACK, the reference's thrust ask against the ceiling the hover trim measured
     # (datt.deploy.feasibility): a reference the vehicle cannot follow is refused (LAND from the
     # hover) or, with "slow", flown slower in time until it fits (at most max_slow_factor)

@@ -4,12 +4,13 @@ only place a default lives. ``flight``, ``safety`` and ``thrust`` have their own
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass, field
 from typing import Any
 
 from omegaconf import MISSING, DictConfig, OmegaConf
 
-from datt.configuration import NON_NEGATIVE, Range, ranged, structured
+from datt.configuration import Range, ranged, structured
 from datt.deploy.predictor import PredictorParams
 from datt.deploy.runner import FlightParams
 from datt.deploy.safety import SafetyParams
@@ -26,12 +27,14 @@ class MocapParams:
     source: str = ranged(MISSING, Range(choices=MOCAP_SOURCES))
     latency_s: float = ranged(0.0, Range(0.0, 1.0))  # simulated source only
     dropout_prob: float = ranged(0.0, Range(0.0, 1.0))
-    dropout_after_s: float | None = ranged(None, Range(0.0, optional=True))
-    noise_std_m: float = ranged(0.0, NON_NEGATIVE)  # simulated source only: Gaussian position noise
+    dropout_after_s: float | None = ranged(None, Range(0.0, 3600.0, optional=True))
+    noise_std_m: float = ranged(0.0, Range(0.0, 1.0))  # simulated source only: Gaussian position noise
     system: str | None = None  # motioncapture source only (e.g. vicon, optitrack)
     host: str | None = None
     body: str | None = None
     options: dict[str, str] = field(default_factory=dict)  # motioncapture: more of its settings (port, ...)
+    # motioncapture: the first frame holding the body must come this soon, else the flight is refused
+    connect_timeout_s: float = ranged(5.0, Range(0.0, 60.0, low_open=True))
 
     def validate(self) -> None:
         if self.source == "motioncapture" and not (self.system and self.host and self.body):
@@ -70,6 +73,7 @@ class DeployParams:
                     f"deploy.server: must be the simulated vehicle's settings or null, got {self.server!r}"
                 )
             check_server_settings(self.server)
+        check_uri(self.uri, simulated=self.server is not None)
 
 
 def deploy_params(node: DictConfig) -> tuple[DeployParams, FlightParams, SafetyParams, ThrustParams]:
@@ -88,3 +92,40 @@ def deploy_params(node: DictConfig) -> tuple[DeployParams, FlightParams, SafetyP
         params.server = {**params.server, "vehicle": params.vehicle}
     params.predictor = structured(PredictorParams, params.predictor, "deploy.predictor")
     return params, flight, safety, thrust
+
+
+RADIO_RATES = ("250K", "1M", "2M")
+
+
+def check_uri(uri: str, simulated: bool) -> None:
+    """``deploy.uri`` is one cflib can open: ``radio://<dongle>/<channel 0-125>/<250K|1M|2M>[/<address:
+    10 hex digits>]``, ``usb://<n>`` or ``udp://<host>:<port 1-65535>``; the simulated Crazyflie
+    (``deploy=sim``) listens on a ``udp://`` one. One line naming the key and the form otherwise."""
+    from urllib.parse import urlparse
+
+    def refuse(why: str) -> None:
+        raise ConfigError(f"deploy.uri: {why}, got {uri!r}")
+
+    url = urlparse(str(uri))
+    if simulated and url.scheme != "udp":
+        refuse("the simulated Crazyflie listens on udp://<host>:<port>, e.g. udp://127.0.0.1:19850")
+    if url.scheme == "udp":
+        try:
+            port = url.port
+        except ValueError:  # a port out of range or not a number
+            port = -1
+        if not url.hostname or port is None or not 1 <= port <= 65535:
+            refuse("udp:// needs a host and a port 1-65535, e.g. udp://127.0.0.1:19850")
+    elif url.scheme == "radio":
+        parts = [url.netloc, *[p for p in url.path.split("/") if p]]
+        ok = len(parts) in (3, 4) and parts[0].isdigit() and parts[1].isdigit() and 0 <= int(parts[1]) <= 125
+        ok = ok and parts[2] in RADIO_RATES and (len(parts) == 3 or re.fullmatch(r"[0-9A-Fa-f]{10}", parts[3]))
+        if not ok:
+            refuse(
+                "radio:// needs <dongle>/<channel 0-125>/<250K|1M|2M>[/<10 hex digits>], e.g. radio://0/80/2M/E7E7E7E7E7"
+            )
+    elif url.scheme == "usb":
+        if not url.netloc.isdigit() or url.path not in ("", "/"):
+            refuse("usb:// needs the device number, e.g. usb://0")
+    else:
+        refuse("must start with radio://, usb:// or udp://")

@@ -33,7 +33,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from datt.configuration import POSITIVE, POSITIVE_OR_NONE, check_ranges, ranged
+from datt.configuration import GRAVITY_MPS2, MASS_KG, Range, check_ranges, ranged
 from datt.deploy.firmware import FIRMWARE_VERSION, fact
 from datt.sim.vehicles import CF21
 
@@ -44,17 +44,19 @@ UINT16_MAX = 65535
 class ThrustParams:
     """``conf/deploy/*.yaml`` key ``thrust`` (the ``cf21`` preset's numbers by default)."""
 
-    mass_kg: float = ranged(CF21.mass_kg, POSITIVE)  # null in the YAML = the preset's (deploy.vehicle)
-    gravity_mps2: float = ranged(9.81, POSITIVE)
+    mass_kg: float = ranged(CF21.mass_kg, MASS_KG)  # null in the YAML = the preset's (deploy.vehicle)
+    gravity_mps2: float = ranged(9.81, GRAVITY_MPS2)
     # the firmware's THRUST_MAX per motor (datt.sim.vehicles; null in the YAML = the preset's)
-    thrust_max_n: float = ranged(CF21.thrust_max_n, POSITIVE)
-    hover_command: float | None = ranged(None, POSITIVE_OR_NONE)  # calibrated; None = the firmware map's own (g / k)
+    thrust_max_n: float = ranged(CF21.thrust_max_n, Range(0.0, 10.0, low_open=True))
+    hover_command: float | None = ranged(
+        None, Range(0.0, 65535.0, low_open=True, optional=True)
+    )  # calibrated; None = the firmware map's own (g / k)
     # calibrated k; None = 4 THRUST_MAX / (65535 m)
-    slope_mps2_per_command: float | None = ranged(None, POSITIVE_OR_NONE)
+    slope_mps2_per_command: float | None = ranged(None, Range(0.0, 0.01, low_open=True, optional=True))
     max_command: int = 60000
     # the onboard app's ceiling: its setpoints skip the legacy clamp (docs/deploy.md)
     app_max_command: int = 65535
-    max_rate_degps: list = ranged([720.0, 720.0, 400.0], POSITIVE)
+    max_rate_degps: list = ranged([720.0, 720.0, 400.0], Range(0.0, 2000.0, low_open=True))
 
     def validate(self) -> None:
         from datt.errors import ConfigError

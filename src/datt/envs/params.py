@@ -9,7 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
-from datt.configuration import NON_NEGATIVE, POSITIVE, POSITIVE_OR_NONE, Range, check_ranges, ranged
+from datt.configuration import DISTANCE_M, NOISE, SPEED_MPS, WEIGHT, Range, check_ranges, ranged
 from datt.errors import ConfigError
 from datt.sim.quadrotor import QuadrotorParams
 
@@ -27,12 +27,12 @@ class RewardParams:
     after the action bounds; the first step of an episode against hover's zero rates). A
     smoothness cost for a policy that flies a longer real loop than it trained on (docs/deploy.md)."""
 
-    pos: float = ranged(1.0, NON_NEGATIVE)
-    yaw: float = ranged(0.5, NON_NEGATIVE)
-    vel: float = ranged(0.1, NON_NEGATIVE)
-    vel_cap_mps: float = ranged(1.0, NON_NEGATIVE)
-    crash_penalty: float = ranged(300.0, NON_NEGATIVE)
-    rate_change: float = ranged(0.0, NON_NEGATIVE)  # per rad/s of body-rate command change per step
+    pos: float = ranged(1.0, WEIGHT)
+    yaw: float = ranged(0.5, WEIGHT)
+    vel: float = ranged(0.1, WEIGHT)
+    vel_cap_mps: float = ranged(1.0, SPEED_MPS)
+    crash_penalty: float = ranged(300.0, Range(0.0, 1e5))
+    rate_change: float = ranged(0.0, WEIGHT)  # per rad/s of body-rate command change per step
 
 
 # ObsParams keys that shape what a policy reads (a checkpoint carries them to eval and deploy)
@@ -85,12 +85,12 @@ class ObsParams:
 
     body_frame: bool = True
     feedback: bool = True
-    pos_noise_std_m: float = ranged(0.0, NON_NEGATIVE)
-    vel_noise_std_mps: float = ranged(0.0, NON_NEGATIVE)
-    att_noise_std_rad: float = ranged(0.0, NON_NEGATIVE)
+    pos_noise_std_m: float = ranged(0.0, NOISE)
+    vel_noise_std_mps: float = ranged(0.0, NOISE)
+    att_noise_std_rad: float = ranged(0.0, NOISE)
     action_history: int = ranged(0, Range(0, 100, integer=True))
     critic_ref_points: int = ranged(0, Range(0, 1000, integer=True))
-    critic_ref_spacing_s: float = ranged(0.1, POSITIVE)  # and a whole multiple of env.dt_s
+    critic_ref_spacing_s: float = ranged(0.1, Range(0.0, 10.0, low_open=True))  # and a whole multiple of env.dt_s
     timing: str = ranged("project", Range(choices=OBS_TIMINGS))
     predict_latency: bool = False
     predict_latency_error_steps: int = ranged(0, Range(0, 10, integer=True))
@@ -117,12 +117,12 @@ class EnvParams:
 
     dt_s: float = ranged(0.02, Range(0.0, 1.0, low_open=True))
     episode_steps: int = ranged(500, Range(1, 10**7, integer=True))
-    ref_spacing_s: float = ranged(0.06, POSITIVE)  # and a whole multiple of dt_s
-    init_pos_range_m: float = ranged(0.5, NON_NEGATIVE)
-    safety_box_m: list[float] = ranged([3.0, 3.0, 3.0], Range(0.0, low_open=True, length=3))
-    max_tracking_error_m: Any = ranged(None, POSITIVE_OR_NONE)
-    thrust_offset_bounds_mps2: list[float] = ranged([-9.8, 30.0], Range(length=2))  # [low, high]
-    rate_bounds_radps: list[float] = ranged([20.0, 20.0, 2.0], Range(0.0, low_open=True, length=3))
+    ref_spacing_s: float = ranged(0.06, Range(0.0, 10.0, low_open=True))  # and a whole multiple of dt_s
+    init_pos_range_m: float = ranged(0.5, DISTANCE_M)
+    safety_box_m: list[float] = ranged([3.0, 3.0, 3.0], Range(0.0, 20.0, low_open=True, length=3))
+    max_tracking_error_m: Any = ranged(None, Range(0.0, 100.0, low_open=True, optional=True))
+    thrust_offset_bounds_mps2: list[float] = ranged([-9.8, 30.0], Range(-200.0, 200.0, length=2))  # [low, high]
+    rate_bounds_radps: list[float] = ranged([20.0, 20.0, 2.0], Range(0.0, 100.0, low_open=True, length=3))
     dtype: str = ranged("float32", Range(choices=("float32", "float64")))
     device: str = "cpu"
     compile: bool = False

@@ -128,6 +128,29 @@ TABLES: dict[str, TableSpec] = {
 
 
 # -- collecting runs -----------------------------------------------------------------------
+def job_entry(path: Path) -> str | None:
+    """The entry point (``train.py``, ``eval.py`` ...) that ran the job dir ``path``, from its
+    ``.hydra/hydra.yaml`` (``hydra.job.config_name``); None where that file does not say."""
+    try:
+        data = yaml.safe_load((path / ".hydra" / "hydra.yaml").read_text()) or {}
+        name = data["hydra"]["job"]["config_name"]
+    except (OSError, ValueError, KeyError, TypeError, yaml.YAMLError):
+        return None
+    return f"{name}.py" if isinstance(name, str) else None
+
+
+def check_jobs_are_the_tables(spec: TableSpec, jobs: list[Job]) -> None:
+    """Every job was run by the table's own entry point: a sweep of another script (a training
+    sweep given to an evaluation table) is refused in one line, not turned into ``?`` rows."""
+    for job in jobs:
+        entry = job_entry(job.path) if job.path.is_dir() else None
+        if entry is not None and entry != spec.entry:
+            raise ConfigError(
+                f"runs: {job.path} is a {entry} job; table {spec.name} is made from {spec.entry} jobs "
+                f"(python {spec.entry} +sweep={spec.name}, or tables.py {spec.name} run=true)"
+            )
+
+
 def find_jobs(roots: list[Path]) -> list[Job]:
     """Every Hydra job dir (one with ``.hydra/``) under ``roots``, plus the jobs a sweep dir's
     ``multirun.yaml`` defines that have no directory under any of the roots (missing: a job

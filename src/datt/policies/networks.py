@@ -33,7 +33,7 @@ from torch import nn
 from torch.nn import functional as F
 from torchrl.modules import ProbabilisticActor, TanhNormal, ValueOperator
 
-from datt.configuration import POSITIVE, POSITIVE_OR_NONE, Range, check_ranges, ranged
+from datt.configuration import POSITIVE_WEIGHT, Range, check_ranges, ranged
 from datt.envs.observations import FEEDBACK, STATE_DIM
 from datt.envs.tracking import action_center_half
 from datt.errors import ConfigError
@@ -41,7 +41,7 @@ from datt.errors import ConfigError
 OBS_KEYS = ["state", "ref", "d_hat"]
 ENCODERS = ("conv", "mlp", "none", "authors")
 WIDTH = Range(1, 1 << 16, integer=True)  # layer widths and channel counts
-INIT_STD = Range(0.0, low_open=True, length=4)  # thrust, wx, wy, wz
+INIT_STD = Range(0.0, 10.0, low_open=True, length=4)  # thrust, wx, wy, wz
 AUTHORS_MIN_HORIZON = 5  # two unpadded k-3 convolutions need 5 points for one output
 
 
@@ -65,18 +65,18 @@ class PolicyParams:
     # biased softplus, b = inv_softplus(1 − min_std)). 0.01 is tensordict's default, so checkpoints
     # without this key keep their function. Without an entropy bonus PPO shrinks the std as far as
     # it helps the return, down to this floor (docs/training.md).
-    min_std: float = ranged(0.01, POSITIVE)  # and below every init_std
+    min_std: float = ranged(0.01, Range(0.0, 10.0, low_open=True))  # and below every init_std
     # Ceiling of the pre-tanh std, every action; null = none (the mapping above). With a ceiling
     # the std is min_std + (max_std − min_std) · sigmoid(head), bounded on both sides. Without
     # one, training at γ = 0.95 let the yaw-rate and thrust std grow without bound in some
     # states (bang-bang noise: crashes, slower steps; docs/training.md).
-    max_std: float | None = ranged(None, POSITIVE_OR_NONE)  # and above every init_std
+    max_std: float | None = ranged(None, Range(0.0, 10.0, low_open=True, optional=True))  # and above every init_std
     # Fixed gain on the tracking-error inputs (feedback and feedforward, metres) before the net.
     # Tracking errors are O(0.01-0.1 m) while the other inputs are O(1): unscaled, a 2 cm error
     # moves the first layer by ~1e-3, and PPO (Adam steps of ~lr per weight) takes a long time to
     # grow the large input weights a precise controller needs. 1 = the paper's raw inputs (and
     # what checkpoints without this key were trained with).
-    error_scale: float = ranged(1.0, POSITIVE)
+    error_scale: float = ranged(1.0, POSITIVE_WEIGHT)
 
     def validate(self) -> None:
         """Rules across fields (each field's own range is declared with it, :func:`ranged`)."""

@@ -7,7 +7,7 @@ from collections.abc import Mapping
 import torch
 from torch import Tensor
 
-from datt.configuration import NON_NEGATIVE, SEED, check_arg_ranges
+from datt.configuration import SEED, WEIGHT, check_arg_ranges
 from datt.refs.base import RefFamily
 
 
@@ -51,7 +51,7 @@ class Mixed(RefFamily):
     omitted). ``families``: name -> family (Hydra instantiates the nested configs). Mean speed of
     ``traj=mixed`` (authors' zigzag, poly, chained_poly; 1000 draws): ≈ 0.82 m/s."""
 
-    ARG_RANGES = {"weights": NON_NEGATIVE}  # per family; their sum must be > 0
+    ARG_RANGES = {"weights": WEIGHT}  # per family; their sum must be > 0
 
     def __init__(self, families: Mapping[str, RefFamily], weights: Mapping[str, float] | None = None) -> None:
         if not families:

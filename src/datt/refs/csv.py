@@ -9,7 +9,7 @@ from pathlib import Path
 import torch
 from torch import Tensor
 
-from datt.configuration import POSITIVE, check_arg_ranges
+from datt.configuration import Range, check_arg_ranges
 from datt.errors import ConfigError
 from datt.refs.base import RefFamily, piecewise_linear
 
@@ -93,7 +93,7 @@ class CsvReference(RefFamily):
     file should end where it starts).
     """
 
-    ARG_RANGES = {"time_scale": POSITIVE, "max_abs_m": POSITIVE}
+    ARG_RANGES = {"time_scale": Range(0.0, 100.0, low_open=True), "max_abs_m": Range(0.0, 1e4, low_open=True)}
 
     def __init__(
         self,

@@ -7,7 +7,7 @@ import math
 import torch
 from torch import Tensor
 
-from datt.configuration import NON_NEGATIVE, POSITIVE, check_arg_ranges
+from datt.configuration import ACCEL_MPS2, LENGTH_M, POSITIVE_TIME_S, SPEED_MPS, check_arg_ranges
 from datt.errors import ConfigError
 from datt.refs.base import RefFamily, planar
 
@@ -81,10 +81,10 @@ class Poly(RefFamily):
     holds the origin. Mean speed (``traj=poly``, 1000 draws): ≈ 0.41 m/s."""
 
     ARG_RANGES = {
-        "duration_s": POSITIVE,
-        "vel_max_mps": NON_NEGATIVE,
-        "acc_max_mps2": NON_NEGATIVE,
-        "max_amplitude_m": POSITIVE,
+        "duration_s": POSITIVE_TIME_S,
+        "vel_max_mps": SPEED_MPS,
+        "acc_max_mps2": ACCEL_MPS2,
+        "max_amplitude_m": LENGTH_M,
     }
 
     def __init__(
@@ -131,7 +131,7 @@ class ChainedPoly(RefFamily):
     Mean speed (``traj=chained_poly``, 1000 draws): ≈ 0.72 m/s.
     """
 
-    ARG_RANGES = {"piece_min_s": POSITIVE, "piece_max_s": POSITIVE, "knot_vel_max_mps": NON_NEGATIVE}
+    ARG_RANGES = {"piece_min_s": POSITIVE_TIME_S, "piece_max_s": POSITIVE_TIME_S, "knot_vel_max_mps": SPEED_MPS}
 
     def __init__(self, piece_min_s: float = 1.5, piece_max_s: float = 4.0, knot_vel_max_mps: float = 1.5) -> None:
         check_arg_ranges(ChainedPoly, locals(), "traj")

@@ -7,7 +7,7 @@ import math
 import torch
 from torch import Tensor
 
-from datt.configuration import FINITE, NON_NEGATIVE, POSITIVE, Range, check_arg_ranges
+from datt.configuration import LENGTH_M, POSITIVE_SPEED_MPS, TIME_S, Range, check_arg_ranges
 from datt.errors import ConfigError
 from datt.refs.base import RefFamily, piecewise_linear, planar
 
@@ -35,11 +35,11 @@ class Polygon(RefFamily):
         "points_min": POINTS,
         "points_max": POINTS,
         "step": Range(1, 1000, integer=True),
-        "radius_m": POSITIVE,
-        "speed_min_mps": POSITIVE,
-        "speed_max_mps": POSITIVE,
-        "lead_in_s": NON_NEGATIVE,
-        "phase_deg": FINITE,
+        "radius_m": LENGTH_M,
+        "speed_min_mps": POSITIVE_SPEED_MPS,
+        "speed_max_mps": POSITIVE_SPEED_MPS,
+        "lead_in_s": TIME_S,
+        "phase_deg": Range(-360.0, 360.0),
     }
 
     def __init__(

@@ -7,7 +7,7 @@ import math
 import torch
 from torch import Tensor
 
-from datt.configuration import NON_NEGATIVE, POSITIVE, Range, check_arg_ranges
+from datt.configuration import DISTANCE_M, POSITIVE_TIME_S, Range, check_arg_ranges
 from datt.errors import ConfigError
 from datt.refs.base import RefFamily, piecewise_linear, planar
 
@@ -31,9 +31,9 @@ class Zigzag(RefFamily):
     """
 
     ARG_RANGES = {
-        "seg_min_s": POSITIVE,
-        "seg_max_s": POSITIVE,
-        "range_m": NON_NEGATIVE,
+        "seg_min_s": POSITIVE_TIME_S,
+        "seg_max_s": POSITIVE_TIME_S,
+        "range_m": DISTANCE_M,
         "waypoints": Range(choices=WAYPOINT_LAWS),
     }
 

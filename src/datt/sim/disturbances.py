@@ -21,7 +21,7 @@ from collections.abc import Sequence
 import torch
 from torch import Tensor
 
-from datt.configuration import NON_NEGATIVE, POSITIVE, Range, check_arg_ranges
+from datt.configuration import ACCEL_MPS2, POSITIVE_TIME_S, Range, check_arg_ranges
 from datt.errors import ConfigError
 from datt.sim.frames import quat_body_z, quat_rotate, quat_rotate_inverse
 from datt.sim.quadrotor import QuadState
@@ -66,7 +66,7 @@ NoDisturbance = Disturbance
 class ConstantForce(Disturbance):
     """Per-episode constant vector, each axis uniform in ``[-max_mps2, max_mps2]`` (paper: 3.5)."""
 
-    ARG_RANGES = {"max_mps2": NON_NEGATIVE}
+    ARG_RANGES = {"max_mps2": ACCEL_MPS2}
 
     def __init__(self, max_mps2: float = 3.5) -> None:
         check_arg_ranges(ConstantForce, locals(), "disturbance")
@@ -81,7 +81,7 @@ class Brownian(ConstantForce):
     every step with ``Σ = sigma2 I`` (paper: 0.01, units m²/s⁵ so that d's variance grows by
     ``sigma2`` per second)."""
 
-    ARG_RANGES = {"sigma2": NON_NEGATIVE}
+    ARG_RANGES = {"sigma2": Range(0.0, 1000.0)}  # m²/s⁵: 1000 drifts 30 m/s² in a second
 
     def __init__(self, max_mps2: float = 3.5, sigma2: float = 0.01) -> None:
         super().__init__(max_mps2)
@@ -114,16 +114,16 @@ class Wind(Disturbance):
     """
 
     ARG_RANGES = {
-        "speed_min_mps": NON_NEGATIVE,
-        "speed_max_mps": NON_NEGATIVE,
-        "drag_coef_per_m": NON_NEGATIVE,
+        "speed_min_mps": Range(0.0, 50.0),  # a gale
+        "speed_max_mps": Range(0.0, 50.0),
+        "drag_coef_per_m": Range(0.0, 100.0),
         "num_modes": Range(0, 100, integer=True),
-        "spatial_amp": NON_NEGATIVE,
-        "wavelength_min_m": POSITIVE,
-        "wavelength_max_m": POSITIVE,
-        "gust_std_mps": NON_NEGATIVE,
-        "gust_tau_s": POSITIVE,
-        "gust_vertical_ratio": NON_NEGATIVE,
+        "spatial_amp": Range(0.0, 10.0),
+        "wavelength_min_m": Range(0.0, 1000.0, low_open=True),
+        "wavelength_max_m": Range(0.0, 1000.0, low_open=True),
+        "gust_std_mps": Range(0.0, 50.0),
+        "gust_tau_s": POSITIVE_TIME_S,
+        "gust_vertical_ratio": Range(0.0, 10.0),
     }
 
     def __init__(
@@ -219,7 +219,7 @@ class DragPlate(Disturbance):
     plate faces body x (a vertical plate), so drag is largest along x.
     """
 
-    ARG_RANGES = {"mass_ratio": NON_NEGATIVE, "drag_coef_body_per_m": Range(0.0, length=3)}  # body x, y, z
+    ARG_RANGES = {"mass_ratio": Range(0.0, 10.0), "drag_coef_body_per_m": Range(0.0, 100.0, length=3)}  # body x, y, z
 
     def __init__(
         self,

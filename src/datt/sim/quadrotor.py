@@ -36,7 +36,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from datt.configuration import FRACTION, POSITIVE, Range, check_ranges, ranged
+from datt.configuration import FRACTION, GRAVITY_MPS2, POSITIVE_ACCEL_MPS2, RATE_RADPS, Range, check_ranges, ranged
 from datt.sim.firmware_rates import FirmwareRateLoop
 from datt.sim.frames import quat_body_z, quat_exp_rotvec, quat_mul, quat_normalize
 from datt.sim.vehicles import DEFAULT_VEHICLE, VEHICLES
@@ -90,13 +90,13 @@ class QuadrotorParams:
     L1's d̂ carries the error.
     """
 
-    gravity_mps2: float = ranged(9.81, POSITIVE)
+    gravity_mps2: float = ranged(9.81, GRAVITY_MPS2)
     k_thrust: float = ranged(0.4, FRACTION)
     k_rate: float = ranged(0.4, FRACTION)
     latency_steps: int = ranged(1, LATENCY_STEPS)
-    initial_thrust_mps2: float | None = ranged(None, Range(0.0, optional=True))
-    max_thrust_mps2: float = ranged(40.0, POSITIVE)
-    max_rate_radps: float = ranged(40.0, POSITIVE)
+    initial_thrust_mps2: float | None = ranged(None, Range(0.0, 200.0, optional=True))
+    max_thrust_mps2: float = ranged(40.0, POSITIVE_ACCEL_MPS2)
+    max_rate_radps: float = ranged(40.0, RATE_RADPS)
     mass_spread: float = ranged(0.0, SPREAD)
     thrust_gain_spread: float = ranged(0.0, SPREAD)
     thrust_map_trimmed: bool = False

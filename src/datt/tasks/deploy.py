@@ -32,7 +32,7 @@ from datt.tasks.common import console, hydra_run_dir, set_threads
 # the predictor policy itself (experiment=deploy_predictor; the cost made its onboard flights worse);
 # on the paper's cf21_upgrade one policy for both (experiment=deploy_upgrade: its ceiling and rate loop)
 DEFAULT_CHECKPOINTS = {
-    "cf21": {"off-board": "checkpoints/datt_h10_smooth.pt", "onboard": "checkpoints/datt_h10_predictor.pt"},
+    "cf21": {"off-board": "checkpoints/datt_h10_radio.pt", "onboard": "checkpoints/datt_h10_predictor.pt"},
     "cf21_upgrade": {"off-board": "checkpoints/datt_h10_upgrade.pt", "onboard": "checkpoints/datt_h10_upgrade.pt"},
 }
 
@@ -74,9 +74,7 @@ def _start_server(cfg: DictConfig, params: DeployParams, thrust: ThrustParams, l
     from datt.deploy.sim import SimCrazyflie, SimCrazyflieParams
     from datt.deploy.sim.motors import MotorParams
 
-    url = urlparse(params.uri)
-    if url.scheme != "udp":
-        raise ConfigError(f"deploy.uri: the simulated Crazyflie listens on udp://host:port, got {params.uri!r}")
+    url = urlparse(params.uri)  # a udp:// one (datt.deploy.schema.check_uri)
     server_cfg = {k: (tuple(v) if isinstance(v, list) else v) for k, v in params.server.items()}
     # the simulated vehicle's own motors and mass (never the controller's map or calibration)
     keys = ("vehicle", "mass_kg", "thrust_max_n", "thrust_gain")
@@ -101,7 +99,7 @@ def _mocap_source(params: DeployParams, server):
             dropout_after_s=m.dropout_after_s,
             noise_std_m=m.noise_std_m,
         )
-    return mocap.MotionCaptureMocap(str(m.system), str(m.host), str(m.body), dict(m.options))
+    return mocap.MotionCaptureMocap(str(m.system), str(m.host), str(m.body), dict(m.options), m.connect_timeout_s)
 
 
 def _flight_kind(params: DeployParams, policy_id: int | None) -> tuple[type, dict]:

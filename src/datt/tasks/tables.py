@@ -90,6 +90,7 @@ def run_tables(cfg: DictConfig, run_dir: Path | None = None) -> dict:
     jobs = tables.find_jobs(roots)
     if not jobs:
         raise ConfigError(f"runs: no Hydra job dirs under {', '.join(map(str, roots))}")
+    tables.check_jobs_are_the_tables(spec, jobs)
     rows, _ = tables.collect(spec, jobs)
     rendered = tables.render(spec, rows, jobs)
     out_dir = resolve_path(params.out_dir) if params.out_dir else roots[0]

@@ -23,13 +23,15 @@ from datt.tasks.eval import run_eval
 # what benchmarks/transfer.py flies by default: the shipped policy (python train.py), the deploy-grade one
 # (experiment=deploy), the firmware-grade one (experiment=deploy_firmware), the one trained behind the
 # state predictor (experiment=deploy_predictor, what deploy.py flies onboard) and that one with the
-# cost on its rate command's change (experiment=deploy_smooth, what deploy.py flies off-board)
+# cost on its rate command's change (experiment=deploy_smooth), and that one trained on a radio that loses
+# setpoints (experiment=deploy_radio, what deploy.py flies off-board)
 CHECKPOINTS = [
     "checkpoints/datt_h10.pt",
     "checkpoints/datt_h10_deploy.pt",
     "checkpoints/datt_h10_firmware.pt",
     "checkpoints/datt_h10_predictor.pt",
     "checkpoints/datt_h10_smooth.pt",
+    "checkpoints/datt_h10_radio.pt",
 ]
 MASS_KG = VEHICLES[DEFAULT_VEHICLE].mass_kg  # deploy.thrust.mass_kg's default: what the controller believes
 CONDITIONS = {

@@ -36,10 +36,10 @@ from datt.checkpoint import load_checkpoint, save_checkpoint
 from datt.configuration import (
     BATCH,
     FRACTION,
-    NON_NEGATIVE,
-    POSITIVE,
-    POSITIVE_OR_NONE,
+    LEARNING_RATE,
+    POSITIVE_WEIGHT,
     UNIT_INTERVAL,
+    WEIGHT,
     Range,
     check_ranges,
     check_targets,
@@ -78,7 +78,7 @@ class AlgoParams:
     rollout_steps: int = ranged(32, Range(1, 100_000, integer=True))
     epochs: int = ranged(4, Range(1, 1000, integer=True))
     minibatch_size: int = ranged(2048, BATCH)
-    lr: float = ranged(1e-3, POSITIVE)
+    lr: float = ranged(1e-3, LEARNING_RATE)
     # constant | linear | exponential: to lr_final_frac * lr along a straight line, or
     # geometrically (the same factor every frame, so more of the run at low lr); adaptive_kl:
     # start at lr and, before every gradient step, divide it by 1.5 when the minibatch's KL from
@@ -88,24 +88,24 @@ class AlgoParams:
     # policy's own sensitivity instead of the frame count.
     lr_schedule: str = ranged("linear", Range(choices=LR_SCHEDULES))
     lr_final_frac: float = ranged(0.05, UNIT_INTERVAL)
-    desired_kl: float = ranged(0.05, POSITIVE)
-    lr_min: float = ranged(1e-5, POSITIVE)
-    lr_max: float | None = ranged(None, POSITIVE_OR_NONE)
+    desired_kl: float = ranged(0.05, Range(0.0, 10.0, low_open=True))
+    lr_min: float = ranged(1e-5, LEARNING_RATE)
+    lr_max: float | None = ranged(None, Range(0.0, 10.0, low_open=True, optional=True))
     # 0.95 (a return horizon of ~20 steps, 0.4 s) rather than SB3's 0.99 (~2 s): the policy sees
     # the reference 0.54 s ahead, so with 0.99 most of the return depends on reference it cannot
     # see, and that noise swamps the advantage of a precise action (docs/training.md).
     gamma: float = ranged(0.95, FRACTION)
     lmbda: float = ranged(0.95, UNIT_INTERVAL)
     clip_epsilon: float = ranged(0.2, Range(0.0, 1.0, low_open=True))
-    entropy_coeff: float = ranged(0.0, NON_NEGATIVE)
-    critic_coeff: float = ranged(0.5, POSITIVE)
+    entropy_coeff: float = ranged(0.0, WEIGHT)
+    critic_coeff: float = ranged(0.5, POSITIVE_WEIGHT)
     loss_critic_type: str = ranged("l2", Range(choices=("l1", "l2", "smooth_l1")))
-    max_grad_norm: float = ranged(0.5, POSITIVE)
+    max_grad_norm: float = ranged(0.5, POSITIVE_WEIGHT)
     normalize_advantage: bool = True
     # Rewards are multiplied by this before GAE (returns here are O(100): 500-step episodes, the
     # crash penalty). 0.01 ≈ (1 − γ) keeps values O(1), but measured by time to accuracy the
     # unscaled rewards learned faster (docs/training.md), so 1.0 is the default.
-    reward_scale: float = ranged(1.0, POSITIVE)
+    reward_scale: float = ranged(1.0, POSITIVE_WEIGHT)
 
     def validate(self) -> None:
         """Rules across fields (each field's own range is declared with it, :func:`ranged`)."""

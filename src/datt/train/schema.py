@@ -14,8 +14,8 @@ from datt.configuration import (
     COUNT,
     FRACTION,
     HORIZON,
+    LEARNING_RATE,
     NON_NEGATIVE_COUNT,
-    POSITIVE,
     SEED,
     Range,
     hydra_choice,
@@ -97,7 +97,7 @@ class RmaParams:
 
     iterations: int = ranged(MISSING, COUNT)
     num_envs: int = ranged(MISSING, BATCH)
-    lr: float = ranged(MISSING, POSITIVE)
+    lr: float = ranged(MISSING, LEARNING_RATE)
     lr_final_frac: float = ranged(MISSING, FRACTION)  # linear decay of the lr to lr x this (1.0 = constant)
     history_len: int = ranged(MISSING, Range(1, 10_000, integer=True))
     accel_input: bool = MISSING

@@ -59,6 +59,7 @@ complementary; 2 = Kalman):
 from __future__ import annotations
 
 import collections
+import errno
 import heapq
 import math
 import random
@@ -71,7 +72,7 @@ from dataclasses import dataclass, field, fields
 
 import torch
 
-from datt.configuration import NON_NEGATIVE, SEED, Range, ranged
+from datt.configuration import NOISE, SEED, SPEED_MPS, Range, ranged
 from datt.deploy import crtp
 from datt.deploy.onboard import READ_ONLY as APP_READ_ONLY
 from datt.deploy.sim.motors import FirmwareMotors, MotorParams
@@ -173,15 +174,15 @@ class SimCrazyflieParams:
     # state of t + dt_s leaves at t, a step earlier than a real vehicle knows it (docs/deploy.md)
     log_before_step: bool = True
     battery_v: float = ranged(4.1, Range(2.5, 4.5))  # a 1S LiPo
-    battery_drain_vps: float = ranged(0.002, NON_NEGATIVE)
-    start_pos_m: tuple = ranged((0.0, 0.0, 0.0), Range(length=3))
+    battery_drain_vps: float = ranged(0.002, Range(0.0, 1.0))
+    start_pos_m: tuple = ranged((0.0, 0.0, 0.0), Range(-20.0, 20.0, length=3))
     motors: MotorParams = field(default_factory=MotorParams)  # the vehicle's own (datt.deploy.sim.motors)
     decks: tuple = ()  # deck param names present, e.g. ("bcLighthouse4",): 0 = any then picks Kalman
     boot_yaw_deg: float = ranged(
         0.0, Range(-360.0, 360.0)
     )  # heading at start-up in the mocap frame (onboard yaw is relative to it)
     dead_reckoning_drift_mps: float = ranged(
-        0.2, NON_NEGATIVE
+        0.2, SPEED_MPS
     )  # Kalman estimate error growth without measurements (along x)
     radio_latency_s: float = ranged(
         0.005, Range(0.0, 1.0)
@@ -192,7 +193,7 @@ class SimCrazyflieParams:
     radio_seed: int = ranged(0, SEED)
     onboard_library: str | None = None  # the DATT app's C as a shared library (datt.export.app); None = no app
     radio_cut_after_start_s: float | None = ranged(
-        None, Range(0.0, optional=True)
+        None, Range(0.0, 3600.0, optional=True)
     )  # the radio goes silent this long after the app starts
     refuse_arming: bool = False  # the supervisor refuses to arm (a firmware whose preflight checks fail)
     radio_jitter_s: float = ranged(
@@ -201,11 +202,9 @@ class SimCrazyflieParams:
     radio_burst_len: float = ranged(
         1.0, Range(1.0, 1000.0)
     )  # mean length of a run of lost packets (<= 1 / (1 - radio_loss): independent)
-    vel_noise_std_mps: float = ranged(
-        0.0, NON_NEGATIVE
-    )  # the estimate's velocity error (first-order, 0.2 s correlation)
+    vel_noise_std_mps: float = ranged(0.0, NOISE)  # the estimate's velocity error (first-order, 0.2 s correlation)
     att_noise_std_rad: float = ranged(
-        0.0, NON_NEGATIVE
+        0.0, NOISE
     )  # the estimate's roll/pitch/yaw error (first-order, 0.2 s correlation)
     boot_params: dict = field(default_factory=dict)  # parameter values at power-on ("group.name": value),
     # e.g. what an earlier flight left: parameters persist until a reboot
@@ -355,9 +354,13 @@ class SimCrazyflie:
             self.sock.bind((self.p.host, self.p.port))
         except OSError as exc:
             self.sock.close()
+            if exc.errno == errno.EADDRINUSE:
+                hint = "another simulated Crazyflie may be running: stop it or pick another port"
+            else:  # a name that does not resolve, an address not of this machine
+                hint = "the host must be an address of this machine"
             raise ConfigError(
-                f"deploy.uri: udp://{self.p.host}:{self.p.port} cannot be bound ({exc.strerror}); another simulated "
-                "Crazyflie may be running: stop it or pick another port, e.g. deploy.uri=udp://127.0.0.1:19851"
+                f"deploy.uri: udp://{self.p.host}:{self.p.port} cannot be bound ({exc.strerror}); {hint}, "
+                "e.g. deploy.uri=udp://127.0.0.1:19851"
             ) from None
         self.sock.settimeout(0.05)
         self._running.set()
