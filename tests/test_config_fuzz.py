@@ -63,7 +63,7 @@ def test_every_entry_point_config_walk_is_clean():
         (
             "train.py",
             ["traj=zigzag", "traj.seg_min_s=nan"],
-            "error: traj.seg_min_s: must be a finite number > 0, got nan",
+            "error: traj.seg_min_s: must be a finite number in (0, 3600], got nan",
         ),
         ("eval.py", ["eval.seeds=[]"], "error: eval.seeds: must be a list, each an integer in [0, 4294967295], got []"),
         (

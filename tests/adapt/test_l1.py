@@ -125,8 +125,8 @@ def test_bad_l1_parameters(kwargs, key):
 @pytest.mark.parametrize(
     "kwargs, message",
     [
-        ({"a_s": 0.0}, "adaptation.a_s: must be a finite number < 0, got 0.0"),
-        ({"cutoff_tau_s": -0.01}, "adaptation.cutoff_tau_s: must be a finite number >= 0, got -0.01"),
+        ({"a_s": 0.0}, "adaptation.a_s: must be a finite number in [-1000, 0), got 0.0"),
+        ({"cutoff_tau_s": -0.01}, "adaptation.cutoff_tau_s: must be a finite number in [0, 3600], got -0.01"),
         ({"k_thrust": 0.0}, "adaptation.k_thrust: must be a finite number in (0, 1], got 0.0"),
         ({"k_thrust": 1.5}, "adaptation.k_thrust: must be a finite number in (0, 1], got 1.5"),
         ({"latency_steps": -1}, "adaptation.latency_steps: must be an integer in [0, 100], got -1"),

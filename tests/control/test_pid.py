@@ -176,5 +176,5 @@ def test_the_integral_saturates_at_the_limit_on_either_side(sign):
 def test_a_pid_is_named_by_its_estimator_and_refuses_a_bad_gain_naming_the_controller_key():
     assert PidController().name == "pid" and PidController(use_d_hat=True).name == "l1_pid"
     assert not PidController().use_d_hat
-    with pytest.raises(ConfigError, match=r"^controller\.kd: must be a finite number >= 0"):
+    with pytest.raises(ConfigError, match=r"^controller\.kd: must be a finite number in \[0, 1000\]"):
         PidController(kd=-1.0)

@@ -113,23 +113,36 @@ def test_sources_read_nothing_before_a_frame_and_run_on_daemon_threads(monkeypat
 
     pytest.importorskip("motioncapture")
     bodies = {"rigid_bodies": "cf1(0.0,0.0,0.0,1.0,0.0,0.0,0.0)"}
+    before = set(threading.enumerate())
     sources = [SimulatedMocap(_Vehicle(), latency_s=0.0), MotionCaptureMocap("mock", "localhost", "cf1", bodies)]
     for source in sources:
-        assert source.read() is None  # no frame yet
-        before = set(threading.enumerate())
+        assert source.read() is None  # no frame published before start
         source.start()
-        started = set(threading.enumerate()) - before
+    started = set(threading.enumerate()) - before
+    for source in sources:
         source.stop()
-        assert started and all(t.daemon for t in started), type(source).__name__
+    assert len(started) >= 2 and all(t.daemon for t in started)
+    assert sources[1]._proc.poll() is not None  # the motion-capture client process is gone
 
 
-def test_the_host_and_options_reach_the_library_as_its_settings(monkeypatch):
-    motioncapture = pytest.importorskip("motioncapture")
-    seen = []
-    real = motioncapture.connect
-    monkeypatch.setattr(motioncapture, "connect", lambda system, cfg: seen.append((system, cfg)) or real("mock", cfg))
-    MotionCaptureMocap("qualisys", "10.0.0.5", "cf1", {"port": 22223})
-    assert seen == [("qualisys", {"hostname": "10.0.0.5", "port": "22223"})]  # every value a string
+def test_the_host_and_options_reach_the_library_as_its_settings():
+    """The client process gets the system and the settings (every value a string), and the library
+    takes them: the mock system's bodies come from its ``rigid_bodies`` setting."""
+    import json
+
+    pytest.importorskip("motioncapture")
+    options = {"port": 22223, "rigid_bodies": "cf1(1.0,2.0,3.0,1.0,0.0,0.0,0.0)"}
+    source = MotionCaptureMocap("mock", "10.0.0.5", "cf1", options)
+    try:
+        system, settings, body = source._proc.args[-3:]
+        assert (system, body) == ("mock", "cf1")
+        assert json.loads(settings) == {
+            "hostname": "10.0.0.5",
+            "port": "22223",
+            "rigid_bodies": options["rigid_bodies"],
+        }
+    finally:
+        source.stop()
 
 
 def test_the_simulated_source_s_defaults_are_the_deploy_settings_defaults():

@@ -254,7 +254,7 @@ def test_the_uncertainty_limit_is_a_checked_setting():
     from datt.errors import ConfigError
 
     cfg = compose("deploy", ["deploy.flight.onboard_max_pos_std_m=-1"])
-    with pytest.raises(ConfigError, match="deploy.flight.onboard_max_pos_std_m: must be a finite number >= 0"):
+    with pytest.raises(ConfigError, match=r"deploy.flight.onboard_max_pos_std_m: must be a finite number in \[0, 1\]"):
         deploy_params(cfg.deploy)
 
 

@@ -97,8 +97,8 @@ APP_CAP = (
 @pytest.mark.parametrize(
     "kwargs, message",
     [
-        ({"mass_kg": 0.0}, "deploy.thrust.mass_kg: must be a finite number > 0, got 0.0"),
-        ({"thrust_max_n": 0.0}, "deploy.thrust.thrust_max_n: must be a finite number > 0, got 0.0"),
+        ({"mass_kg": 0.0}, "deploy.thrust.mass_kg: must be a finite number in (0.005, 5], got 0.0"),
+        ({"thrust_max_n": 0.0}, "deploy.thrust.thrust_max_n: must be a finite number in (0, 10], got 0.0"),
         (
             {"max_command": 0},
             "deploy.thrust.max_command: must be in (0, 60000], got 0" + CLAMP,
@@ -114,12 +114,12 @@ APP_CAP = (
             "deploy.thrust: a 34.0 g vehicle needs command 45539 to hover with thrust_max_n=0.12 N, "
             "above app_max_command=45000",
         ),
-        ({"hover_command": 0.0}, "deploy.thrust.hover_command: must be a finite number > 0 or null, got 0.0"),
-        ({"mass_kg": float("inf")}, "deploy.thrust.mass_kg: must be a finite number > 0, got inf"),
+        ({"hover_command": 0.0}, "deploy.thrust.hover_command: must be a finite number in (0, 65535] or null, got 0.0"),
+        ({"mass_kg": float("inf")}, "deploy.thrust.mass_kg: must be a finite number in (0.005, 5], got inf"),
         ({"hover_command": 60000.0}, "deploy.thrust.hover_command: must be in (0, max_command), got 60000.0"),
         (
             {"slope_mps2_per_command": -1.0},
-            "deploy.thrust.slope_mps2_per_command: must be a finite number > 0 or null, got -1.0",
+            "deploy.thrust.slope_mps2_per_command: must be a finite number in (0, 0.01] or null, got -1.0",
         ),
         (
             {"mass_kg": 0.05},
@@ -182,7 +182,9 @@ def test_simulated_motors_are_the_vehicles_not_the_controllers():
     c = ThrustMap().hover_command  # the controller's hover point for the nominal vehicle
     assert weak.thrust_mps2(round(c), 4.1) == pytest.approx(0.9 * 9.81, rel=1e-4)
     assert heavy.thrust_mps2(round(c), 4.1) == pytest.approx(9.81 / 1.1, rel=1e-4)
-    with pytest.raises(ConfigError, match=r"^deploy.server.thrust_gain: must be a finite number > 0, got 0.0$"):
+    with pytest.raises(
+        ConfigError, match=r"^deploy.server.thrust_gain: must be a finite number in \(0, 10\], got 0.0$"
+    ):
         FirmwareMotors(MotorParams(thrust_gain=0.0))
 
 

@@ -567,7 +567,7 @@ def test_disturbance_moves_the_drone(make_tracking_env):
         (["env.obs.action_history=-1"], "env.obs.action_history: must be an integer in [0, 100]"),
         (["env.obs.critic_ref_points=-1"], "env.obs.critic_ref_points: must be an integer in [0, 1000]"),
         (["env.obs.critic_ref_spacing_s=0.05"], "env.obs.critic_ref_spacing_s: must be a whole multiple of env.dt_s"),
-        (["env.obs.critic_ref_spacing_s=0"], "env.obs.critic_ref_spacing_s: must be a finite number > 0"),
+        (["env.obs.critic_ref_spacing_s=0"], "env.obs.critic_ref_spacing_s: must be a finite number in (0, 10]"),
         (["env.quad.k_thrust=2"], "env.quad.k_thrust: must be a finite number in (0, 1]"),
         (["env.safety_box_m=[1,1]"], "env.safety_box_m"),
         (["env.colour=red"], "env.colour: no such key"),

@@ -46,6 +46,8 @@ ADDED_SINCE: dict[str, tuple] = {
     "env.quad.trim_error_spread": (0.0,),
     # the cost on the rate command's change (experiment=deploy_smooth): the paper's reward without it
     "env.reward.rate_change": (0.0,),
+    # commands lost on the way (experiment=deploy_radio): none
+    "env.quad.command_loss_max": (0.0,),
 }
 
 

@@ -101,7 +101,7 @@ def test_poly_degree_five_through_origin():
 
 
 def test_poly_boundary_derivatives_are_the_sampled_ones():
-    fam = Poly(max_amplitude_m=1e9)  # no rescaling
+    fam = Poly(max_amplitude_m=1000.0)  # no rescaling
     g = gen(5)
     knot_t, coeffs = fam.sample_pieces(16, g, T64)
     g = gen(5)
@@ -366,9 +366,9 @@ def test_csv_extent_limit(tmp_path):
     )
     small = write_csv(tmp_path / "small.csv", [(0.0, 0.0, 0.0, 0.0), (1.0, 0.2, 0.0, 0.0)])
     assert CsvReference(str(small), max_abs_m=0.5).pos_m.abs().max() == pytest.approx(0.2)  # a limit under 1 m works
-    with pytest.raises(ConfigError, match=r"^traj.max_abs_m: must be a finite number > 0, got 0.0$"):
+    with pytest.raises(ConfigError, match=r"^traj.max_abs_m: must be a finite number in \(0, 10000\], got 0.0$"):
         CsvReference(str(small), max_abs_m=0.0)
-    with pytest.raises(ConfigError, match=r"^traj.time_scale: must be a finite number > 0, got 0.0$"):
+    with pytest.raises(ConfigError, match=r"^traj.time_scale: must be a finite number in \(0, 100\], got 0.0$"):
         CsvReference(str(small), time_scale=0.0)
     assert CsvReference(str(small)).path == str(small) and not CsvReference(str(small)).loop
 
@@ -412,7 +412,7 @@ def test_poly_cap_is_exact_on_its_own_grid():
     draw peaks at exactly max_amplitude_m, the others below it (amplitudes under 1 m too)."""
     fam = Poly(duration_s=2.0, vel_max_mps=0.5, acc_max_mps2=0.5, max_amplitude_m=0.15)
     knot_t, coeffs = fam.sample_pieces(200, gen(6), torch.zeros((), dtype=torch.float64))
-    unscaled = Poly(duration_s=2.0, vel_max_mps=0.5, acc_max_mps2=0.5, max_amplitude_m=1e9)
+    unscaled = Poly(duration_s=2.0, vel_max_mps=0.5, acc_max_mps2=0.5, max_amplitude_m=1000.0)
     _, raw = unscaled.sample_pieces(200, gen(6), torch.zeros((), dtype=torch.float64))
     grid = torch.linspace(0, 2.0, 2001, dtype=torch.float64)
     peak = eval_pieces(knot_t, coeffs, grid).abs().amax(dim=(1, 2))
@@ -513,25 +513,25 @@ def test_zigzag_unknown_waypoint_law_names_the_allowed_ones():
 @pytest.mark.parametrize(
     "family, kwargs, message",
     [
-        (Zigzag, {"seg_min_s": 0.0}, "traj.seg_min_s: must be a finite number > 0, got 0.0"),
+        (Zigzag, {"seg_min_s": 0.0}, "traj.seg_min_s: must be a finite number in (0, 3600], got 0.0"),
         (Zigzag, {"seg_min_s": 2.0}, "traj.seg_min_s/seg_max_s: need 0 < min <= max, got 2.0, 1.5"),
-        (Zigzag, {"range_m": -0.1}, "traj.range_m: must be a finite number >= 0, got -0.1"),
+        (Zigzag, {"range_m": -0.1}, "traj.range_m: must be a finite number in [0, 20], got -0.1"),
         (Zigzag, {"waypoints": "uniform"}, "traj.waypoints: unknown value 'uniform'; allowed: alternating, iid"),
         (Polygon, {"points_min": 2}, "traj.points_min: must be an integer in [3, 1000], got 2"),
         (Polygon, {"points_min": 7}, "traj.points_min/points_max: need 3 <= min <= max, got 7, 6"),
         (Polygon, {"step": 0}, "traj.step: must be an integer in [1, 1000], got 0"),
         (Polygon, {"step": 2}, "traj.step: must be >= 1 and coprime with every point count, got 2"),
-        (Polygon, {"radius_m": 0.0}, "traj.radius_m: must be a finite number > 0, got 0.0"),
-        (Polygon, {"speed_min_mps": 0.0}, "traj.speed_min_mps: must be a finite number > 0, got 0.0"),
+        (Polygon, {"radius_m": 0.0}, "traj.radius_m: must be a finite number in (0, 20], got 0.0"),
+        (Polygon, {"speed_min_mps": 0.0}, "traj.speed_min_mps: must be a finite number in (0, 20], got 0.0"),
         (Polygon, {"speed_min_mps": 2.0}, "traj.speed_min_mps/speed_max_mps: need min <= max, got 2.0, 1.6"),
-        (Polygon, {"lead_in_s": -1.0}, "traj.lead_in_s: must be a finite number >= 0, got -1.0"),
+        (Polygon, {"lead_in_s": -1.0}, "traj.lead_in_s: must be a finite number in [0, 3600], got -1.0"),
         (Polygon, {"through_origin": 1}, "traj.through_origin: must be true or false, got 1"),
-        (ChainedPoly, {"piece_min_s": 0.0}, "traj.piece_min_s: must be a finite number > 0, got 0.0"),
+        (ChainedPoly, {"piece_min_s": 0.0}, "traj.piece_min_s: must be a finite number in (0, 3600], got 0.0"),
         (ChainedPoly, {"piece_min_s": 5.0}, "traj.piece_min_s/piece_max_s: need 0 < min <= max, got 5.0, 4.0"),
-        (Poly, {"duration_s": 0.0}, "traj.duration_s: must be a finite number > 0, got 0.0"),
-        (Poly, {"vel_max_mps": -1.0}, "traj.vel_max_mps: must be a finite number >= 0, got -1.0"),
-        (Poly, {"acc_max_mps2": float("nan")}, "traj.acc_max_mps2: must be a finite number >= 0, got nan"),
-        (Poly, {"max_amplitude_m": 0.0}, "traj.max_amplitude_m: must be a finite number > 0, got 0.0"),
+        (Poly, {"duration_s": 0.0}, "traj.duration_s: must be a finite number in (0, 3600], got 0.0"),
+        (Poly, {"vel_max_mps": -1.0}, "traj.vel_max_mps: must be a finite number in [0, 20], got -1.0"),
+        (Poly, {"acc_max_mps2": float("nan")}, "traj.acc_max_mps2: must be a finite number in [0, 200], got nan"),
+        (Poly, {"max_amplitude_m": 0.0}, "traj.max_amplitude_m: must be a finite number in (0, 1000], got 0.0"),
     ],
 )
 def test_family_parameter_messages(family, kwargs, message):

@@ -209,19 +209,20 @@ def test_wind_parameter_bounds(kwargs, ok):
             lambda: Wind(speed_min_mps=3, speed_max_mps=1),
             "disturbance.speed_min_mps/speed_max_mps: need 0 <= min <= max",
         ),
-        (lambda: Wind(gust_tau_s=0), "disturbance.gust_tau_s: must be a finite number > 0, got 0"),
+        (lambda: Wind(gust_tau_s=0), "disturbance.gust_tau_s: must be a finite number in (0, 3600], got 0"),
         (lambda: Wind(num_modes=-1), "disturbance.num_modes: must be an integer in [0, 100], got -1"),
-        (lambda: ConstantForce(-1), "disturbance.max_mps2: must be a finite number >= 0, got -1"),
-        (lambda: Brownian(sigma2=-0.1), "disturbance.sigma2: must be a finite number >= 0, got -0.1"),
-        (lambda: Brownian(sigma2=float("nan")), "disturbance.sigma2: must be a finite number >= 0, got nan"),
-        (lambda: DragPlate(mass_ratio=-0.1), "disturbance.mass_ratio: must be a finite number >= 0, got -0.1"),
+        (lambda: ConstantForce(-1), "disturbance.max_mps2: must be a finite number in [0, 200], got -1"),
+        (lambda: Brownian(sigma2=-0.1), "disturbance.sigma2: must be a finite number in [0, 1000], got -0.1"),
+        (lambda: Brownian(sigma2=float("nan")), "disturbance.sigma2: must be a finite number in [0, 1000], got nan"),
+        (lambda: DragPlate(mass_ratio=-0.1), "disturbance.mass_ratio: must be a finite number in [0, 10], got -0.1"),
         (
             lambda: DragPlate(drag_coef_body_per_m=(0.1, -0.1, 0.1)),
-            "disturbance.drag_coef_body_per_m: must be 3 elements, each a finite number >= 0, got [0.1, -0.1, 0.1]",
+            "disturbance.drag_coef_body_per_m: must be 3 elements, each a finite number in [0, 100], "
+            "got [0.1, -0.1, 0.1]",
         ),
         (
             lambda: DragPlate(drag_coef_body_per_m=(0.1, 0.1)),
-            "disturbance.drag_coef_body_per_m: must be 3 elements, each a finite number >= 0, got [0.1, 0.1]",
+            "disturbance.drag_coef_body_per_m: must be 3 elements, each a finite number in [0, 100], got [0.1, 0.1]",
         ),
     ],
 )

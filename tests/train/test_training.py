@@ -167,7 +167,7 @@ def test_bad_train_values_are_config_errors():
         (["horizon=-1"], "error: horizon: must be an integer in [1, 1000]"),
         (["algo.epochs=0"], "error: algo.epochs: must be an integer in [1, 1000]"),
         (["resume=/nonexistent/run"], "error: resume: '/nonexistent/run' has no last.pt"),
-        (["disturbance.sigma2=nan"], "error: disturbance.sigma2: must be a finite number >= 0, got nan"),
+        (["disturbance.sigma2=nan"], "error: disturbance.sigma2: must be a finite number in [0, 1000], got nan"),
         (["env.dt_s=inf"], "error: env.dt_s: must be a finite number in (0, 1], got inf"),
     ],
 )

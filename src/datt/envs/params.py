@@ -119,7 +119,7 @@ class EnvParams:
     episode_steps: int = ranged(500, Range(1, 10**7, integer=True))
     ref_spacing_s: float = ranged(0.06, Range(0.0, 10.0, low_open=True))  # and a whole multiple of dt_s
     init_pos_range_m: float = ranged(0.5, DISTANCE_M)
-    safety_box_m: list[float] = ranged([3.0, 3.0, 3.0], Range(0.0, 20.0, low_open=True, length=3))
+    safety_box_m: list[float] = ranged([3.0, 3.0, 3.0], Range(0.0, 1000.0, low_open=True, length=3))
     max_tracking_error_m: Any = ranged(None, Range(0.0, 100.0, low_open=True, optional=True))
     thrust_offset_bounds_mps2: list[float] = ranged([-9.8, 30.0], Range(-200.0, 200.0, length=2))  # [low, high]
     rate_bounds_radps: list[float] = ranged([20.0, 20.0, 2.0], Range(0.0, 100.0, low_open=True, length=3))

@@ -7,7 +7,7 @@ import math
 import torch
 from torch import Tensor
 
-from datt.configuration import ACCEL_MPS2, LENGTH_M, POSITIVE_TIME_S, SPEED_MPS, check_arg_ranges
+from datt.configuration import ACCEL_MPS2, POSITIVE_TIME_S, SPEED_MPS, Range, check_arg_ranges
 from datt.errors import ConfigError
 from datt.refs.base import RefFamily, planar
 
@@ -84,7 +84,7 @@ class Poly(RefFamily):
         "duration_s": POSITIVE_TIME_S,
         "vel_max_mps": SPEED_MPS,
         "acc_max_mps2": ACCEL_MPS2,
-        "max_amplitude_m": LENGTH_M,
+        "max_amplitude_m": Range(0.0, 1000.0, low_open=True),  # 1000: no rescaling
     }
 
     def __init__(

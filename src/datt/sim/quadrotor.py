@@ -252,7 +252,12 @@ class Quadrotor:
         self.latency = CommandLatency(p.latency_steps, self.idle_cmd, n, p.max_latency_steps)
         self.last_applied_cmd = self.idle_cmd.expand(n, 4).clone()
         self._integrate = integrate
-        # Domain randomisation state (None = nominal for every drone; see QuadrotorParams)
+        self._init_variations(kw)
+
+    def _init_variations(self, kw: dict) -> None:
+        """The per-drone state of the domain randomisation, the radio's losses and the rate model
+        (None = nominal for every drone; see :class:`QuadrotorParams`)."""
+        p, n = self.params, self.n
         self.thrust_scale: Tensor | None = None  # [N] thrust produced per unit of actuator thrust
         self.second_order: Tensor | None = None  # [N] bool: drone follows the second-order rate model
         self.rate_torque: Tensor | None = None  # [N, 3] second-order model's rate increment per step

@@ -68,6 +68,7 @@ KEYS_ADDED_SINCE: dict[str, object] = {
     "env.obs.timing": "project",
     "env.obs.predict_latency": False,
     "env.obs.predict_latency_error_steps": 0,
+    "env.quad.command_loss_max": 0.0,
 }
 
 
