@@ -95,3 +95,60 @@ def test_hydras_own_inputs_are_one_line(tmp_path, monkeypatch, capsys, make, arg
     args = [a.replace("{tmp}", str(tmp_path)) for a in args]
     result = run_cli("eval", args, tmp_path, monkeypatch, capsys)
     one_line(result, message.replace("{tmp}", str(tmp_path)))
+
+
+def test_a_flight_whose_log_cannot_be_written_whole_is_refused_before_arming(tmp_path):
+    from datt.errors import ConfigError
+    from datt.tasks.deploy import LOG_HEADROOM_BYTES, check_log_headroom
+
+    check_log_headroom(tmp_path)  # this machine's test disk has room
+    check_log_headroom(tmp_path, free_bytes=LOG_HEADROOM_BYTES)
+    with pytest.raises(ConfigError) as info:
+        check_log_headroom(tmp_path, free_bytes=LOG_HEADROOM_BYTES - 1)
+    assert str(info.value) == (
+        f"hydra.run.dir: {tmp_path} has 50.0 MB free; a flight's log needs 50 MB before arming: free some space "
+        "or set hydra.run.dir=<another disk>"
+    )
+
+
+def test_hydras_own_write_on_a_full_disk_is_one_line(tmp_path, monkeypatch, capsys):
+    """Hydra writes .hydra/ before the task runs: a full disk there is the same one line as in a task."""
+    import errno
+
+    import hydra
+
+    def full_disk(*args, **kwargs):
+        def main_decorator(fn):
+            def run():
+                raise OSError(errno.ENOSPC, "No space left on device", str(tmp_path / "r" / ".hydra" / "config.yaml"))
+
+            return run
+
+        return main_decorator
+
+    monkeypatch.setattr(hydra, "main", full_disk)
+    monkeypatch.setitem(cli.COMMANDS, "eval", cli.hydra_main("eval", lambda cfg: None))  # built on the full disk
+    result = run_cli("eval", ["hydra.run.dir=r"], tmp_path, monkeypatch, capsys)
+    one_line(result, f"error: {tmp_path / 'r' / '.hydra' / 'config.yaml'}: No space left on device; free some space")
+
+
+def test_a_trace_is_written_whole_or_not_at_all(tmp_path, monkeypatch):
+    """The evaluation's trace goes through a temporary file: a write that fails leaves no partial file."""
+    import errno
+
+    from datt.eval.conditions import _save_atomic
+
+    _save_atomic({"x": 1}, tmp_path / "trace.pt")
+    assert (tmp_path / "trace.pt").stat().st_size > 0
+
+    class FullDisk:
+        def __init__(self, *args):
+            raise OSError(errno.ENOSPC, "No space left on device")
+
+    import datt.runs
+
+    monkeypatch.setattr(datt.runs.os, "fdopen", FullDisk)
+    with pytest.raises(OSError) as info:
+        _save_atomic({"x": 2}, tmp_path / "trace2.pt")
+    assert info.value.filename == str(tmp_path / "trace2.pt")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["trace.pt"]

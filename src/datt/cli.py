@@ -488,6 +488,10 @@ def hydra_main(config_name: str, task: Callable[[DictConfig], object], lock: boo
         except KeyboardInterrupt as exc:
             ignore_stop_signals()
             _fail(f"interrupted by {exc.args[0] if exc.args else 'SIGINT'}{_sweep_state()}", 130)
+        except OSError as exc:  # Hydra's own writes (.hydra/, the job log) on a full or read-only disk
+            if exc.errno not in FILE_FAULTS:
+                raise
+            _fail(file_fault_line(exc), 2)
         if _failed_jobs:
             sys.exit(min(_failed_jobs, 100))
 

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import shutil
 import signal
 from pathlib import Path
 from urllib.parse import urlparse
@@ -186,6 +187,21 @@ def _print_summary(params: DeployParams, summary: dict, run_dir: Path) -> None:
     )
 
 
+# What a flight's log needs on its disk before anything is armed: flight.csv at 50 Hz for a
+# battery's flight (~7 min, ~2 MB), events.json and the plots (~1 MB), with room to spare.
+LOG_HEADROOM_BYTES = 50 * 1024 * 1024
+
+
+def check_log_headroom(run_dir: Path, free_bytes: int | None = None) -> None:
+    """Refuse a flight, in one line and before arming, whose log could not be written whole."""
+    free = shutil.disk_usage(run_dir).free if free_bytes is None else free_bytes
+    if free < LOG_HEADROOM_BYTES:
+        raise ConfigError(
+            f"hydra.run.dir: {run_dir} has {free / 2**20:.1f} MB free; a flight's log needs "
+            f"{LOG_HEADROOM_BYTES // 2**20} MB before arming: free some space or set hydra.run.dir=<another disk>"
+        )
+
+
 def run_deploy(cfg: DictConfig, run_dir: Path | None = None, estop=None, server_hook=None) -> dict:
     """Fly (or calibrate) once; returns the flight summary written to ``events.json``.
     ``server_hook(server, runner)`` lets tests inject faults once the flight objects exist."""
@@ -196,6 +212,7 @@ def run_deploy(cfg: DictConfig, run_dir: Path | None = None, estop=None, server_
     params, flight, safety, thrust = deploy_params(cfg.deploy)
     run_dir = run_dir or hydra_run_dir()
     run_dir.mkdir(parents=True, exist_ok=True)
+    check_log_headroom(run_dir)
     set_threads(cfg.threads)
     controller, merged, labels = build_controller(cfg)
     require_current_state_timing(merged, "deploy")
