@@ -202,6 +202,13 @@ def check_log_headroom(run_dir: Path, free_bytes: int | None = None) -> None:
         )
 
 
+def _flight_dir(run_dir: Path) -> Path:
+    """The flight's run dir, made, with room for its log (:func:`check_log_headroom`)."""
+    run_dir.mkdir(parents=True, exist_ok=True)
+    check_log_headroom(run_dir)
+    return run_dir
+
+
 def run_deploy(cfg: DictConfig, run_dir: Path | None = None, estop=None, server_hook=None) -> dict:
     """Fly (or calibrate) once; returns the flight summary written to ``events.json``.
     ``server_hook(server, runner)`` lets tests inject faults once the flight objects exist."""
@@ -210,9 +217,7 @@ def run_deploy(cfg: DictConfig, run_dir: Path | None = None, estop=None, server_
     resolve_checkpoint(cfg)
     validate_config("deploy", cfg)
     params, flight, safety, thrust = deploy_params(cfg.deploy)
-    run_dir = run_dir or hydra_run_dir()
-    run_dir.mkdir(parents=True, exist_ok=True)
-    check_log_headroom(run_dir)
+    run_dir = _flight_dir(run_dir or hydra_run_dir())
     set_threads(cfg.threads)
     controller, merged, labels = build_controller(cfg)
     require_current_state_timing(merged, "deploy")
