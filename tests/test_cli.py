@@ -154,3 +154,14 @@ def test_an_adaptation_setting_a_controller_would_not_use_is_refused_not_dropped
     line = proc.stderr.strip()
     assert line.count("\n") == 0 and line.startswith(f"error: {key}: controller=")
     assert "flies with its own estimator" in line and not (tmp_path / "metrics.json").exists()
+
+
+def test_datt_help_lists_every_subcommand_and_exits_0(tmp_path):
+    from datt.cli import COMMANDS, SUBCOMMANDS
+
+    assert set(SUBCOMMANDS) == set(COMMANDS)
+    proc = subprocess.run([sys.executable, "-m", "datt", "--help"], capture_output=True, text=True, cwd=tmp_path)
+    assert proc.returncode == 0 and proc.stderr == ""
+    assert proc.stdout.startswith("usage: datt {train,fit_rma,eval,tables,deploy,export}")
+    for name, text in SUBCOMMANDS.items():
+        assert f"  {name:8} {text}" in proc.stdout

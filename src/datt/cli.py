@@ -536,10 +536,26 @@ COMMANDS = {
 }
 
 
+# what each subcommand does, for ``datt --help``
+SUBCOMMANDS = {
+    "train": "train a policy with PPO (python train.py)",
+    "fit_rma": "fit an RMA adapter to a trained policy",
+    "eval": "evaluate a controller over the seeded reference bank",
+    "tables": "build a paper table from its sweep (tables.py <table> [run=true])",
+    "deploy": "fly a policy on a Crazyflie or the simulated one",
+    "export": "export a policy to C, the Crazyflie app, TorchScript or ONNX",
+}
+
+
 def main() -> None:
-    """``datt <command> [hydra overrides]``."""
+    """``datt <command> [hydra overrides]``; ``datt --help`` lists the commands."""
+    usage = f"usage: datt {{{','.join(COMMANDS)}}} [overrides...]"
+    if len(sys.argv) >= 2 and sys.argv[1] in ("-h", "--help", "help"):
+        lines = [usage, "", "commands:", *(f"  {name:8} {text}" for name, text in SUBCOMMANDS.items())]
+        print("\n".join([*lines, "", "datt <command> --help: the command's own options (Hydra's help)"]))
+        sys.exit(0)
     if len(sys.argv) < 2 or sys.argv[1] not in COMMANDS:
-        print(f"usage: datt {{{','.join(COMMANDS)}}} [overrides...]", file=sys.stderr)
+        print(usage, file=sys.stderr)
         sys.exit(2)
     command = sys.argv.pop(1)
     sys.argv[0] = f"datt {command}"
