@@ -136,9 +136,9 @@ def test_a_trace_is_written_whole_or_not_at_all(tmp_path, monkeypatch):
     """The evaluation's trace goes through a temporary file: a write that fails leaves no partial file."""
     import errno
 
-    from datt.eval.conditions import _save_atomic
+    from datt.checkpoint import write_torch
 
-    _save_atomic({"x": 1}, tmp_path / "trace.pt")
+    write_torch(tmp_path / "trace.pt", {"x": 1})
     assert (tmp_path / "trace.pt").stat().st_size > 0
 
     class FullDisk:
@@ -149,6 +149,6 @@ def test_a_trace_is_written_whole_or_not_at_all(tmp_path, monkeypatch):
 
     monkeypatch.setattr(datt.runs.os, "fdopen", FullDisk)
     with pytest.raises(OSError) as info:
-        _save_atomic({"x": 2}, tmp_path / "trace2.pt")
+        write_torch(tmp_path / "trace2.pt", {"x": 2})
     assert info.value.filename == str(tmp_path / "trace2.pt")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["trace.pt"]

@@ -26,11 +26,18 @@ def save_checkpoint(path: str | Path, payload: dict[str, Any]) -> Path:
     a crash mid-write leaves the previous checkpoint intact."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    buffer = io.BytesIO()  # serialise first: a full disk is then an OSError naming the file, not torch's zip error
-    torch.save({"format": FORMAT, **payload}, buffer)
+    return write_torch(path, {"format": FORMAT, **payload})
+
+
+def write_torch(path: str | Path, value: Any) -> Path:
+    """``torch.save(value)`` to ``path``, serialised first (a full disk is then an OSError naming
+    the file, not torch's zip error) and written through :func:`datt.runs.atomic_write` (no
+    partial file is ever left as if whole)."""
+    buffer = io.BytesIO()
+    torch.save(value, buffer)
     with atomic_write(path, "wb") as f:
         f.write(buffer.getbuffer())
-    return path
+    return Path(path)
 
 
 def load_checkpoint(path: str | Path, key: str = "checkpoint") -> dict[str, Any]:

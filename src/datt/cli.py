@@ -110,15 +110,16 @@ def hydra_group_options(group: str, roots: list[Path]) -> list[str]:
     return sorted(options)
 
 
-def check_hydra_options(argv: list[str]) -> None:
-    """Hydra's own groups (``hydra/launcher=...``) and the launcher's job count, in one line."""
+def check_hydra_options(argv: list[str], roots: list[Path]) -> None:
+    """Hydra's own groups (``hydra/launcher=...``, options over the search path ``roots``) and the
+    launcher's job count, in one line."""
     for arg in argv:
         if arg.startswith("-") or "=" not in arg:
             continue
         key, value = arg.split("=", 1)
         key = key.lstrip("+~")
         if key.startswith("hydra/") and "," not in value:
-            allowed = hydra_group_options(key, _argv_search_roots(argv))
+            allowed = hydra_group_options(key, roots)
             if value not in allowed:
                 raise ConfigError(f"{key}: unknown option {value!r}; allowed: {', '.join(allowed)}")
         if key == "hydra.launcher.n_jobs":
@@ -137,8 +138,8 @@ def preflight(argv: list[str]) -> None:
     Hydra prints a multi-line error."""
     refuse_retired_keys([arg for arg in argv if "=" in arg and not arg.startswith("-")])
     check_config_dirs(argv)
-    check_hydra_options(argv)
     roots = _argv_search_roots(argv)
+    check_hydra_options(argv, roots)
     groups = config_groups(roots)
     for arg in argv:
         if arg.startswith("-") or "=" not in arg:
@@ -205,14 +206,21 @@ def check_composition(config_name: str, argv: list[str]) -> None:
             validate_composed(config_name, compose(config_name, chosen))
 
 
+def _output_dir_arg(argv: list[str]) -> tuple[str, str | None]:
+    """The key the command's output dir is set by (``hydra.sweep.dir`` for a multirun or a
+    ``sweep=``, else ``hydra.run.dir``) and the value the command line gives it (the last; None: unset)."""
+    multirun = any(a in ("-m", "--multirun") for a in argv) or any(a.lstrip("+").startswith("sweep=") for a in argv)
+    key = "hydra.sweep.dir" if multirun else "hydra.run.dir"
+    given = [a.split("=", 1)[1] for a in argv if a.startswith(key + "=")]
+    return key, (given[-1] if given else None)
+
+
 def check_output_dir(argv: list[str]) -> None:
     """The directory runs will be written under must be creatable: one line before Hydra tries
     (and prints a traceback). Interpolated parts (``${now:...}``) are cut off."""
-    multirun = any(a in ("-m", "--multirun") for a in argv) or any(a.lstrip("+").startswith("sweep=") for a in argv)
-    key, target = ("hydra.sweep.dir", "outputs/multirun") if multirun else ("hydra.run.dir", "outputs")
-    for arg in argv:
-        if arg.startswith(key + "="):
-            target = arg.split("=", 1)[1].split("${")[0] or "."
+    key, given = _output_dir_arg(argv)
+    default = "outputs/multirun" if key == "hydra.sweep.dir" else "outputs"
+    target = default if given is None else (given.split("${")[0] or ".")
     path = Path(target).expanduser().absolute()
     base = path
     while not base.exists():
@@ -254,12 +262,10 @@ def check_run_dir(argv: list[str]) -> None:
     multirun, ``hydra.sweep.dir``) is new, empty or holds no run's records; one that holds a run
     is refused in one line naming ``resume=`` and how to start a fresh one, and an empty value is
     refused. The default dirs are new by construction (a timestamp and 4 random hex digits)."""
-    multirun = any(a in ("-m", "--multirun") for a in argv) or any(a.lstrip("+").startswith("sweep=") for a in argv)
-    key = "hydra.sweep.dir" if multirun else "hydra.run.dir"
-    given = [a.split("=", 1)[1] for a in argv if a.startswith(key + "=")]
-    if not given:
+    key, given = _output_dir_arg(argv)
+    if given is None:
         return
-    text = given[-1].strip().strip("'\"")
+    text = given.strip().strip("'\"")
     if not text:
         raise ConfigError(f"{key}: empty; give a directory, or leave {key} unset for a new one under outputs/")
     if "${" in text:  # interpolated (a timestamp, a job's override): a new dir per command
@@ -268,7 +274,7 @@ def check_run_dir(argv: list[str]) -> None:
     if not path.is_dir():
         return
     held = run_records(path)
-    if multirun:
+    if key == "hydra.sweep.dir":
         held += [f"{job.name}/{name}" for job in sorted(path.iterdir()) if job.is_dir() for name in run_records(job)]
     if held:
         raise ConfigError(
@@ -371,17 +377,20 @@ class SweepReport(_HydraCallback):
         sweep_dir = Path(str(config.hydra.sweep.dir))
         counts = sweep_summary(sweep_dir)
         _failed_jobs = counts["diverged"] + counts["errored"] + counts["incomplete"]
-        states = ", ".join(f"{n} {state}" for state, n in counts.items() if n)
-        print(f"sweep {sweep_dir}: {sum(counts.values())} jobs: {states or 'none'}", file=sys.stderr)
+        print(sweep_line(sweep_dir, counts, "none"), file=sys.stderr)
+
+
+def sweep_line(sweep_dir: Path, counts: dict[str, int], empty: str) -> str:
+    """``sweep <dir>: <n> jobs: <k> done, ...`` (``empty`` when no job has a dir)."""
+    states = ", ".join(f"{n} {state}" for state, n in counts.items() if n)
+    return f"sweep {sweep_dir}: {sum(counts.values())} jobs: {states or empty}"
 
 
 def _sweep_state() -> str:
-    """``: sweep <dir>: <n> jobs: <k> done, ...`` for a multirun this process launched, else ''."""
+    """``: sweep <dir>: ...`` (:func:`sweep_line`) for a multirun this process launched, else ''."""
     if _sweep_dir is None or not _sweep_dir.is_dir():
         return ""
-    counts = sweep_summary(_sweep_dir)
-    states = ", ".join(f"{n} {state}" for state, n in counts.items() if n)
-    return f": sweep {_sweep_dir}: {sum(counts.values())} jobs: {states or 'none started'}"
+    return ": " + sweep_line(_sweep_dir, sweep_summary(_sweep_dir), "none started")
 
 
 def _interrupt(signum: int, frame: object) -> None:

@@ -262,6 +262,7 @@ def check_arg_ranges(cls: type, args: dict[str, Any], key: str) -> None:
 # timeout of 1e30 s). The kinds of quantity below carry the bound a person could mean, each with
 # its reason; a field with a tighter meaning declares its own.
 DISTANCE_M = Range(0.0, 20.0)  # a flight room's extent (metres)
+POSITION_M = Range(-20.0, 20.0)  # a point of a flight room: a fence or start beyond 20 m is in no room
 LENGTH_M = Range(0.0, 20.0, low_open=True)
 SPEED_MPS = Range(0.0, 20.0)  # a Crazyflie flies 1-5 m/s; 20 m/s is beyond any indoor flight
 POSITIVE_SPEED_MPS = Range(0.0, 20.0, low_open=True)
@@ -274,6 +275,7 @@ POSITIVE_TIME_S = Range(0.0, 3600.0, low_open=True)
 WEIGHT = Range(0.0, 1000.0)  # a cost weight, gain or scale: above 1e3 it swamps every other term
 POSITIVE_WEIGHT = Range(0.0, 1000.0, low_open=True)
 MASS_KG = Range(0.005, 5.0, low_open=True)  # a micro quadrotor's to a large one's
+MOTOR_THRUST_N = Range(0.0, 10.0, low_open=True)  # one motor's force: 10 N lifts a kilogram-class vehicle
 # an Adam step size above 10 leaves every scale of the data (1e-5..1e-2 is what trains)
 LEARNING_RATE = Range(0.0, 10.0, low_open=True)
 NOISE = Range(0.0, 10.0)  # a noise std (m, m/s, rad): beyond 10 there is no measurement left

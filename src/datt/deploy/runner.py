@@ -32,13 +32,13 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from datt.configuration import Range, check_ranges, ranged
+from datt.configuration import POSITION_M, Range, check_ranges, ranged
 from datt.deploy import firmware
 from datt.deploy.ceiling_guard import keep_altitude_at_ceiling
 from datt.deploy.feasibility import peak_ask, slow_factor, slowed
 from datt.deploy.flight_log import FlightLog, errors_when_measured, measured_at
 from datt.deploy.outcome import Kind, Outcome
-from datt.deploy.safety import CELL, KILL, LAND, OK, ROOM, BatteryFilter, SafetyParams, check, tilt_deg
+from datt.deploy.safety import CELL, KILL, LAND, OK, BatteryFilter, SafetyParams, check, tilt_deg
 from datt.deploy.thrust import ThrustMap, commands_acting, hover_command_from_hover
 from datt.errors import LinkError
 from datt.refs.base import RefFamily
@@ -183,7 +183,7 @@ class FlightParams:
     min_battery_v: float = ranged(3.7, CELL)  # preflight: a Crazyflie 2.x cell (datt.deploy.safety.CELL)
     late_tick_ms: float = ranged(5.0, Range(0.0, 1000.0, low_open=True))
     estop_watchdog: bool = True  # send the firmware's e-stop watchdog every tick (motors off 1 s after the last)
-    origin_m: list = ranged([0.0, 0.0], ROOM)  # hover point x, y (z = takeoff_height_m)
+    origin_m: list = ranged([0.0, 0.0], POSITION_M)  # hover point x, y (z = takeoff_height_m)
     onboard_max_pos_std_m: float = ranged(0.1, Range(0.0, 1.0))  # deploy.onboard: the app lands above this (0: never)
     # rescale the thrust map to the command the takeoff's hover needed, before TRACK (FlightRunner._climb)
     hover_trim: bool = True

@@ -27,7 +27,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from datt.configuration import Range, check_ranges, ranged
+from datt.configuration import POSITION_M, Range, check_ranges, ranged
 from datt.deploy.firmware import fact
 
 OK, LAND, KILL = "OK", "LAND", "KILL"
@@ -35,8 +35,6 @@ OK, LAND, KILL = "OK", "LAND", "KILL"
 
 # The ranges say what a limit can mean, so that no finite value switches its check off: a value
 # outside them is refused in one line (datt.configuration.check_ranges). Each with its reason.
-# A flight space is a room: a fence beyond 20 m of the origin is no fence for a Crazyflie.
-ROOM = Range(-20.0, 20.0)
 # The LAND band beyond the fence before a breach KILLs: at most 2 m (and less than the fence's
 # smallest side, validate()), or a far breach would only LAND.
 MARGIN = Range(0.0, 2.0)
@@ -51,8 +49,8 @@ GYRO = Range(0.0, math.radians(float(fact("gyro_full_scale_dps"))), low_open=Tru
 
 @dataclass
 class SafetyParams:
-    geofence_min_m: list = ranged([-2.0, -2.0, -0.1], ROOM)
-    geofence_max_m: list = ranged([2.0, 2.0, 2.5], ROOM)
+    geofence_min_m: list = ranged([-2.0, -2.0, -0.1], POSITION_M)  # a fence beyond 20 m is no fence for a room
+    geofence_max_m: list = ranged([2.0, 2.0, 2.5], POSITION_M)
     geofence_margin_m: float = ranged(0.5, MARGIN)
     # beyond 90 deg the vehicle is upside down: a tilt limit there never fires before the floor
     max_tilt_deg: float = ranged(75.0, Range(0.0, 90.0, low_open=True))

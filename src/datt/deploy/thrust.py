@@ -33,7 +33,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from datt.configuration import GRAVITY_MPS2, MASS_KG, Range, check_ranges, ranged
+from datt.configuration import GRAVITY_MPS2, MASS_KG, MOTOR_THRUST_N, Range, check_ranges, ranged
 from datt.deploy.firmware import FIRMWARE_VERSION, fact
 from datt.sim.vehicles import CF21
 
@@ -47,7 +47,7 @@ class ThrustParams:
     mass_kg: float = ranged(CF21.mass_kg, MASS_KG)  # null in the YAML = the preset's (deploy.vehicle)
     gravity_mps2: float = ranged(9.81, GRAVITY_MPS2)
     # the firmware's THRUST_MAX per motor (datt.sim.vehicles; null in the YAML = the preset's)
-    thrust_max_n: float = ranged(CF21.thrust_max_n, Range(0.0, 10.0, low_open=True))
+    thrust_max_n: float = ranged(CF21.thrust_max_n, MOTOR_THRUST_N)
     hover_command: float | None = ranged(
         None, Range(0.0, 65535.0, low_open=True, optional=True)
     )  # calibrated; None = the firmware map's own (g / k)

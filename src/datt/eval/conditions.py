@@ -7,11 +7,11 @@ import csv
 from collections.abc import Sequence
 from pathlib import Path
 
-import torch
 from omegaconf import DictConfig, OmegaConf
 from rich.console import Console
 from rich.table import Table
 
+from datt.checkpoint import write_torch
 from datt.control import Controller, DattController, HoverController
 from datt.envs.factory import make_env
 from datt.eval.metrics import format_error
@@ -62,7 +62,7 @@ def evaluate_conditions(
         if trace_path is not None:  # for side-by-side plots across controllers (tables.py main)
             tr = res["trace"]
             trace = {"pos_m": tr.pos_m, "ref_m": tr.ref_m, "err_m": tr.err_m, "crashed_at": tr.crashed_at}
-            _save_atomic({**trace, "names": res["names"], "counts": res["counts"]}, trace_path)
+            write_torch(trace_path, {**trace, "names": res["names"], "counts": res["counts"]})
         results[name] = {**labels, "groups": res["groups"]}
         if plots:
             slug = "".join(c if c.isalnum() else "_" for c in name)
@@ -110,16 +110,3 @@ def write_metrics_csv(path: Path, conditions: dict) -> None:
         for cond, res in conditions.items():
             for group, row in res["groups"].items():
                 w.writerow([cond, group, row["mean_m"], row["std_m"], row["crashes"], row["episodes"]])
-
-
-def _save_atomic(value: dict, path: Path) -> None:
-    """``torch.save`` through a buffer and :func:`datt.runs.atomic_write`: a full disk is one
-    OSError naming ``path`` and leaves no partial file."""
-    import io
-
-    from datt.runs import atomic_write
-
-    buffer = io.BytesIO()
-    torch.save(value, buffer)
-    with atomic_write(path, "wb") as f:
-        f.write(buffer.getbuffer())

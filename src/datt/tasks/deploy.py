@@ -28,8 +28,8 @@ from datt.runs import StopRequest, stop_signals
 from datt.tasks.common import console, hydra_run_dir, set_threads
 
 # the policy ``checkpoint: null`` flies, per vehicle preset (deploy.vehicle) and mode
-# (src/datt/checkpoints/MANIFEST.md): on the stock cf21, off-board the predictor policy fine-tuned with
-# a cost on the rate command's change (experiment=deploy_smooth), behind the state predictor, onboard
+# (src/datt/checkpoints/MANIFEST.md): on the stock cf21, off-board the policy trained on a radio that
+# loses setpoints (experiment=deploy_radio, from the smooth policy), behind the state predictor, onboard
 # the predictor policy itself (experiment=deploy_predictor; the cost made its onboard flights worse);
 # on the paper's cf21_upgrade one policy for both (experiment=deploy_upgrade: its ceiling and rate loop)
 DEFAULT_CHECKPOINTS = {

@@ -13,9 +13,9 @@ exact), and the vehicle has its own mass.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
-from datt.configuration import Range, check_ranges, ranged
+from datt.configuration import MASS_KG, MOTOR_THRUST_N, Range, check_ranges, ranged
 from datt.errors import ConfigError
 from datt.sim.vehicles import DEFAULT_VEHICLE, VEHICLES, Vehicle, vehicle
 
@@ -27,12 +27,9 @@ class MotorParams:
     """``deploy.server`` motor keys: the simulated vehicle and the firmware it runs."""
 
     vehicle: str = ranged(DEFAULT_VEHICLE, Range(choices=tuple(VEHICLES)))  # the preset (deploy.vehicle)
-    mass_kg: float | None = ranged(
-        None, Range(0.005, 5.0, low_open=True, optional=True)
-    )  # None: the preset's flying mass
-    thrust_max_n: float | None = ranged(
-        None, Range(0.0, 10.0, low_open=True, optional=True)
-    )  # the firmware's THRUST_MAX; None: the preset's
+    mass_kg: float | None = ranged(None, replace(MASS_KG, optional=True))  # None: the preset's flying mass
+    # the firmware's THRUST_MAX; None: the preset's
+    thrust_max_n: float | None = ranged(None, replace(MOTOR_THRUST_N, optional=True))
     thrust_min_n: float | None = ranged(None, Range(0.0, 10.0, optional=True))  # THRUST_MIN; None: the preset's
     thrust_gain: float = ranged(1.0, Range(0.0, 10.0, low_open=True))  # real motor force / the firmware's fit
 

@@ -68,11 +68,11 @@ import struct
 import threading
 import time
 import zlib
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, replace
 
 import torch
 
-from datt.configuration import NOISE, SEED, SPEED_MPS, Range, ranged
+from datt.configuration import NOISE, POSITION_M, SEED, SPEED_MPS, Range, ranged
 from datt.deploy import crtp
 from datt.deploy.onboard import READ_ONLY as APP_READ_ONLY
 from datt.deploy.sim.motors import FirmwareMotors, MotorParams
@@ -175,7 +175,7 @@ class SimCrazyflieParams:
     log_before_step: bool = True
     battery_v: float = ranged(4.1, Range(2.5, 4.5))  # a 1S LiPo
     battery_drain_vps: float = ranged(0.002, Range(0.0, 1.0))
-    start_pos_m: tuple = ranged((0.0, 0.0, 0.0), Range(-20.0, 20.0, length=3))
+    start_pos_m: tuple = ranged((0.0, 0.0, 0.0), replace(POSITION_M, length=3))
     motors: MotorParams = field(default_factory=MotorParams)  # the vehicle's own (datt.deploy.sim.motors)
     decks: tuple = ()  # deck param names present, e.g. ("bcLighthouse4",): 0 = any then picks Kalman
     boot_yaw_deg: float = ranged(
