@@ -1,4 +1,5 @@
 import csv
+import logging
 import time
 
 import pytest
@@ -218,23 +219,33 @@ def test_the_fit_s_loss_is_the_squared_error_summed_over_axes_and_averaged_over_
     assert adapter_loss(pred, true).item() == pytest.approx(((1 + 4) + (4 + 1)) / 2)
 
 
-def test_the_fit_runs_its_iterations_once_each_with_the_lr_decayed_linearly(tmp_path, tiny_policy_checkpoint):
+def test_the_fit_runs_its_iterations_once_each_with_the_lr_decayed_linearly(
+    tmp_path, tiny_policy_checkpoint, caplog, monkeypatch
+):
     """``rma.iterations`` steps, numbered from 1, each logged at ``log_every=1``; after step k the
-    lr is ``lr * (1 - (1 - lr_final_frac) * k / iterations)``, ending at ``lr * lr_final_frac``."""
+    lr is ``lr * (1 - (1 - lr_final_frac) * k / iterations)``, ending at ``lr * lr_final_frac``.
+    Its progress lines (on a clock that stands still): the first iteration and the last."""
+    from types import SimpleNamespace
+
+    import datt.progress
+
+    monkeypatch.setattr(datt.progress, "time", SimpleNamespace(monotonic=lambda: 0.0))
+    caplog.set_level(logging.INFO)
     cfg = tiny_rma_cfg(tiny_policy_checkpoint, "rma.iterations=4", "rma.log_every=1", "rma.lr=1e-3")
     OmegaConf.update(cfg, "rma.lr_final_frac", 0.1)
-    printed = []
-    console = type("Console", (), {"print": lambda self, text: printed.append(text)})()
     start = time.perf_counter()
-    result = train_rma(cfg, tmp_path, console)
+    result = train_rma(cfg, tmp_path, progress=True)
     rows = result["history"]
     assert 0 < result["wall_s"] <= time.perf_counter() - start
     assert [r["iteration"] for r in rows] == [1, 2, 3, 4]
     assert [r["lr"] for r in rows] == pytest.approx([1e-3 * (1 - 0.9 * k / 4) for k in (1, 2, 3, 4)])
     with open(tmp_path / "rma_metrics.csv", newline="") as f:
         assert [int(r["step"]) for r in csv.DictReader(f)] == [1, 2, 3, 4]  # the iteration
+    printed = [r.getMessage() for r in caplog.records if r.name == "datt.progress"]
     assert printed == [
-        f"rma {r['iteration']}/4: loss {r['loss']:.4f} (m/s²)², error {r['tracking_error_m']:.3f} m" for r in rows
+        f"fit_rma: {r['iteration']} / 4 iterations ({25 * r['iteration']:.1f} %), "
+        f"loss {r['loss']:.4f} (m/s²)², err {r['tracking_error_m']:.3f} m"
+        for r in (rows[0], rows[-1])
     ]
     saved = torch.load(tmp_path / "rma.pt", weights_only=True)
     policy = torch.load(tiny_policy_checkpoint, weights_only=True)

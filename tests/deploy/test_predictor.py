@@ -272,7 +272,7 @@ def test_the_default_policy_is_the_modes_own_and_off_board_it_flies_behind_the_p
 
     onboard = compose("deploy", ["deploy.onboard=true"])
     resolve_checkpoint(onboard)
-    assert onboard.checkpoint == compose("export", []).checkpoint == "checkpoints/datt_h10_predictor.pt"
+    assert onboard.checkpoint == compose("export", []).checkpoint == "checkpoints/datt_h10_radio.pt"
     onboard_params = deploy_params(onboard.deploy)[0]
     resolve_predictor(onboard_params, build_controller(onboard)[2]["predict_latency"])
     assert onboard_params.predictor.enabled is False

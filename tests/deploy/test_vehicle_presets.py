@@ -113,13 +113,33 @@ def test_a_grid_cell_is_the_presets_vehicle_made_worse():
     }
 
 
+# the rate model a training run uses for a preset's rate loop: the firmware's own, or for the
+# authors' PI loop (which no simulator has) the first-order model with half the drones second-order
+TRAINING_RATE_MODEL = {"firmware": "firmware", "pi_first_order": "mixed"}
+
+
 @pytest.mark.parametrize(
-    "experiment, name", [("deploy_smooth", "cf21"), ("deploy_radio", "cf21"), ("deploy_upgrade", "cf21_upgrade")]
+    "command, name",
+    [
+        ("experiment=deploy_smooth", "cf21"),
+        ("experiment=deploy_radio", "cf21"),
+        ("experiment=deploy_radio vehicle=cf21_upgrade", "cf21_upgrade"),
+        *((f"vehicle={n}", n) for n in VEHICLES),
+    ],
 )
-def test_a_deploy_policys_training_vehicle_is_its_presets(experiment, name):
+def test_a_deploy_policys_training_vehicle_is_its_presets(command, name):
     """The training side of a preset's policy: the preset's firmware-loop constants
-    (env.quad.vehicle) and its off-board ceiling (MAX_THRUST on the flying mass, to the YAML's
-    two decimals)."""
-    cfg = compose("train", [f"experiment={experiment}"])
+    (env.quad.vehicle), its off-board ceiling (MAX_THRUST on the flying mass, to the YAML's
+    two decimals) and a rate model for its rate loop."""
+    cfg = compose("train", command.split())
     assert cfg.env.quad.vehicle == name
     assert cfg.env.quad.max_thrust_mps2 == pytest.approx(VEHICLES[name].ceiling_mps2(), abs=0.006)
+    assert cfg.env.quad.rate_model == TRAINING_RATE_MODEL[VEHICLES[name].rate_loop]
+
+
+def test_every_preset_has_a_training_vehicle_and_only_those():
+    """``vehicle=<preset>`` of train.py exists for every preset and for nothing else."""
+    from datt.paths import PACKAGE_DIR
+
+    names = {p.stem for p in (PACKAGE_DIR / "conf" / "vehicle").glob("*.yaml")}
+    assert names == set(VEHICLES)

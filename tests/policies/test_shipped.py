@@ -71,26 +71,31 @@ def drop_added_keys(trained: dict, expected: dict) -> None:
 
 
 @pytest.mark.parametrize(
-    "experiment, checkpoint, parent",
+    "command, checkpoint, parent",
     [
-        ("deploy", "checkpoints/datt_h10_deploy.pt", "checkpoints/datt_h10_train_mix.pt"),
-        ("deploy_firmware", "checkpoints/datt_h10_firmware.pt", "checkpoints/datt_h10_deploy.pt"),
-        ("deploy_predictor", "checkpoints/datt_h10_predictor.pt", "checkpoints/datt_h10_firmware.pt"),
-        ("deploy_smooth", "checkpoints/datt_h10_smooth.pt", "checkpoints/datt_h10_predictor.pt"),
-        ("deploy_upgrade", "checkpoints/datt_h10_upgrade.pt", "checkpoints/datt_h10_smooth.pt"),
-        ("deploy_radio", "checkpoints/datt_h10_radio.pt", "checkpoints/datt_h10_smooth.pt"),
+        ("experiment=deploy", "checkpoints/datt_h10_deploy.pt", "checkpoints/datt_h10_train_mix.pt"),
+        ("experiment=deploy_firmware", "checkpoints/datt_h10_firmware.pt", "checkpoints/datt_h10_deploy.pt"),
+        ("experiment=deploy_predictor", "checkpoints/datt_h10_predictor.pt", "checkpoints/datt_h10_firmware.pt"),
+        ("experiment=deploy_smooth", "checkpoints/datt_h10_smooth.pt", "checkpoints/datt_h10_predictor.pt"),
+        ("experiment=deploy_radio", "checkpoints/datt_h10_radio.pt", "checkpoints/datt_h10_smooth.pt"),
+        ("experiment=deploy_radio vehicle=cf21", "checkpoints/datt_h10_radio.pt", "checkpoints/datt_h10_smooth.pt"),
+        (
+            "experiment=deploy_radio vehicle=cf21_upgrade",
+            "checkpoints/datt_h10_upgrade.pt",
+            "checkpoints/datt_h10_smooth.pt",
+        ),
     ],
 )
-def test_deploy_grade_checkpoint_is_the_output_of_its_experiment(experiment, checkpoint, parent):
-    """Each deploy-grade checkpoint came from ``python train.py experiment=<experiment>`` as it is
-    configured now: its last stage's whole config (env, policy, algo, references, disturbance,
-    adaptation) is the one the experiment composes, and it starts from ``parent``."""
+def test_deploy_grade_checkpoint_is_the_output_of_its_experiment(command, checkpoint, parent):
+    """Each deploy-grade checkpoint came from ``python train.py <command>`` as it is configured
+    now: its last stage's whole config (env, policy, algo, references, disturbance, adaptation) is
+    the one the command composes, and it starts from ``parent``."""
     from omegaconf import OmegaConf
 
     from datt.checkpoint import load_checkpoint
     from datt.tasks.stages import stage_config, stage_plan
 
-    cfg = compose("train", [f"experiment={experiment}"])
+    cfg = compose("train", command.split())
     assert cfg.train.init_from == parent
     if cfg.train.stages is None:  # one run: its own config, its whole budget
         plan, expected = [("", cfg.train.total_frames, {})], OmegaConf.to_container(cfg, resolve=True)
@@ -134,7 +139,7 @@ def test_shipped_checkpoint_is_the_output_of_python_train_py(checkpoint, overrid
     for key in keys:
         assert trained[key] == cfg[key], key
     # the train node but the keys that change how a run is carried out, not what it trains
-    bookkeeping = ("progress", "checkpoint_every")
+    bookkeeping = ("progress", "progress_every_s", "checkpoint_every")
     assert {k: v for k, v in trained["train"].items() if k not in bookkeeping} == {
         k: v for k, v in cfg["train"].items() if k not in bookkeeping
     }

@@ -1,5 +1,7 @@
 """The PPO wiring against hand computation: GAE's γ and λ, and the configured advantage normalisation."""
 
+import logging
+
 import pytest
 import torch
 from tensordict import TensorDict
@@ -133,11 +135,12 @@ def test_init_from_copies_weights_and_checks_the_shape(tmp_path):
         Trainer(tiny_cfg(f"train.init_from={tmp_path / 'nope.pt'}"), tmp_path / "e", CsvLogger(tmp_path))
 
 
-def test_init_from_widens_the_command_history_and_keeps_the_function(tmp_path, capsys):
+def test_init_from_widens_the_command_history_and_keeps_the_function(tmp_path, caplog):
     """A checkpoint with 2 commands of history fine-tuned with 4: the widened actor and critic give
     the old outputs whatever the two older commands are; narrowing is refused in one line."""
     from datt.errors import ConfigError
 
+    caplog.set_level(logging.INFO)
     source = Trainer(tiny_cfg("env.obs.action_history=2"), tmp_path / "a", CsvLogger(tmp_path))
     with torch.no_grad():  # non-zero weights on every input, so a misplaced column shows
         for p in source.actor.parameters():
@@ -153,9 +156,10 @@ def test_init_from_widens_the_command_history_and_keeps_the_function(tmp_path, c
     old_net, new_net = source.actor.module[0].module.net, wide.actor.module[0].module.net
     torch.testing.assert_close(new_net(state4, ref, d_hat), old_net(state2, ref, d_hat))
     torch.testing.assert_close(wide.critic.module(state4, ref, d_hat), source.critic.module(state2, ref, d_hat))
-    assert "train.init_from: command history widened from 2 to 4 (zero weights)" in capsys.readouterr().out
+    assert "train.init_from: command history widened from 2 to 4 (zero weights)" in caplog.text
+    caplog.clear()
     Trainer(tiny_cfg("env.obs.action_history=2", f"train.init_from={ckpt}"), tmp_path / "same", CsvLogger(tmp_path))
-    assert "widened" not in capsys.readouterr().out
+    assert "widened" not in caplog.text
     # a checkpoint from before the history input (no env.obs.action_history key): widened from 0
     data = torch.load(ckpt, weights_only=True)
     lines = data["config_yaml"].splitlines()
@@ -167,7 +171,7 @@ def test_init_from_widens_the_command_history_and_keeps_the_function(tmp_path, c
         Trainer(
             tiny_cfg("env.obs.action_history=4", f"train.init_from={old_ckpt}"), tmp_path / "o", CsvLogger(tmp_path)
         )
-    assert "widened from 0 to 4" in capsys.readouterr().out
+    assert "widened from 0 to 4" in caplog.text
     with pytest.raises(ConfigError) as info:
         Trainer(tiny_cfg("env.obs.action_history=1", f"train.init_from={ckpt}"), tmp_path / "c", CsvLogger(tmp_path))
     assert str(info.value) == (

@@ -8,7 +8,6 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from omegaconf import DictConfig, OmegaConf
-from rich.console import Console
 from rich.table import Table
 
 from datt.checkpoint import write_torch
@@ -21,8 +20,9 @@ from datt.eval.schema import per_seed_name
 from datt.eval.timing import step_times_ms, summarize_ms
 
 
-def print_metrics(console: Console, title: str, conditions: dict) -> None:
-    """One row per condition, one column per bank group (mean ± std, crashes)."""
+def print_metrics(console, title: str, conditions: dict) -> None:
+    """One row per condition, one column per bank group (mean ± std, crashes), to ``console``
+    (anything with ``print``: :class:`datt.tasks.common.RunOutput`)."""
     table = Table(title=f"{title}: tracking error (m)")
     table.add_column("condition")
     groups = list(next(iter(conditions.values()))["groups"])

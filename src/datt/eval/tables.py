@@ -200,7 +200,15 @@ def sweep_jobs(sweep_dir: Path) -> list[list[str]]:
 
 
 # overrides that change how a run is carried out, not what it trains or measures: never a row
-BOOKKEEPING_KEYS = ("sweep", "budget", "threads", "train.progress", "train.threads", "train.checkpoint_every")
+BOOKKEEPING_KEYS = (
+    "sweep",
+    "budget",
+    "threads",
+    "train.progress",
+    "train.progress_every_s",
+    "train.threads",
+    "train.checkpoint_every",
+)
 
 
 def _override_dict(items) -> dict[str, str]:

@@ -1,13 +1,38 @@
-"""What every task shares: its run directory, torch threads and the console."""
+"""What every task shares: its run directory, torch threads and what it says."""
 
 from __future__ import annotations
 
+import io
+import logging
 import os
 from pathlib import Path
 
 from rich.console import Console
 
-console = Console()
+log = logging.getLogger("datt")
+
+TEXT_WIDTH = 200  # columns of a rendered table: a log line is never wrapped at a terminal's 80
+
+
+def as_text(renderable) -> str:
+    """A rich renderable (a :class:`rich.table.Table`) as plain text, no colour, ``TEXT_WIDTH``
+    columns at most."""
+    out = io.StringIO()
+    Console(file=out, width=TEXT_WIDTH, color_system=None, force_terminal=False, soft_wrap=True).print(renderable)
+    return out.getvalue().rstrip("\n")
+
+
+class RunOutput:
+    """What a run says, through Python's ``logging`` (logger ``datt``): Hydra's job logging
+    (``conf/hydra/default.yaml``) writes each line to the console, unwrapped, and to
+    ``<run dir>/<entry point>.log``. ``print`` takes a line or a rich table, so the tasks and a
+    flight's event log (:class:`datt.deploy.flight_log.FlightLog`) share one interface."""
+
+    def print(self, message) -> None:
+        log.info(message if isinstance(message, str) else as_text(message))
+
+
+console = RunOutput()
 
 
 def hydra_run_dir() -> Path:

@@ -28,12 +28,11 @@ from datt.runs import StopRequest, stop_signals
 from datt.tasks.common import console, hydra_run_dir, set_threads
 
 # the policy ``checkpoint: null`` flies, per vehicle preset (deploy.vehicle) and mode
-# (src/datt/checkpoints/MANIFEST.md): on the stock cf21, off-board the policy trained on a radio that
-# loses setpoints (experiment=deploy_radio, from the smooth policy), behind the state predictor, onboard
-# the predictor policy itself (experiment=deploy_predictor; the cost made its onboard flights worse);
-# on the paper's cf21_upgrade one policy for both (experiment=deploy_upgrade: its ceiling and rate loop)
+# (src/datt/checkpoints/MANIFEST.md): one policy per preset for both modes, trained on the preset's
+# loop and ceiling for a radio that loses setpoints (python train.py experiment=deploy_radio
+# vehicle=<preset>); off-board it flies behind the state predictor, onboard in the vehicle's app
 DEFAULT_CHECKPOINTS = {
-    "cf21": {"off-board": "checkpoints/datt_h10_radio.pt", "onboard": "checkpoints/datt_h10_predictor.pt"},
+    "cf21": {"off-board": "checkpoints/datt_h10_radio.pt", "onboard": "checkpoints/datt_h10_radio.pt"},
     "cf21_upgrade": {"off-board": "checkpoints/datt_h10_upgrade.pt", "onboard": "checkpoints/datt_h10_upgrade.pt"},
 }
 

@@ -26,6 +26,7 @@ RESUMABLE = (
     "train.total_frames",
     "train.checkpoint_every",
     "train.progress",
+    "train.progress_every_s",
     "threads",
     "train.eval_at_end",
     "logger.",

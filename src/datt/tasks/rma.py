@@ -30,7 +30,7 @@ def run_rma(cfg: DictConfig, run_dir: Path) -> dict:
     end_eval = structured(AdapterEvalParams, cfg.eval, "eval")
     run_dir.mkdir(parents=True, exist_ok=True)
     (run_dir / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
-    result = train_rma(cfg, run_dir, console)
+    result = train_rma(cfg, run_dir, progress=True)
     actor, train_cfg, _ = load_actor(cfg.base_checkpoint, key="base_checkpoint")
     eval_cfg = OmegaConf.merge(train_cfg, {"eval": cfg.eval, "env": {"compile": False}})
     conditions = {}

@@ -112,7 +112,7 @@ def _train_locked(cfg: DictConfig, run_dir: Path, resumed: bool) -> dict:
     train = structured(TrainParams, cfg.train, "train")
     end_eval = structured(EndOfRunEvalParams, cfg.eval, "eval")
     loggers = [CsvLogger(run_dir)]
-    trainer = Trainer(cfg, run_dir, MultiLogger(loggers), console)
+    trainer = Trainer(cfg, run_dir, MultiLogger(loggers))
     if resumed:
         trainer.load(run_dir / "last.pt")
         loggers[0].keep_until(trainer.frames)  # rows logged after the checkpoint are trained again

@@ -17,6 +17,7 @@ error) hold everything to resume: ``resume=true`` continues the run dir to the s
 
 from __future__ import annotations
 
+import logging
 import math
 import os
 import time
@@ -25,8 +26,6 @@ from pathlib import Path
 
 import torch
 from omegaconf import DictConfig, OmegaConf
-from rich.console import Console
-from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 from tensordict import TensorDict
 from torchrl.collectors import Collector
 from torchrl.objectives import ClipPPOLoss
@@ -52,9 +51,12 @@ from datt.envs.factory import env_params_from_cfg, make_env
 from datt.errors import ConfigError, TrainingDiverged, TrainingInterrupted
 from datt.paths import resolve_path
 from datt.policies.networks import PolicyParams, make_actor, make_critic, widen_command_history
+from datt.progress import ProgressReport
 from datt.runs import StopRequest
 from datt.train.loggers import Logger
 from datt.train.schema import CurriculumParams, TrainParams, budget_factor
+
+log = logging.getLogger(__name__)
 
 LR_SCHEDULES = ("constant", "linear", "exponential", "adaptive_kl")
 KL_STEP = 1.5  # adaptive_kl: factor of one lr change (rsl_rl's)
@@ -182,11 +184,10 @@ def crash_rate(terminated: torch.Tensor, done: torch.Tensor) -> float:
 class Trainer:
     """Owns env, modules, loss, optimiser and the loop. ``cfg`` is the composed train config."""
 
-    def __init__(self, cfg: DictConfig, run_dir: str | Path, logger: Logger, console: Console | None = None) -> None:
+    def __init__(self, cfg: DictConfig, run_dir: str | Path, logger: Logger) -> None:
         self.cfg = cfg
         self.run_dir = Path(run_dir)
         self.logger = logger
-        self.console = console or Console()
         self.algo: AlgoParams = structured(AlgoParams, cfg.algo, "algo")
         self.policy_params: PolicyParams = structured(PolicyParams, cfg.policy, "policy")
         train_params = self.train_params = structured(TrainParams, cfg.train, "train")
@@ -289,7 +290,7 @@ class Trainer:
             )
         if old < new:
             actor, critic = (widen_command_history(w, old, new) for w in (actor, critic))
-            self.console.print(f"train.init_from: command history widened from {old} to {new} (zero weights)")
+            log.info("train.init_from: command history widened from %d to %d (zero weights)", old, new)
         try:
             self.actor.load_state_dict(actor)
             self.critic.load_state_dict(critic)
@@ -401,19 +402,15 @@ class Trainer:
         out["lr"] = lr  # adaptive_kl: the lr after the iteration's last step
         return out
 
-    def _progress(self) -> Progress:
-        """The console's progress bar (frames, rate, the batch's error and return estimate)."""
-        return Progress(
-            TextColumn("[bold]{task.description}"),
-            BarColumn(),
-            TextColumn("{task.completed:,.0f}/{task.total:,.0f} frames"),
-            TextColumn("{task.fields[rate]:,.0f} steps/s"),
-            TextColumn("err {task.fields[err]:.3f} m"),
-            TextColumn("ret {task.fields[ret]:.2f}"),
-            TimeElapsedColumn(),
-            TimeRemainingColumn(),
-            console=self.console,
-            disable=not self.train_params.progress,
+    def _progress(self) -> ProgressReport:
+        """Lines of the run's progress (frames, rate, ETA, the batch's error and return
+        estimate): one per ``train.progress_every_s`` seconds; none with ``train.progress=false``."""
+        return ProgressReport(
+            "train",
+            self.total_frames,
+            "frames",
+            every_s=self.train_params.progress_every_s,
+            enabled=self.train_params.progress,
         )
 
     def _row(self, batch: TensorDict, ret_per_step: float, stats: dict, iter_s: float) -> dict:
@@ -435,7 +432,7 @@ class Trainer:
     def train(self) -> list[dict]:
         remaining = self.total_frames - self.frames
         if remaining <= 0:
-            self.console.print(f"[green]run already complete ({self.frames} frames)")
+            log.info("run already complete (%d frames)", self.frames)
             return self.history
         collector = Collector(
             self.env,
@@ -446,14 +443,8 @@ class Trainer:
         )
         every = max(1, self.train_params.checkpoint_every)
         progress = self._progress()
-        start = time.perf_counter()
-        frames_at_start = self.frames
         stop = StopRequest()
-        with stop, progress:
-            task = progress.add_task(
-                "train", total=self.total_frames, completed=self.frames, rate=0.0, err=0.0, ret=0.0
-            )
-            progress.refresh()  # the bar at once (the first batch takes seconds on a CPU)
+        with stop:
             t_iter = t_last = time.perf_counter()
             for batch in collector:
                 ret_per_step = batch["next", "reward"].mean().item()  # before update() scales it
@@ -466,13 +457,7 @@ class Trainer:
                 t_iter = now
                 self.history.append(row)
                 self.logger.log({k: v for k, v in row.items() if k != "curriculum_ref"}, step=self.frames)
-                progress.update(
-                    task,
-                    completed=self.frames,
-                    rate=(self.frames - frames_at_start) / (now - start),
-                    err=err,
-                    ret=row["episode_return_est"],
-                )
+                progress.update(self.frames, err=f"{err:.3f} m", ret=f"{row['episode_return_est']:.2f}")
                 if self.curriculum_ref == "main" and err < self.best_error:
                     self.best_error = err
                     self.save("best.pt")

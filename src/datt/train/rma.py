@@ -22,6 +22,7 @@ from datt.control.datt import DattController
 from datt.envs.factory import make_env
 from datt.errors import ConfigError
 from datt.policies.loading import load_actor
+from datt.progress import ProgressReport
 from datt.train.loggers import CsvLogger
 from datt.train.schema import RmaParams, budget_factor
 
@@ -53,8 +54,9 @@ def adapter_loss(pred_mps2: torch.Tensor, true_mps2: torch.Tensor) -> torch.Tens
     return (pred_mps2 - true_mps2).pow(2).sum(-1).mean()
 
 
-def train_rma(cfg: DictConfig, run_dir: Path, console=None) -> dict:
-    """``fit_rma.py base_checkpoint=<policy>``: fit an adapter for a frozen policy."""
+def train_rma(cfg: DictConfig, run_dir: Path, progress: bool = False) -> dict:
+    """``fit_rma.py base_checkpoint=<policy>``: fit an adapter for a frozen policy; ``progress``:
+    lines of its progress (:class:`datt.progress.ProgressReport`)."""
     rma = structured(RmaParams, cfg.rma, "rma")
     env, adapter, controller, base = _setup(cfg, rma)
     net = adapter.net
@@ -65,6 +67,7 @@ def train_rma(cfg: DictConfig, run_dir: Path, console=None) -> dict:
     t0 = time.perf_counter()
     iterations = max(1, int(int(rma.iterations) * budget_factor(cfg)))
     final_frac = float(rma.lr_final_frac)
+    report = ProgressReport("fit_rma", iterations, "iterations", enabled=progress)
     # linear decay to lr * final_frac: at a constant lr the per-step loss over 1024 drones stays noisy
     sched = torch.optim.lr_scheduler.LambdaLR(optim, lambda i: 1.0 - (1.0 - final_frac) * min(i / iterations, 1.0))
     for it in range(1, iterations + 1):
@@ -87,10 +90,7 @@ def train_rma(cfg: DictConfig, run_dir: Path, console=None) -> dict:
             }
             history.append(row)
             logger.log(row, step=it)
-            if console is not None:
-                console.print(
-                    f"rma {it}/{iterations}: loss {row['loss']:.4f} (m/s²)², error {row['tracking_error_m']:.3f} m"
-                )
+            report.update(it, loss=f"{row['loss']:.4f} (m/s²)²", err=f"{row['tracking_error_m']:.3f} m")
     payload = {
         "rma": net.state_dict(),
         "history_len": int(rma.history_len),

@@ -17,6 +17,7 @@ from datt.configuration import (
     LEARNING_RATE,
     NON_NEGATIVE_COUNT,
     SEED,
+    TIME_S,
     Range,
     hydra_choice,
     load_option,
@@ -67,7 +68,8 @@ class TrainParams:
     init_from: str | None = MISSING  # start from this checkpoint's weights (fine-tuning)
     eval_at_end: bool = MISSING
     stagger_episodes: bool = MISSING
-    progress: bool = MISSING
+    progress: bool = MISSING  # lines of progress (datt.progress); false: none
+    progress_every_s: float = ranged(MISSING, TIME_S)  # seconds between two progress lines
     stages: Any = MISSING  # null | [{name, frames, set: {dotted key: value}}] (datt.tasks.stages)
 
     def validate(self) -> None:
