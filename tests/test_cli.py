@@ -74,6 +74,38 @@ def test_datt_console_script_usage(tmp_path):
     assert proc.returncode == 2 and "usage: datt {train,fit_rma,eval,tables,deploy,export}" in proc.stderr
 
 
+# each entry point: a group it selects, and a group only another entry point selects
+OWN_AND_FOREIGN_GROUPS = {
+    "train": ("algo", "deploy"),
+    "eval": ("controller", "algo"),
+    "fit_rma": ("adaptation", "deploy"),
+    "tables": (None, "algo"),
+    "deploy": ("deploy", "algo"),
+    "export": ("controller", "deploy"),
+}
+
+
+@pytest.mark.parametrize("entry", sorted(OWN_AND_FOREIGN_GROUPS))
+def test_each_entry_points_help_says_what_it_does_and_lists_its_own_groups(entry, capsys, monkeypatch):
+    """``<entry> --help``: exit 0, the sentence of what it does, the most used overrides with what
+    they do, examples, and its own config groups only (Hydra's page listed the whole tree)."""
+    from datt import cli
+    from datt.usage import USAGE
+
+    monkeypatch.setattr(sys, "argv", [f"{entry}.py", "--help"])
+    with pytest.raises(SystemExit) as exit_info:
+        cli.COMMANDS[entry]()
+    assert exit_info.value.code == 0
+    text = capsys.readouterr().out
+    usage = USAGE[entry]
+    assert text.startswith(f"usage: {entry}.py [override ...]") and usage.about in text
+    assert len(usage.overrides) >= 4 and all(f"  {o}" in text for o, _ in usage.overrides)
+    assert "examples:" in text and all(e in text for e in usage.examples)
+    groups = [line.split(":")[0].strip().lstrip("+") for line in text.split("config groups")[1].splitlines()[1:]]
+    own, foreign = OWN_AND_FOREIGN_GROUPS[entry]
+    assert (own is None or own in groups) and foreign not in groups
+
+
 EXAMPLES = ROOT / "tests" / "examples" / "conf"
 
 

@@ -661,16 +661,24 @@ def _group_members(pgid: int) -> list[str]:
     return [line for line in out.splitlines() if line.split()[0] == str(pgid) and not line.split()[1].startswith("Z")]
 
 
-@pytest.mark.slow  # four training processes and their signals: ~1-2 min
+# each launcher's way to start two training jobs side by side
+LAUNCHERS = {
+    "joblib": ["seed=0,1,2,3", "hydra/launcher=joblib", "hydra.launcher.n_jobs=2"],
+    "submitit_local": ["seed=0,1", "hydra/launcher=submitit_local"],  # every job at once, each its own process
+}
+
+
+@pytest.mark.slow  # two or four training processes and their signals: ~1-2 min each
+@pytest.mark.parametrize("launcher", sorted(LAUNCHERS))
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
-def test_10_a_signal_stops_every_worker_of_a_joblib_multirun(tmp_path, sig):
-    """SIGTERM / SIGINT to ``train.py -m hydra/launcher=joblib``: one line naming the sweep and what
-    finished, exit 130, and no process of the command's group left (before: exit 143, no line, the
-    loky workers trained on to the end)."""
+def test_10_a_signal_stops_every_worker_of_a_parallel_multirun(tmp_path, sig, launcher):
+    """SIGTERM / SIGINT to ``train.py -m`` under a parallel launcher (joblib, submitit_local): one
+    line naming the sweep and what finished, exit 130, and no process of the command's group left
+    (before: joblib exited 143 with no line while its loky workers trained on to the end)."""
     sweep = tmp_path / "sweep"
-    args = [*TINY, "train.total_frames=100000000", "seed=0,1,2,3", "hydra/launcher=joblib"]
+    args = [*TINY, "train.total_frames=100000000", *LAUNCHERS[launcher]]
     proc = subprocess.Popen(
-        [sys.executable, str(ROOT / "train.py"), "-m", *args, "hydra.launcher.n_jobs=2", f"hydra.sweep.dir={sweep}"],
+        [sys.executable, str(ROOT / "train.py"), "-m", *args, f"hydra.sweep.dir={sweep}"],
         cwd=tmp_path,
         stdout=subprocess.DEVNULL,
         stderr=subprocess.PIPE,

@@ -91,3 +91,27 @@ def test_switched_off_it_writes_nothing(caplog):
 )
 def test_durations_read_as_a_person_writes_them(seconds, text):
     assert duration(seconds) == text
+
+
+def test_a_runs_lines_reach_its_log_file_and_the_console_unwrapped(tmp_path, monkeypatch, capsys):
+    """train.py: every line it prints (the run dir, progress, the evaluation table) is also in
+    ``<run dir>/train.log`` with its time; on the console a line is never cut at 80 columns."""
+    from .test_faults import run_cli
+    from .train.test_training import TINY
+
+    run = tmp_path / "r"
+    args = [*TINY, "train.progress=true", "train.progress_every_s=0", "train.total_frames=2048", f"hydra.run.dir={run}"]
+    args = [a for a in args if a != "train.progress=false"]
+    code, lines, out = run_cli("train", args, tmp_path, monkeypatch, capsys)
+    assert code == 0, lines
+    log = (run / "train.log").read_text()
+    progress = [line for line in out.splitlines() if line.startswith("train: ")]
+    assert [p.split(", ")[0] for p in progress] == [
+        "train: 1,024 / 2,048 frames (50.0 %)",
+        "train: 2,048 / 2,048 frames (100.0 %)",
+    ]
+    printed = [line for line in out.splitlines() if line.strip()]
+    assert f"run dir: {run}" in printed
+    assert any(len(line) > 80 for line in printed)  # the evaluation table, whole
+    for line in printed:
+        assert line in log, line

@@ -137,3 +137,37 @@ def test_no_entry_point_uses_a_checkpoint_with_non_finite_weights(tmp_path, monk
     result = run_cli(entry, [f"checkpoint={path}", *args, "hydra.run.dir=r"], tmp_path, monkeypatch, capsys)
     one_line(result, f"error: checkpoint: {str(path)!r} holds non-finite values (actor.")
     assert not (tmp_path / "r" / "flight.csv").exists()
+
+
+# what a policy checkpoint fixes, each set on the command line to another value than it was trained with
+CONTRADICTIONS = [
+    ("horizon=5", "horizon", "10"),
+    ("env.obs.action_history=4", "env.obs.action_history", "2"),
+    ("env.obs.body_frame=false", "env.obs.body_frame", "True"),
+    ("+policy.hidden=[8,8]", "policy.hidden", None),  # eval, deploy and export have no policy node: added
+]
+
+
+@pytest.mark.parametrize("entry, args", [("deploy", []), ("eval", ["eval.timing.steps=0"]), ("export", [])])
+@pytest.mark.parametrize("override, key, trained", CONTRADICTIONS)
+def test_an_override_that_contradicts_the_checkpoint_is_refused(
+    tmp_path, monkeypatch, capsys, tiny_policy_checkpoint, entry, args, override, key, trained
+):
+    """Before: the policy flew its own layout and the run recorded the override it did not fly."""
+    from .test_faults import one_line, run_cli
+
+    ckpt = f"checkpoint={tiny_policy_checkpoint}"
+    result = run_cli(entry, [ckpt, override, *args, "hydra.run.dir=r"], tmp_path, monkeypatch, capsys)
+    start = f"error: {key}: the checkpoint was trained with {key}=" + (trained or "")
+    one_line(result, start)
+    assert f"drop {override!r}" in result[1][0]
+    assert not (tmp_path / "r" / "flight.csv").exists()
+
+
+def test_an_override_equal_to_the_checkpoints_value_is_accepted(tmp_path, monkeypatch, capsys, tiny_policy_checkpoint):
+    from .test_faults import run_cli
+
+    args = [f"checkpoint={tiny_policy_checkpoint}", "horizon=10", "env.obs.action_history=2", "eval.timing.steps=0"]
+    args += ["eval.plots=false", "eval.bank={zigzag:[{traj:zigzag,seed:1000,count:2}]}", "hydra.run.dir=r"]
+    code, lines, _ = run_cli("eval", args, tmp_path, monkeypatch, capsys)
+    assert code == 0, lines

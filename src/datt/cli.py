@@ -12,8 +12,10 @@ import contextlib
 import errno
 import re
 import signal
+import subprocess
 import sys
 import tempfile
+import time
 import traceback
 from collections.abc import Callable
 from pathlib import Path
@@ -30,6 +32,7 @@ from datt.configuration import (
 )
 from datt.errors import ConfigError, FlightAborted, FlightStopped, TrainingDiverged, TrainingInterrupted, one_line
 from datt.runs import (
+    OWN_RUN,
     ignore_stop_signals,
     read_failure,
     record_failure,
@@ -207,9 +210,11 @@ def check_composition(config_name: str, argv: list[str]) -> None:
 
 
 def _output_dir_arg(argv: list[str]) -> tuple[str, str | None]:
-    """The key the command's output dir is set by (``hydra.sweep.dir`` for a multirun or a
-    ``sweep=``, else ``hydra.run.dir``) and the value the command line gives it (the last; None: unset)."""
-    multirun = any(a in ("-m", "--multirun") for a in argv) or any(a.lstrip("+").startswith("sweep=") for a in argv)
+    """The key the command's output dir is set by (``hydra.sweep.dir`` for a multirun, a
+    ``sweep=`` or a ``search=``, else ``hydra.run.dir``) and the value the command line gives it (the last; None: unset)."""
+    multirun = any(a in ("-m", "--multirun") for a in argv) or any(
+        a.lstrip("+").startswith(("sweep=", "search=")) for a in argv
+    )
     key = "hydra.sweep.dir" if multirun else "hydra.run.dir"
     given = [a.split("=", 1)[1] for a in argv if a.startswith(key + "=")]
     return key, (given[-1] if given else None)
@@ -263,7 +268,7 @@ def check_run_dir(argv: list[str]) -> None:
     is refused in one line naming ``resume=`` and how to start a fresh one, and an empty value is
     refused. The default dirs are new by construction (a timestamp and 4 random hex digits)."""
     key, given = _output_dir_arg(argv)
-    if given is None:
+    if given is None or f"resume={OWN_RUN}" in argv:  # a carried-on sweep writes into its own job dirs
         return
     text = given.strip().strip("'\"")
     if not text:
@@ -282,6 +287,52 @@ def check_run_dir(argv: list[str]) -> None:
             f"nothing is written over it: carry a training on with resume={path} (without {key}), "
             f"or leave {key} unset for a new dir under outputs/, or give one that holds no run"
         )
+
+
+# what may change when a sweep is carried on: where and how its jobs run, not what they train
+SWEEP_RESUME_CHANGEABLE = ("hydra/launcher=", "hydra.launcher.", "threads=", "logger.mode=")
+
+
+def sweep_resume_argv(config_name: str, argv: list[str]) -> list[str] | None:
+    """``train.py resume=<sweep dir>``: the command line that carries a whole multirun on, or None
+    when ``resume=`` names no sweep dir. It is the sweep's own command line (its overrides from
+    ``<sweep dir>/multirun.yaml``) in that sweep dir, each job with ``resume=own``: a job whose dir
+    holds a finished run reports it and trains nothing, one that stopped resumes from its
+    ``last.pt``, one that never started trains. The same job numbers map to the same overrides
+    (Hydra enumerates a sweep in a fixed order). Only the launcher and its options may change."""
+    given = [a.split("=", 1)[1] for a in argv if a.startswith("resume=")]
+    if config_name != "train" or not given:
+        return None
+    sweep = Path(given[-1]).expanduser().absolute()
+    record = sweep / "multirun.yaml"
+    if not record.is_file():
+        return None
+    others = [a for a in argv if not a.startswith(("resume=", "-m", "--multirun"))]
+    fixed = [a for a in others if not a.lstrip("+~").startswith(SWEEP_RESUME_CHANGEABLE)]
+    if fixed:
+        raise ConfigError(
+            f"resume: {sweep} is a sweep: it carries on as it was launched; drop {fixed[0]!r} "
+            f"(only {', '.join(k.rstrip('=.') for k in SWEEP_RESUME_CHANGEABLE)} may change)"
+        )
+    from omegaconf import OmegaConf
+
+    try:
+        saved = OmegaConf.load(record).hydra
+        task, hydra = [str(o) for o in saved.overrides.task], [str(o) for o in saved.overrides.hydra]
+        sweeper = str(OmegaConf.select(saved, "sweeper._target_", default="") or "")
+    except Exception as exc:  # a damaged or foreign file: one line, nothing launched
+        raise ConfigError(f"resume: {record} is not a Hydra sweep record ({one_line(exc)})") from None
+    if sweeper and not sweeper.endswith("BasicSweeper"):  # a search: its next trials depend on its study
+        raise ConfigError(
+            f"resume: {sweep} is a search ({sweeper.rsplit('.', 1)[-1]}), not a grid: its study is not kept, "
+            "so it cannot be carried on; run the search again"
+        )
+    task = [o for o in task if not o.lstrip("+~").startswith("resume=")]
+    hydra = [o for o in hydra if not o.startswith(("hydra.mode=", "hydra.sweep.dir=", "hydra.run.dir="))]
+    jobs = [p for p in sweep.iterdir() if p.is_dir() and p.name.isdigit()]
+    log_line = f"resume: carrying on sweep {sweep} ({len(jobs)} job dirs): finished jobs are kept, stopped ones resume"
+    print(log_line)
+    return ["-m", *task, f"resume={OWN_RUN}", *hydra, *others, f"hydra.sweep.dir={sweep}"]
 
 
 # what the machine, not the code, refuses: a full disk, a read-only mount, no permission
@@ -393,6 +444,23 @@ def _sweep_state() -> str:
     return ": " + sweep_line(_sweep_dir, sweep_summary(_sweep_dir), "none started")
 
 
+def stop_local_jobs(wait_s: float = 60.0) -> None:
+    """``hydra/launcher=submitit_local``: its jobs run in processes of their own that a signal to
+    this (the launching) process does not reach; each gets SIGINT (its controller then stops its
+    task, which saves and exits) and is waited for, at most ``wait_s`` in all, so no job
+    outlives the command. Nothing without submitit or its jobs."""
+    local = sys.modules.get("submitit.local.local")
+    processes = [p for p in getattr(local, "_PROCESSES", {}).values() if p.poll() is None]
+    for process in processes:
+        process.send_signal(signal.SIGINT)
+    deadline = time.monotonic() + wait_s
+    for process in processes:
+        try:
+            process.wait(timeout=max(0.0, deadline - time.monotonic()))
+        except subprocess.TimeoutExpired:
+            process.kill()
+
+
 def _interrupt(signum: int, frame: object) -> None:
     raise KeyboardInterrupt(signal.Signals(signum).name)
 
@@ -419,13 +487,17 @@ def _job_lock(lock: bool) -> contextlib.AbstractContextManager:
     return RunLock(HydraConfig.get().runtime.output_dir)
 
 
-def _run_job(task: Callable[[DictConfig], object], cfg: DictConfig, lock: bool = True) -> None:
+def _run_job(task: Callable[[DictConfig], object], cfg: DictConfig, lock: bool = True) -> float | None:
     """Run ``task`` as one Hydra job, mapping each error to its exit line and status (see
-    :func:`hydra_main`); a job of a multirun records ``failed.json`` instead of exiting."""
+    :func:`hydra_main`); a job of a multirun records ``failed.json`` instead of exiting. Returns
+    the job's headline figure (``optimized_metric`` of its result, for a sweeper such as
+    Optuna's), None for a job that failed or has none."""
+    from datt.tasks.common import headline
+
     multirun = _in_multirun()
     try:
         with sigterm_as_interrupt(), _job_lock(lock):
-            task(cfg)
+            return headline(task(cfg), cfg.get("optimized_metric"))
     except ConfigError as exc:
         if not multirun:
             _fail(str(exc), 2)
@@ -455,7 +527,7 @@ def _run_job(task: Callable[[DictConfig], object], cfg: DictConfig, lock: bool =
             if not multirun:
                 raise
             _job_failed("errored", f"{type(exc).__name__}: {one_line(exc)}", traceback.format_exc())
-            return
+            return None
         if not multirun:
             _fail(file_fault_line(exc), 2)
         _job_failed("errored", file_fault_line(exc))
@@ -463,6 +535,7 @@ def _run_job(task: Callable[[DictConfig], object], cfg: DictConfig, lock: bool =
         if not multirun:
             raise
         _job_failed("errored", f"{type(exc).__name__}: {one_line(exc)}", traceback.format_exc())
+    return None  # a failed job of a multirun has no figure
 
 
 def hydra_main(config_name: str, task: Callable[[DictConfig], object], lock: bool = True) -> Callable[[], None]:
@@ -475,13 +548,21 @@ def hydra_main(config_name: str, task: Callable[[DictConfig], object], lock: boo
     import hydra
 
     @hydra.main(config_path=f"pkg://{CONF_PACKAGE}", config_name=config_name, version_base="1.3")
-    def _main(cfg: DictConfig) -> None:
-        _run_job(task, cfg, lock)
+    def _main(cfg: DictConfig) -> float | None:
+        return _run_job(task, cfg, lock)  # what a sweeper reads
 
     def entry() -> None:
         global _failed_jobs, _sweep_dir
         _failed_jobs, _sweep_dir = 0, None
+        if any(arg in ("-h", "--help") for arg in sys.argv[1:]):  # ours; Hydra's page is --hydra-help
+            from datt.usage import help_text
+
+            print(help_text(config_name, Path(sys.argv[0]).name if sys.argv[0].endswith(".py") else sys.argv[0]))
+            sys.exit(0)
         try:
+            carried_on = sweep_resume_argv(config_name, sys.argv[1:])
+            if carried_on is not None:
+                sys.argv[1:] = carried_on
             preflight(sys.argv[1:])
             check_composition(config_name, sys.argv[1:])
             check_output_dir(sys.argv[1:])
@@ -496,6 +577,7 @@ def hydra_main(config_name: str, task: Callable[[DictConfig], object], lock: boo
                 _main()
         except KeyboardInterrupt as exc:
             ignore_stop_signals()
+            stop_local_jobs()
             _fail(f"interrupted by {exc.args[0] if exc.args else 'SIGINT'}{_sweep_state()}", 130)
         except OSError as exc:  # Hydra's own writes (.hydra/, the job log) on a full or read-only disk
             if exc.errno not in FILE_FAULTS:
@@ -561,7 +643,7 @@ def main() -> None:
     usage = f"usage: datt {{{','.join(COMMANDS)}}} [overrides...]"
     if len(sys.argv) >= 2 and sys.argv[1] in ("-h", "--help", "help"):
         lines = [usage, "", "commands:", *(f"  {name:8} {text}" for name, text in SUBCOMMANDS.items())]
-        print("\n".join([*lines, "", "datt <command> --help: the command's own options (Hydra's help)"]))
+        print("\n".join([*lines, "", "datt <command> --help: the command's options, examples and config groups"]))
         sys.exit(0)
     if len(sys.argv) < 2 or sys.argv[1] not in COMMANDS:
         print(usage, file=sys.stderr)

@@ -31,6 +31,10 @@ except ImportError:  # pragma: no cover - Windows
 LOCK_NAME = ".lock"
 FAILED_NAME = "failed.json"
 
+# ``resume=own``: a job resumes the run its own dir holds, if any (what ``train.py resume=<sweep dir>``
+# gives every job of the sweep it carries on: datt.cli.sweep_resume_argv)
+OWN_RUN = "own"
+
 
 def _umask() -> int:
     mask = os.umask(0)
@@ -75,9 +79,10 @@ def atomic_write(path: str | Path, mode: str = "w", **open_kwargs: Any) -> Itera
         raise
 
 
-def write_json(path: str | Path, value: Any) -> Path:
-    """Strict JSON (NaN/inf -> null), written atomically."""
-    text = json.dumps(finite_json(value), indent=2, allow_nan=False) + "\n"
+def write_json(path: str | Path, value: Any, default: Any = None) -> Path:
+    """Strict JSON (NaN/inf -> null), written atomically; ``default`` as :func:`json.dumps`'s (the
+    text of a value JSON has no type for)."""
+    text = json.dumps(finite_json(value), indent=2, allow_nan=False, default=default) + "\n"
     with atomic_write(path) as f:
         f.write(text)
     return Path(path)

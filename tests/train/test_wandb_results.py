@@ -1,7 +1,9 @@
-"""The wandb run holds what the tables show: the end-of-run evaluation as summary keys
-``eval/<condition>/<group>/<stat>``, the learning curve and tracking plots as images, the table as
-a wandb Table; a resumed run continues the same wandb run. Read back from the offline run's
-record file (no login, no network)."""
+"""The wandb run holds what a wandb user expects: training metrics in sections (``train/``,
+``losses/``, ``time/``) with summaries defined (the best error, the last lr), the end-of-run
+evaluation as summary keys ``eval/<condition>/<group>/<stat>`` named as eval.py names the same
+condition, the plots as captioned images, the evaluation as a numeric Table, the checkpoints as a
+versioned ``model`` artifact; a resumed run continues the same wandb run; tables.py logs a
+numeric Table. Read back from the offline run's record file (no login, no network)."""
 
 from __future__ import annotations
 
@@ -13,7 +15,15 @@ import pytest
 
 from ..test_faults import run_cli
 from .test_training import TINY
-from .wandb_record import history_rows, run_info, summary_and_history
+from .wandb_record import (
+    artifacts,
+    history_rows,
+    image_captions,
+    logged_table,
+    metric_summaries,
+    run_info,
+    summary_and_history,
+)
 
 WANDB_TINY = ["logger=wandb", *[o for o in TINY if not o.startswith("logger=")], "curriculum.fixed_ref_frames=0"]
 
@@ -26,18 +36,37 @@ def test_offline_run_record_holds_the_evaluation_plots_and_table_and_resume_cont
     assert code == 0, lines
     metrics = json.loads((run / "metrics.json").read_text())
     summary, history, ids = summary_and_history(run)
-    for cond, result in metrics["conditions"].items():
-        for group, stats in result["groups"].items():
-            assert summary[f"eval/{cond}/{group}/mean_m"] == pytest.approx(stats["mean_m"])
-            assert summary[f"eval/{cond}/{group}/crashes"] == stats["crashes"]
-    assert summary["frames"] == metrics["frames"]
-    assert {"learning_curve/_type", "tracks_clean/_type", "eval/table/_type", "tracking_error_m"} <= history
+    # train.yaml's end-of-run conditions: clean = no disturbance, no adaptation; brownian = privileged d
+    for cond, key in (("clean", "none-none"), ("brownian", "brownian-privileged")):
+        for group, stats in metrics["conditions"][cond]["groups"].items():
+            mean = stats["mean_m"]
+            assert summary[f"eval/{key}/{group}/mean_m"] == (pytest.approx(mean) if mean is not None else None)
+            assert summary[f"eval/{key}/{group}/crashes"] == stats["crashes"]
+    assert summary["time/frames"] == metrics["frames"]
+    assert {"learning_curve/_type", "tracks_clean/_type", "eval/table/_type"} <= history
+    sections = {
+        "train/tracking_error_m", "train/lr", "train/policy_std_thrust", "losses/loss_critic", "losses/kl_approx",
+        "time/steps_per_s",
+    }  # fmt: skip
+    assert sections <= history and "tracking_error_m" not in history
     assert len(set(ids)) == 1
     with open(run / "metrics.csv") as f:
         csv_rows = list(csv.DictReader(f))
-    logged = [r for r in history_rows(run) if "tracking_error_m" in r]
+    logged = [r for r in history_rows(run) if "train/tracking_error_m" in r]
     assert [r["_step"] for r in logged] == [int(r["step"]) for r in csv_rows]  # wandb's step is the frame count
-    assert [r["tracking_error_m"] for r in logged] == pytest.approx([float(r["tracking_error_m"]) for r in csv_rows])
+    errors = [float(r["tracking_error_m"]) for r in csv_rows]
+    assert [r["train/tracking_error_m"] for r in logged] == pytest.approx(errors)
+    kept = metric_summaries(run)
+    assert kept["train/tracking_error_m"] == "min" and kept["train/lr"] == "last"
+    assert summary["train/tracking_error_m"]["min"] == pytest.approx(min(errors))  # the best, not the last
+    (artifact,) = artifacts(run)
+    assert artifact["name"] == f"policy-{ids[0]}" and artifact["type"] == "model" and artifact["aliases"] == ["latest"]
+    assert {"best.pt", "last.pt", "config.yaml", "metrics.json"} <= set(artifact["files"])
+    assert artifact["metadata"]["time/frames"] == metrics["frames"]
+    assert image_captions(run)["learning_curve"].startswith("training: the batch's mean tracking error")
+    table = logged_table(run, "eval/table")
+    assert table["columns"] == ["condition", "group", "mean_m", "std_m", "crashes", "episodes"]
+    assert {row[0] for row in table["data"]} == {"none-none", "brownian-privileged"}
 
     code, lines, _ = run_cli(
         "train",
@@ -102,6 +131,26 @@ def test_eval_py_logs_its_evaluation_to_wandb_beside_the_training_run(
     assert "eval/table/_type" in history
 
 
+def test_eval_py_names_a_condition_as_the_training_run_does(tmp_path, monkeypatch, capsys, tiny_policy_checkpoint):
+    """One seed, no disturbance, no adaptation: eval.py's keys are the training run's clean ones."""
+    pytest.importorskip("wandb")
+    out = tmp_path / "e"
+    args = [
+        f"checkpoint={tiny_policy_checkpoint}",
+        "logger=wandb",
+        "eval.timing.steps=0",
+        "eval.plots=false",
+        "eval.bank={zigzag:[{traj:zigzag,seed:1000,count:2}]}",
+        f"hydra.run.dir={out}",
+    ]
+    code, lines, _ = run_cli("eval", args, tmp_path, monkeypatch, capsys)
+    assert code == 0, lines
+    summary, _, _ = summary_and_history(out)
+    assert {k for k in summary if k.startswith("eval/")} == {
+        f"eval/none-none/zigzag/{stat}" for stat in ("mean_m", "std_m", "crashes", "episodes")
+    }
+
+
 def test_tables_py_logs_the_table_to_its_sweep_s_group(tmp_path, monkeypatch, capsys):
     pytest.importorskip("wandb")
     sweep = tmp_path / "2026-01-01_00-00-00_abcd"
@@ -121,6 +170,13 @@ def test_tables_py_logs_the_table_to_its_sweep_s_group(tmp_path, monkeypatch, ca
     (run,) = run_info(sweep)
     assert run["group"] == "horizon/2026-01-01_00-00-00_abcd" and run["job_type"] == "table"
     assert summary["jobs"] == 2 and "table/horizon/_type" in history
+    table = logged_table(sweep, "table/horizon")  # numbers, not "0.051 ± 0.010" strings
+    assert table["columns"] == ["row", "column", "mean", "std", "values", "failed", "total", "paper"]
+    means = {row[0]: row[2] for row in table["data"]}
+    assert means == {"H = 1": pytest.approx(0.051), "H = 5": pytest.approx(0.055)}
+    paper = {row[0]: row[7] for row in table["data"]}
+    assert all(value is None or isinstance(value, float) for value in paper.values())
+    assert summary["table/H = 5/zigzag"] == pytest.approx(0.055)
     quiet = tmp_path / "quiet"
     args = ["horizon", f"runs={sweep}", "logger=wandb", "logger.mode=disabled", f"out_dir={quiet}", "plots=false"]
     code, lines, _ = run_cli("tables", args, tmp_path, monkeypatch, capsys)

@@ -96,3 +96,60 @@ def history_rows(run_dir: Path) -> list[dict]:
             row.setdefault("_step", rec.history.step.num)
         rows.append(row)
     return rows
+
+
+def metric_summaries(run_dir: Path) -> dict[str, str]:
+    """Each ``define_metric`` of the runs under ``run_dir/wandb``: metric name -> the summary it
+    keeps (min, max, mean, last ...)."""
+    out = {}
+    for rec in run_records(run_dir, "metric"):
+        kept = [name for name in ("min", "max", "mean", "last", "best", "copy", "none") if getattr(rec.metric.summary, name)]
+        out[rec.metric.name or rec.metric.glob_name] = kept[0] if kept else ""
+    return out
+
+
+def artifacts(run_dir: Path) -> list[dict]:
+    """Each artifact logged by the runs under ``run_dir/wandb``: name, type, aliases, the files
+    of its manifest and its metadata."""
+    return [
+        {
+            "name": rec.artifact.name,
+            "type": rec.artifact.type,
+            "aliases": list(rec.artifact.aliases),
+            "files": [entry.path for entry in rec.artifact.manifest.contents],
+            "metadata": json.loads(rec.artifact.metadata or "{}"),
+        }
+        for rec in run_records(run_dir, "artifact")
+    ]
+
+
+def _media(run_dir: Path, key: str) -> dict:
+    """The last value logged under ``key`` (a wandb media object's JSON description)."""
+    found = None
+    for row in history_rows(run_dir):
+        if key in row:
+            found = row[key]
+        elif f"{key}/_type" in row:
+            found = {k.removeprefix(key + "/"): v for k, v in row.items() if k.startswith(key + "/")}
+    assert found is not None, key
+    return found
+
+
+def image_captions(run_dir: Path) -> dict[str, str]:
+    """The caption of each image logged by the runs under ``run_dir/wandb``, by its key."""
+    out = {}
+    for row in history_rows(run_dir):
+        for key, value in row.items():
+            if key.endswith("/_type") and value == "image-file":
+                name = key.removesuffix("/_type")
+                out[name] = row.get(f"{name}/caption", "")
+    return out
+
+
+def logged_table(run_dir: Path, key: str) -> dict:
+    """The wandb Table logged under ``key``: its ``columns`` and ``data`` read from the table file
+    the run stored beside its record."""
+    media = _media(run_dir, key)
+    path = media["path"]
+    (file,) = [p for p in Path(run_dir).glob(f"wandb/*run-*/files/{path}")]
+    return json.loads(file.read_text())

@@ -34,6 +34,7 @@ def build_controller(cfg: DictConfig):
     if "_target_" in node:
         return instantiate_option(OmegaConf.create({"controller": node}), "controller"), merged, labels
     actor, train_cfg, data = load_actor(cfg.checkpoint)
+    refuse_overrides_the_checkpoint_fixes(cfg, train_cfg)
     actor.to(torch.device(cfg.env.device))  # beside the env's drones (env.device)
     layout = {key: train_cfg.env.obs[key] for key in OBS_LAYOUT_KEYS if key in train_cfg.env.obs}
     merged = OmegaConf.merge(merged, {"horizon": train_cfg.horizon, "env": {"obs": layout}})
@@ -43,6 +44,30 @@ def build_controller(cfg: DictConfig):
     behind = bool(train_cfg.env.obs.get("predict_latency", False))
     labels = {**labels, "checkpoint": str(cfg.checkpoint), "frames": int(data["frames"]), "predict_latency": behind}
     return DattController(actor, frozen=True), merged, labels
+
+
+def fixed_by_checkpoint(key: str) -> bool:
+    """Whether a policy checkpoint fixes the dotted ``key``: its horizon, its observation layout
+    (``env.obs.<OBS_LAYOUT_KEYS>``) and its network (``policy.*``): a policy flies as trained."""
+    return key == "horizon" or key.startswith("policy.") or key in {f"env.obs.{k}" for k in OBS_LAYOUT_KEYS}
+
+
+def refuse_overrides_the_checkpoint_fixes(cfg: DictConfig, train_cfg: DictConfig) -> None:
+    """An override on the command line that sets what the checkpoint fixes
+    (:func:`fixed_by_checkpoint`) to another value than the policy was trained with is refused in
+    one line; it would be dropped (the policy flies its own layout), and the run would record a
+    setting it did not fly."""
+    for text in command_overrides() or []:  # none outside Hydra: the caller composed the config itself
+        key = text.lstrip("+~").partition("=")[0]
+        if not fixed_by_checkpoint(key):
+            continue
+        asked = OmegaConf.select(cfg, key, default=None)
+        trained = OmegaConf.select(train_cfg, key, default=None)
+        if asked != trained:
+            raise ConfigError(
+                f"{key}: the checkpoint was trained with {key}={trained} and flies as trained; drop {text!r}, "
+                f"or pass a checkpoint trained with {key}={asked}"
+            )
 
 
 def require_current_state_timing(merged: DictConfig, who: str) -> None:

@@ -4,13 +4,14 @@ the summary (``events.json``, written once when the flight ends) and the track p
 from __future__ import annotations
 
 import csv
-import json
 import math
 import time
 from pathlib import Path
 
 import numpy as np
 import torch
+
+from datt.runs import write_json
 
 COLUMNS = [
     "t_s", "phase", "x", "y", "z", "vx", "vy", "vz", "qw", "qx", "qy", "qz", "ref_x", "ref_y", "ref_z",
@@ -103,7 +104,7 @@ class FlightLog:
             "compute_ms": {"median": float(np.median(compute)), "p99": float(np.percentile(compute, 99))},
             "events": self.events,
         }
-        (self.run_dir / "events.json").write_text(json.dumps(summary, indent=2, default=str) + "\n")
+        write_json(self.run_dir / "events.json", summary, default=str)  # strict and atomic, as every run record
         if track:
             self._plot(track)
         return summary

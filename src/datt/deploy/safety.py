@@ -67,8 +67,9 @@ class SafetyParams:
     battery_filter_s: float = ranged(1.0, Range(0.0, 10.0))  # time constant of the battery voltage low-pass
     # preflight: the onboard estimate must agree with mocap (beyond 0.5 m they disagree about the room)
     max_estimate_mocap_m: float = ranged(0.05, Range(0.0, 0.5, low_open=True))
-    # TRACK below this height: KILL (null: off); above 1 m the floor check would fire in a normal flight
-    track_floor_m: float | None = ranged(0.05, Range(0.0, 1.0, low_open=True, optional=True))
+    # TRACK below this height: KILL (null: off). A Crazyflie resting on the floor reads its centre
+    # ~15 mm up, so a floor below 2 cm never fires; above 1 m it would fire in a normal flight
+    track_floor_m: float | None = ranged(0.05, Range(0.02, 1.0, optional=True))
     # TRACK this far below the reference: LAND (null: off); at most 2 m, a room's height
     track_sink_m: float | None = ranged(0.4, Range(0.0, 2.0, low_open=True, optional=True))
 

@@ -23,6 +23,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -411,7 +412,41 @@ def render(spec: TableSpec, rows: dict[str, list[Cell]], jobs: list[Job]) -> dic
     ]
     tex += [" & ".join(_tex(c) for c in r) + " \\\\" for r in body]
     tex += ["\\bottomrule", "\\end{tabular}"]
-    return {"md": "\n".join(md) + "\n", "tex": "\n".join(tex) + "\n", "rows": body, "header": header}
+    numeric = numeric_rows(spec, rows, order)
+    return {
+        "md": "\n".join(md) + "\n",
+        "tex": "\n".join(tex) + "\n",
+        "rows": body,
+        "header": header,
+        "numeric": (NUMERIC_COLUMNS, numeric),
+    }
+
+
+# the table as numbers (wandb's Table: sortable, plottable): one row per (table row, column)
+NUMERIC_COLUMNS = ["row", "column", "mean", "std", "values", "failed", "total", "paper"]
+
+
+def paper_number(text: str) -> float | None:
+    """The paper's figure in a cell (``"0.055 ± 0.007"`` -> 0.055); None for "failed", "—"."""
+    match = re.match(r"\s*([-+]?\d+(?:\.\d*)?(?:[eE][-+]?\d+)?)", str(text))
+    return float(match.group(1)) if match else None
+
+
+def numeric_rows(spec: TableSpec, rows: dict[str, list[Cell]], order: list[str]) -> list[list]:
+    """The cells of ``rows`` in ``order`` as :data:`NUMERIC_COLUMNS`: the row's label, the
+    column, the mean and population std of its values (None without values), how many values,
+    failed and total, and the paper's figure for that cell (None where the paper has none)."""
+    out = []
+    for key in order:
+        base = key.removesuffix(AUTHORS_SUFFIX)
+        label = spec.row_labels.get(base, base) + (" (authors' protocol)" if key != base else "")
+        paper = spec.paper.get(base, [None] * len(spec.columns))
+        for cell, column, cited in zip(rows[key], spec.columns, paper):
+            values = cell.values
+            mean = float(np.mean(values)) if values else None
+            std = float(np.std(values)) if values else None
+            out.append([label, column, mean, std, len(values), cell.failed, cell.total, paper_number(cited)])
+    return out
 
 
 def job_protocols(job: Job) -> set[str]:

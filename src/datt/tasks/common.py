@@ -4,7 +4,10 @@ from __future__ import annotations
 
 import io
 import logging
+import math
 import os
+from collections.abc import Mapping
+from fnmatch import fnmatchcase
 from pathlib import Path
 
 from rich.console import Console
@@ -90,3 +93,30 @@ def sweep_group(job_dir: Path) -> str | None:
     config = job_dir / ".hydra" / "config.yaml"
     sweep_name = OmegaConf.load(config).get("sweep_name") if config.is_file() else None
     return f"{sweep_name or 'multirun'}/{job_dir.parent.name}"
+
+
+def headline(result: object, path: str | None) -> float | None:
+    """The figure a Hydra sweeper optimises (``optimized_metric``): the value at the dotted
+    ``path`` of the task's result (its ``metrics.json``; ``*`` in a part matches any key there,
+    ``fnmatch`` style, and several matches are averaged, e.g. over an evaluation's seeds). A
+    matched value that is not a finite number (null: every episode of a group crashed) makes the
+    figure ``inf``, the worst for the minimising default. None without a path, or when the result
+    has nothing there (``train.eval_at_end=false``; one line says so)."""
+    if not path or not isinstance(result, Mapping):
+        return None
+    values = _select(result, str(path).split("."))
+    if not values:
+        log.warning("optimized_metric: %r is not in this run's results; the job returns no figure", path)
+        return None
+    numbers = [v for v in values if isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)]
+    if len(numbers) < len(values):
+        return math.inf
+    return float(sum(numbers) / len(numbers))
+
+
+def _select(node: object, parts: list[str]) -> list:
+    if not parts:
+        return [node]
+    if not isinstance(node, Mapping):
+        return []
+    return [v for key in node if fnmatchcase(str(key), parts[0]) for v in _select(node[key], parts[1:])]

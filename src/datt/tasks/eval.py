@@ -17,7 +17,7 @@ from datt.progress import ProgressReport
 from datt.runs import write_json
 from datt.tasks.common import console, hydra_run_dir, set_threads, sweep_group, wandb_run_id
 from datt.tasks.validation import validate_config
-from datt.train.loggers import RESULT_COLUMNS, eval_summary, log_results_run, result_rows
+from datt.train.loggers import RESULT_COLUMNS, condition_key, eval_summary, log_results_run, result_rows
 
 
 def bank_of_given_traj(cfg: DictConfig, count: int) -> DictConfig:
@@ -65,7 +65,9 @@ def run_eval(cfg: DictConfig, run_dir: Path | None = None) -> dict:
                     trace_path=trace,
                 )
             )
-            wandb_names[f"{label} seed {seed}"] = f"{labels['disturbance']}-{labels['adaptation']}-seed{seed}"
+            wandb_names[f"{label} seed {seed}"] = condition_key(
+                labels["disturbance"], labels["adaptation"], int(seed), params.seeds
+            )
             metrics["seeds_done"].append(int(seed))
             _write_records(run_dir, metrics, results)  # each finished seed is on disk as it finishes
             finished = len(metrics["seeds_done"])
@@ -113,8 +115,9 @@ def training_run(checkpoint: str) -> tuple[str | None, str | None]:
 
 def _log_to_wandb(cfg: DictConfig, run_dir: Path, metrics: dict, conditions: dict) -> None:
     """``logger=wandb``: a wandb run (job type ``eval``) in the checkpoint's training run's group,
-    its id in the config (``train_run_id``), the summary ``eval/<disturbance>-<adaptation>-seed<k>/
-    <group>/<stat>`` and ``inference/<stat>``, the plots and the evaluation as a Table."""
+    its id in the config (``train_run_id``), the summary ``eval/<condition>/<group>/<stat>`` (the
+    condition named as train.py names the same one: :func:`~datt.train.loggers.condition_key`) and
+    ``inference/<stat>``, the plots and the evaluation as a Table."""
     if not cfg.logger.wandb:
         return
     train_run_id, group = training_run(str(cfg.checkpoint)) if cfg.get("checkpoint") else (None, None)

@@ -17,7 +17,7 @@ from datt.checkpoint import load_checkpoint
 from datt.configuration import check_targets, command_overrides, flat_leaves, upgrade_saved_config
 from datt.errors import ConfigError
 from datt.paths import original_cwd, resolve_path
-from datt.runs import is_locked
+from datt.runs import OWN_RUN, is_locked
 from datt.tasks.stages import holds_run_in_stages, stages_parent
 
 # Dotted keys (or prefixes ending in ".") an override may change on resume.
@@ -39,7 +39,7 @@ def resume_dir(resume) -> Path | None:
     """The run dir ``resume=`` names: ``true`` = the newest run with a ``last.pt`` under outputs/
     that no other process holds. A stage of a run in stages (:mod:`datt.tasks.stages`) stands for its
     whole run."""
-    if resume in (False, None, "false", "False"):
+    if resume in (False, None, "false", "False", OWN_RUN):  # own: the job's own dir, if it holds a run
         return None
     if resume in (True, "true", "True"):
         candidates = sorted((original_cwd() / "outputs").glob("**/last.pt"), key=lambda p: p.stat().st_mtime)

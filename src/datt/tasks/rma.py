@@ -3,7 +3,6 @@ evaluate DATT under Brownian disturbance with d̂ = 0, L1, RMA and the privilege
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 from omegaconf import DictConfig, OmegaConf
@@ -12,6 +11,7 @@ from datt.configuration import structured
 from datt.eval.conditions import evaluate_conditions, print_metrics
 from datt.eval.schema import AdapterEvalParams, per_seed_name
 from datt.policies.loading import load_actor
+from datt.runs import write_json
 from datt.tasks.common import console, hydra_run_dir, set_threads
 from datt.tasks.validation import validate_config
 from datt.train.rma import train_rma
@@ -44,5 +44,5 @@ def run_rma(cfg: DictConfig, run_dir: Path) -> dict:
             conditions[name] = {**res[name], "adaptation": source}
     print_metrics(console, "DATT under Brownian disturbance by adaptation", conditions)
     metrics = {"rma_train_wall_s": result["wall_s"], "rma_history": result["history"], "conditions": conditions}
-    (run_dir / "metrics.json").write_text(json.dumps(metrics, indent=2) + "\n")
+    write_json(run_dir / "metrics.json", metrics)
     return metrics

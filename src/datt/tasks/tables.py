@@ -114,8 +114,15 @@ def run_tables(cfg: DictConfig, run_dir: Path | None = None) -> dict:
     return {"files": [str(f) for f in files], "rows": rendered["rows"], "jobs": len(jobs)}
 
 
+def _cell_summary(numeric: list[list]) -> dict:
+    """``table/<row>/<column>`` -> the cell's mean (rows of :data:`datt.eval.tables.NUMERIC_COLUMNS`)."""
+    return {f"table/{row}/{column}": mean for row, column, mean, *_ in numeric}
+
+
 def _log_table(cfg: DictConfig, spec, rendered: dict, jobs: list, roots: list[Path], out_dir: Path, files) -> None:
-    """``logger=wandb``: the table (a wandb Table and its plots) as a run in its sweep's group."""
+    """``logger=wandb``: the table as a run in its sweep's group: a numeric wandb Table (one row
+    per cell: mean, std, runs, the paper's figure; :data:`datt.eval.tables.NUMERIC_COLUMNS`), its
+    plots, and each cell's mean as a summary key ``table/<row>/<column>``."""
     groups = {sweep_group(job.path) for job in jobs if job.path.is_dir()} - {None}
     log_results_run(
         cfg.logger,
@@ -124,7 +131,7 @@ def _log_table(cfg: DictConfig, spec, rendered: dict, jobs: list, roots: list[Pa
         name=f"table-{spec.name}",
         group=groups.pop() if len(groups) == 1 else None,  # jobs of several sweeps: no one group
         job_type="table",
-        summary={"jobs": len(jobs)},
+        summary={"jobs": len(jobs), **_cell_summary(rendered["numeric"][1])},
         images={Path(f).stem: f for f in files if str(f).endswith(".png")},
-        tables={f"table/{spec.name}": (list(rendered["header"]), [list(r) for r in rendered["rows"]])},
+        tables={f"table/{spec.name}": rendered["numeric"]},
     )

@@ -13,13 +13,21 @@ from datt.configuration import config_groups, search_roots, structured
 from datt.errors import TrainingDiverged
 from datt.eval.conditions import evaluate_end_of_run, print_metrics
 from datt.eval.plots import plot_learning_curve
-from datt.eval.schema import EndOfRunEvalParams
-from datt.runs import RunLock, finite_json, record_failure, scheduler_signal, write_json
+from datt.eval.schema import EndOfRunEvalParams, per_seed_name
+from datt.runs import OWN_RUN, RunLock, finite_json, record_failure, scheduler_signal, write_json
 from datt.tasks.common import console, hydra_run_dir, set_threads, wandb_run_id
 from datt.tasks.resume import finished_frames, holds_a_run, resume_config, resume_dir
 from datt.tasks.stages import in_stages, run_stages, stage_plan
 from datt.tasks.validation import validate_config
-from datt.train.loggers import RESULT_COLUMNS, CsvLogger, MultiLogger, WandbLogger, eval_summary, result_rows
+from datt.train.loggers import (
+    RESULT_COLUMNS,
+    CsvLogger,
+    MultiLogger,
+    WandbLogger,
+    condition_key,
+    eval_summary,
+    result_rows,
+)
 from datt.train.ppo import Trainer
 from datt.train.schema import TrainParams, budget_factor, check_ablation, run_params
 
@@ -53,7 +61,7 @@ def run_train(cfg: DictConfig, run_dir: Path | None = None) -> dict:
     if in_stages(cfg):
         stage_plan(cfg)  # a bad schedule is refused before anything is written
     set_threads(run.threads)
-    resumed = resume_dir(run.resume) or _requeued_attempt(run_dir)
+    resumed = resume_dir(run.resume) or _requeued_attempt(run_dir, own=run.resume == OWN_RUN)
     if resumed is not None:
         cfg = resume_config(cfg, resumed, config_groups(search_roots()))
         validate_config("train", cfg)  # the run's saved config is a file: checked like a command line
@@ -75,19 +83,20 @@ def run_train(cfg: DictConfig, run_dir: Path | None = None) -> dict:
         return _train_locked(cfg, run_dir, resumed is not None)
 
 
-def _requeued_attempt(given: Path | None) -> Path | None:
+def _requeued_attempt(given: Path | None, own: bool = False) -> Path | None:
     """In a scheduler's job (:func:`datt.runs.scheduler_signal`: submitit, locally or on Slurm), a
     run dir that already holds a checkpoint is this job's own earlier attempt, stopped by a time
-    limit or a preemption and requeued with the same overrides: it resumes there. Elsewhere a run
-    dir is new (``${uid:}``), so nothing is resumed without ``resume=``."""
-    if scheduler_signal() is None:
+    limit or a preemption and requeued with the same overrides: it resumes there; so does every
+    job of a sweep carried on with ``resume=<sweep dir>`` (``own``: ``resume=own``). Elsewhere a
+    run dir is new (``${uid:}``), so nothing is resumed without ``resume=``."""
+    if scheduler_signal() is None and not own:
         return None
     try:
         run_dir = given or hydra_run_dir()
     except ValueError:  # not inside a Hydra job
         return None
     if holds_a_run(run_dir):
-        console.print(f"requeued job: resuming its own run {run_dir}")
+        console.print(f"{'carried-on' if own else 'requeued'} job: resuming its own run {run_dir}")
         return run_dir
     return None
 
@@ -165,12 +174,29 @@ def _train_and_evaluate(cfg, run_dir: Path, trainer, run, train, end_eval) -> di
         metrics["hover_reference"] = hover
         print_metrics(console, f"evaluation ({run_dir.name})", {**metrics["conditions"], "hover (reference)": hover})
     write_json(run_dir / "metrics.json", metrics)
-    summary = {"frames": trainer.frames, "train_wall_s": trainer.train_wall_s}
-    summary.update(eval_summary(metrics.get("conditions") or {}))
-    rows = result_rows(metrics.get("conditions") or {})
+    names = end_of_run_names(cfg, end_eval.seeds)
+    summary = {"time/frames": trainer.frames, "time/train_wall_s": trainer.train_wall_s}
+    summary.update(eval_summary(metrics.get("conditions") or {}, names))
+    rows = result_rows(metrics.get("conditions") or {}, names)
     trainer.logger.results(
         summary,
         images={p.stem: p for p in sorted(run_dir.glob("*.png"))},
         tables={"eval/table": (RESULT_COLUMNS, rows)} if rows else {},
     )
+    trainer.logger.checkpoints(
+        f"policy-{wandb_run_id(run_dir)}",
+        [run_dir / name for name in ("best.pt", "last.pt", "config.yaml", "metrics.json")],
+        {k: v for k, v in summary.items() if v is not None},
+    )
     return finite_json(metrics)
+
+
+def end_of_run_names(cfg, seeds) -> dict[str, str]:
+    """metrics.json's name of each end-of-run condition (``clean``, ``brownian seed 1``) -> its
+    wandb name (:func:`~datt.train.loggers.condition_key`: ``none-none``, ``brownian-privileged-
+    seed1``), the name eval.py gives the same condition."""
+    return {
+        per_seed_name(name, seed, seeds): condition_key(cond.disturbance, cond.adaptation, seed, seeds)
+        for seed in seeds
+        for name, cond in cfg.eval.conditions.items()
+    }

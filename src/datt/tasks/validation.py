@@ -24,7 +24,14 @@ from datt.policies.networks import PolicyParams
 from datt.tasks.resume import resume_dir
 from datt.train.loggers import LoggerParams
 from datt.train.ppo import AlgoParams
-from datt.train.schema import CurriculumParams, RmaParams, TrainParams, fit_rma_params, run_params
+from datt.train.schema import (
+    CurriculumParams,
+    RmaParams,
+    TrainParams,
+    check_metric_path,
+    fit_rma_params,
+    run_params,
+)
 
 # config name -> node -> its schema (a dataclass), beyond the nodes every config with them has
 NODE_SCHEMAS: dict[str, dict[str, type]] = {
@@ -74,6 +81,8 @@ def _run_level(config_name: str, cfg: DictConfig) -> None:
             SEED.check(cfg.seed, "seed")
     if "threads" in cfg:
         OPTIONAL_THREADS.check(cfg.threads, "threads")
+    if "optimized_metric" in cfg:
+        check_metric_path(cfg.optimized_metric)
     _check_file(cfg, "checkpoint")
     if config_name == "export":
         from datt.tasks.export import check_export_options

@@ -22,6 +22,54 @@ WANDB_MODES = ("offline", "online", "disabled")
 # the columns of an evaluation's wandb Table (one row per condition and reference group)
 RESULT_COLUMNS = ["condition", "group", "mean_m", "std_m", "crashes", "episodes"]
 
+# wandb's sections (panels) for the training metrics, as the TorchRL and CleanRL scripts group
+# theirs; metrics.csv keeps the flat names. A metric not listed is a training metric.
+METRIC_SECTIONS = {
+    "loss_objective": "losses",
+    "loss_critic": "losses",
+    "grad_norm": "losses",
+    "kl_approx": "losses",
+    "steps_per_s": "time",
+    "frames": "time",
+    "train_wall_s": "time",
+}
+# the summary wandb keeps of a training metric (wandb.define_metric); the rest keep their last value
+METRIC_SUMMARIES = {
+    "train/tracking_error_m": "min",  # the best batch error, not the last
+    "train/episode_return_est": "max",
+    "train/crash_rate": "min",
+    "time/steps_per_s": "mean",
+    "train/lr": "last",
+}
+# what each plot shows, by its file's stem (its prefix for per-condition plots)
+PLOT_CAPTIONS = {
+    "learning_curve": "training: the batch's mean tracking error (m) and return over frames",
+    "tracks_": "tracks in the x-y plane against the references, condition {}",
+    "axes_": "position per axis against the reference over time, condition {}",
+}
+
+
+def wandb_key(name: str) -> str:
+    """The wandb key of a training metric: ``<section>/<name>`` (:data:`METRIC_SECTIONS`; a name
+    that already has a section is kept)."""
+    return name if "/" in name else f"{METRIC_SECTIONS.get(name, 'train')}/{name}"
+
+
+def caption(stem: str) -> str:
+    """The caption of the plot whose file stem is ``stem`` (its name as a wandb image)."""
+    for prefix, text in PLOT_CAPTIONS.items():
+        if stem == prefix or (prefix.endswith("_") and stem.startswith(prefix)):
+            return text.format(stem.removeprefix(prefix))
+    return stem.replace("_", " ")
+
+
+def condition_key(disturbance: str, adaptation: str, seed: int, seeds) -> str:
+    """An evaluated condition's wandb name, the same in ``train.py``'s end-of-run evaluation and
+    in ``eval.py``: ``<disturbance>-<adaptation>``, with ``-seed<k>`` when the job evaluated
+    several seeds (as :func:`datt.eval.schema.per_seed_name` names them in metrics.json)."""
+    key = f"{disturbance}-{adaptation}"
+    return key if len(list(seeds)) == 1 else f"{key}-seed{seed}"
+
 
 @dataclass
 class LoggerParams:
@@ -41,11 +89,15 @@ class LoggerParams:
             raise ConfigError("logger.project: must name the wandb project with logger.wandb=true")
 
 
-def eval_summary(conditions: Mapping[str, Any], prefix: str = "eval") -> dict[str, float]:
+def eval_summary(
+    conditions: Mapping[str, Any], names: Mapping[str, str] | None = None, prefix: str = "eval"
+) -> dict[str, float]:
     """An evaluation's conditions (``metrics.json``'s ``conditions``) as flat summary keys:
-    ``eval/<condition>/<group>/{mean_m, std_m, crashes, episodes}``."""
+    ``eval/<condition>/<group>/{mean_m, std_m, crashes, episodes}``, ``<condition>`` renamed by
+    ``names`` (metrics.json's name -> :func:`condition_key`) where given."""
     out: dict[str, float] = {}
-    for cond, result in conditions.items():
+    for name, result in conditions.items():
+        cond = (names or {}).get(name, name)
         for group, stats in (result.get("groups") or {}).items():
             for key in ("mean_m", "std_m", "crashes", "episodes"):
                 if key in stats:
@@ -55,16 +107,20 @@ def eval_summary(conditions: Mapping[str, Any], prefix: str = "eval") -> dict[st
     return out
 
 
-def result_rows(conditions: Mapping[str, Any]) -> list[list[Any]]:
-    """An evaluation's conditions as the rows of a table with :data:`RESULT_COLUMNS`."""
+def result_rows(conditions: Mapping[str, Any], names: Mapping[str, str] | None = None) -> list[list[Any]]:
+    """An evaluation's conditions as the rows of a table with :data:`RESULT_COLUMNS` (conditions
+    renamed by ``names`` as in :func:`eval_summary`)."""
     return [
-        [cond, group, *(stats.get(k) for k in RESULT_COLUMNS[2:])]
+        [(names or {}).get(cond, cond), group, *(stats.get(k) for k in RESULT_COLUMNS[2:])]
         for cond, result in conditions.items()
         for group, stats in (result.get("groups") or {}).items()
     ]
 
 
 class Logger:
+    def checkpoints(self, name: str, files: list[Path], metadata: Mapping[str, Any]) -> None:
+        """Record a training run's checkpoints (only wandb keeps them as an artifact)."""
+
     def log(self, metrics: Mapping[str, float], step: int) -> None:
         raise NotImplementedError
 
@@ -173,20 +229,34 @@ class WandbLogger(Logger):
             )
         except (wandb.errors.UsageError, wandb.errors.CommError) as exc:
             raise ConfigError(f"logger: wandb could not start the run (logger.mode={mode}: {one_line(exc)})") from None
+        if job_type == "train":
+            for key, kept in METRIC_SUMMARIES.items():
+                self.run.define_metric(key, summary=kept)
 
     def log(self, metrics: Mapping[str, float], step: int) -> None:
-        self.run.log({k: _plain(v) for k, v in metrics.items()}, step=step)
+        """One row of training metrics at ``step`` (frames), each under its section (:func:`wandb_key`)."""
+        self.run.log({wandb_key(k): _plain(v) for k, v in metrics.items()}, step=step)
 
     def results(self, summary, images=None, tables=None) -> None:
         self.run.summary.update({k: _plain(v) for k, v in summary.items()})
         media: dict[str, Any] = {}
         for name, path in (images or {}).items():
             if Path(path).is_file():
-                media[name] = self._wandb.Image(str(path))
+                media[name] = self._wandb.Image(str(path), caption=caption(name))
         for name, (columns, rows) in (tables or {}).items():
             media[name] = self._wandb.Table(columns=list(columns), data=[list(r) for r in rows])
         if media:
             self.run.log(media, commit=True)
+
+    def checkpoints(self, name: str, files: list[Path], metadata: Mapping[str, Any]) -> None:
+        """``files`` (checkpoints, their config and evaluation) as a versioned wandb artifact of
+        type ``model`` named ``name``, aliased ``latest``; ``metadata`` (frames, eval summary)
+        makes versions comparable in wandb's artifact view."""
+        artifact = self._wandb.Artifact(name, type="model", metadata={k: _plain(v) for k, v in metadata.items()})
+        for path in files:
+            if Path(path).is_file():
+                artifact.add_file(str(path))
+        self.run.log_artifact(artifact, aliases=["latest"])
 
     def close(self) -> None:
         """Finish the run and stop wandb's service: ``finish`` returns before the service has
@@ -242,6 +312,10 @@ class MultiLogger(Logger):
     def results(self, summary, images=None, tables=None) -> None:
         for logger in self.loggers:
             logger.results(summary, images, tables)
+
+    def checkpoints(self, name: str, files: list[Path], metadata: Mapping[str, Any]) -> None:
+        for logger in self.loggers:
+            logger.checkpoints(name, files, metadata)
 
     def close(self) -> None:
         for logger in self.loggers:

@@ -40,9 +40,11 @@ class RunParams:
     sweep_name: str | None = MISSING
     resume: Any = MISSING  # false | true | <run dir>
     threads: int | None = ranged(MISSING, Range(1, 1024, integer=True, optional=True))  # null = torch default
+    optimized_metric: str | None = None  # what the job returns to a sweeper (datt.tasks.common.headline)
 
     def validate(self) -> None:
         check_budget(self.budget)
+        check_metric_path(self.optimized_metric)
 
 
 @dataclass
@@ -54,9 +56,11 @@ class FitRmaParams:
     sweep_name: str | None = MISSING
     base_checkpoint: str = MISSING  # the policy to adapt (frozen)
     threads: int | None = ranged(MISSING, Range(1, 1024, integer=True, optional=True))  # null = torch default
+    optimized_metric: str | None = None  # what the job returns to a sweeper (datt.tasks.common.headline)
 
     def validate(self) -> None:
         check_budget(self.budget)
+        check_metric_path(self.optimized_metric)
 
 
 @dataclass
@@ -122,6 +126,19 @@ def fit_rma_params(cfg: DictConfig) -> FitRmaParams:
 
 def _top_level(schema: type, cfg: DictConfig):
     return structured(schema, {k: cfg.get(k) for k in schema.__dataclass_fields__ if k in cfg}, "")
+
+
+def check_metric_path(value: Any) -> None:
+    """``optimized_metric``: null, or a dotted path into a run's metrics.json (parts without
+    spaces, ``*`` allowed in a part: ``conditions.clean.groups.zigzag.mean_m``)."""
+    if value is None:
+        return
+    text = str(value)
+    if not isinstance(value, str) or not text or any(not part or part != part.strip() for part in text.split(".")):
+        raise ConfigError(
+            f"optimized_metric: must be null or a dotted path into the run's metrics.json "
+            f"(e.g. conditions.clean.groups.zigzag.mean_m), got {value!r}"
+        )
 
 
 def check_budget(value: Any) -> float:
