@@ -78,7 +78,7 @@ def test_datt_console_script_usage(tmp_path):
 OWN_AND_FOREIGN_GROUPS = {
     "train": ("algo", "deploy"),
     "eval": ("controller", "algo"),
-    "fit_rma": ("adaptation", "deploy"),
+    "fit_rma": ("disturbance", "deploy"),
     "tables": (None, "algo"),
     "deploy": ("deploy", "algo"),
     "export": ("controller", "deploy"),

@@ -38,6 +38,8 @@ def _option_cases():
 def _compose(group: str, option: str, tmp_path):
     if group == "sweep":
         return compose(tables.TABLES[option].entry.removesuffix(".py"), [f"+sweep={option}"])
+    if group == "search":  # added to a training run, as a sweep is
+        return compose("train", [f"+search={option}"])
     overrides = [f"{group}={option}"]
     if group == "bank":
         overrides = [f"bank@eval.bank={option}"]
@@ -77,7 +79,7 @@ def test_every_option_composes_and_instantiates(group, option, tmp_path):
             else cfg.eval
             if group == "evaluation"
             else cfg
-            if group in ("sweep", "ablation", "experiment", "randomization")
+            if group in ("sweep", "search", "ablation", "experiment", "randomization", "vehicle")
             else cfg[group]
         )
     for target in _targets(node):

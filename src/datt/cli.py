@@ -211,7 +211,8 @@ def check_composition(config_name: str, argv: list[str]) -> None:
 
 def _output_dir_arg(argv: list[str]) -> tuple[str, str | None]:
     """The key the command's output dir is set by (``hydra.sweep.dir`` for a multirun, a
-    ``sweep=`` or a ``search=``, else ``hydra.run.dir``) and the value the command line gives it (the last; None: unset)."""
+    ``sweep=`` or a ``search=``, else ``hydra.run.dir``) and the value the command line gives it
+    (the last; None: unset)."""
     multirun = any(a in ("-m", "--multirun") for a in argv) or any(
         a.lstrip("+").startswith(("sweep=", "search=")) for a in argv
     )

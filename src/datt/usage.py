@@ -80,7 +80,11 @@ USAGE = {
             ("out_dir=<dir>", "where the table's files go"),
             ("logger=wandb", "the table as a numeric wandb Table in its sweep's group"),
         ),
-        ("python tables.py ablation", "python tables.py horizon run=true budget=0.1", "python tables.py main runs=<dir>"),
+        (
+            "python tables.py ablation",
+            "python tables.py horizon run=true budget=0.1",
+            "python tables.py main runs=<dir>",
+        ),
     ),
     "deploy": Usage(
         "Fly a policy: on the simulated Crazyflie (default, speaks the real radio protocol) or a real one "

@@ -195,7 +195,7 @@ def test_safety_params_are_the_deploy_config_defaults():
         ({"battery_filter_s": 0.5}, None),
         ({"max_state_age_s": 0.0}, "deploy.safety.max_state_age_s: must be a finite number in (0, 2], got 0.0"),
         ({"track_floor_m": None}, None),
-        ({"track_floor_m": 0.0}, "deploy.safety.track_floor_m: must be a finite number in (0, 1] or null, got 0.0"),
+        ({"track_floor_m": 0.0}, "deploy.safety.track_floor_m: must be a finite number in [0.02, 1] or null, got 0.0"),
         # values that would disable a check (NaN compares false, inf never breached): refused
         ({"max_tilt_deg": math.nan}, "deploy.safety.max_tilt_deg: must be a finite number in (0, 90], got nan"),
         ({"max_tilt_deg": 91.0}, "deploy.safety.max_tilt_deg: must be a finite number in (0, 90], got 91.0"),

@@ -63,8 +63,11 @@ CASES = {
     "track_sink_m": (
         True,
         {},
-        lambda v: {"state": state(pos=(0.0, 0.0, 2.4 - v - 0.01), vel=(0.0, 0.0, -0.1)), "tracking": True,
-                   "reference_z_m": 2.4},
+        lambda v: {
+            "state": state(pos=(0.0, 0.0, 2.4 - v - 0.01), vel=(0.0, 0.0, -0.1)),
+            "tracking": True,
+            "reference_z_m": 2.4,
+        },
         (LAND,),
     ),  # fmt: skip
 }

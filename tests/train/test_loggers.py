@@ -153,7 +153,7 @@ def test_a_closed_wandb_run_has_written_its_whole_record(tmp_path):
     (info,) = run_info(tmp_path)
     summary, history, _ = summary_and_history(tmp_path)
     assert info["name"] == "whole" and info["config"]["seed"] == 3
-    assert "loss" in history and summary["eval/mean_m"] == 0.25
+    assert "train/loss" in history and summary["eval/mean_m"] == 0.25  # a training metric, in its section
 
 
 def test_a_wandb_login_is_a_netrc_entry_for_the_api_host(tmp_path, monkeypatch):

@@ -103,7 +103,9 @@ def metric_summaries(run_dir: Path) -> dict[str, str]:
     keeps (min, max, mean, last ...)."""
     out = {}
     for rec in run_records(run_dir, "metric"):
-        kept = [name for name in ("min", "max", "mean", "last", "best", "copy", "none") if getattr(rec.metric.summary, name)]
+        kept = [
+            name for name in ("min", "max", "mean", "last", "best", "copy", "none") if getattr(rec.metric.summary, name)
+        ]
         out[rec.metric.name or rec.metric.glob_name] = kept[0] if kept else ""
     return out
 

@@ -199,4 +199,5 @@ def end_of_run_names(cfg, seeds) -> dict[str, str]:
         per_seed_name(name, seed, seeds): condition_key(cond.disturbance, cond.adaptation, seed, seeds)
         for seed in seeds
         for name, cond in cfg.eval.conditions.items()
+        if cond is not None  # a condition switched off (eval.conditions.<name>=null) is not evaluated
     }
