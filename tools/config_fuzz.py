@@ -258,11 +258,18 @@ def walk_markdown(table: dict[str, dict[str, dict[str, str]]]) -> str:
         "`deploy.flight.hover_s` 0 is shorter than the hover trim's window, `deploy.safety.kill_battery_v` 4.2 V",
         "is above `land_battery_v`, `env.quad.gravity_mps2` 0.1 is below the thrust's lower bound (-9.8 m/s²).",
     ]
+    out += [
+        "",
+        "fires: for a key that feeds a per-tick safety check (`deploy.safety.*`), the check still decides",
+        "LAND or KILL just beyond the limit when the limit is at the loosest value its range accepts",
+        "(`tests/deploy/test_safety_edges.py`, one case per limit; a limit without a case fails it).",
+    ]
     for entry, rows in table.items():
-        out += ["", f"## {entry} ({len(rows)} numeric keys)", "", "| key | " + " | ".join(cols) + " |"]
-        out.append("|---|" + "---|" * len(cols))
+        out += ["", f"## {entry} ({len(rows)} numeric keys)", "", "| key | " + " | ".join(cols) + " | fires |"]
+        out.append("|---|" + "---|" * (len(cols) + 1))
         for key, row in rows.items():
-            out.append(f"| `{key}` | " + " | ".join(short.get(row.get(c, ""), row.get(c, "")) for c in cols) + " |")
+            cells = " | ".join(short.get(row.get(c, ""), row.get(c, "")) for c in cols)
+            out.append(f"| `{key}` | {cells} | {'yes' if key.startswith('deploy.safety.') else ''} |")
     return "\n".join(out) + "\n"
 
 

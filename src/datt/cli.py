@@ -353,7 +353,15 @@ def file_fault_line(exc: OSError) -> str:
 
 
 def _fail(message: str, code: int) -> None:
+    """The command's one error line on stderr, also into the run's log file (when Hydra's job
+    logging has opened one), and exit ``code``."""
     print(f"error: {message}", file=sys.stderr)
+    import logging
+
+    record = logging.LogRecord("datt", logging.ERROR, __file__, 0, f"error: {message}", None, None)
+    for handler in logging.getLogger().handlers:
+        if isinstance(handler, logging.FileHandler):
+            handler.handle(record)
     sys.exit(code)
 
 

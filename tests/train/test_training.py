@@ -234,3 +234,37 @@ def test_a_rollout_larger_than_the_machine_is_refused_before_allocating():
     with pytest.raises(ConfigError):  # the edge: one frame more than fits
         check_rollout_memory(10**6 + 1, 1, memory_bytes=376 * 10**6)
     check_rollout_memory(10**6, 1, memory_bytes=376 * 10**6)
+
+
+def test_a_signal_during_the_end_of_run_evaluation_keeps_what_finished(tmp_path, monkeypatch):
+    """Each end-of-run condition is on disk as it finishes (``metrics.json``, ``complete: false``);
+    a signal during the next one says what is kept, and the resume evaluates again (no training)."""
+    import json
+
+    import datt.eval.conditions as conditions
+
+    cfg = tiny_cfg("train.total_frames=1024", "eval.plots=false", "curriculum.fixed_ref_frames=0")
+    real = conditions.evaluate_conditions
+    calls = []
+
+    def interrupted_second(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 2:  # the second condition (brownian): SIGTERM arrives as the entry point raises it
+            raise KeyboardInterrupt("SIGTERM")
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(conditions, "evaluate_conditions", interrupted_second)
+    with pytest.raises(KeyboardInterrupt) as info:
+        run_train(cfg, run_dir=tmp_path)
+    assert str(info.value).startswith("SIGTERM: training finished (") and "(complete: false)" in str(info.value)
+    kept = json.loads((tmp_path / "metrics.json").read_text())
+    assert kept["complete"] is False and list(kept["conditions"]) == ["clean"] and kept["frames"] == 1024
+    checkpoint = (tmp_path / "last.pt").read_bytes()
+
+    monkeypatch.setattr(conditions, "evaluate_conditions", real)
+    resumed = tiny_cfg(
+        "train.total_frames=1024", "eval.plots=false", "curriculum.fixed_ref_frames=0", f"resume={tmp_path}"
+    )
+    metrics = run_train(resumed)
+    assert set(metrics["conditions"]) == {"clean", "brownian"} and metrics.get("complete") is not False
+    assert (tmp_path / "last.pt").read_bytes() == checkpoint  # evaluated again, not trained again

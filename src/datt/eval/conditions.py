@@ -74,15 +74,20 @@ def evaluate_conditions(
 
 
 def evaluate_end_of_run(
-    cfg: DictConfig, policy, run_dir: Path, plots: bool, tag: str, seeds: Sequence[int]
+    cfg: DictConfig, policy, run_dir: Path, plots: bool, tag: str, seeds: Sequence[int], on_part=None
 ) -> tuple[dict, dict]:
     """A training run's own evaluation: ``cfg.eval.conditions`` with ``policy`` at each of
     ``seeds`` (names per :func:`~datt.eval.schema.per_seed_name`), and a hovering drone on the
-    first seed's bank as the reference point. Returns ``(conditions, hover)``."""
+    first seed's bank as the reference point. Returns ``(conditions, hover)``. ``on_part``
+    (optional) is called with the conditions finished so far after each condition, so a caller
+    can keep them on disk as they finish."""
     conditions = {}
     for seed in seeds:
-        named = {per_seed_name(name, seed, seeds): cond for name, cond in cfg.eval.conditions.items()}
-        conditions.update(evaluate_conditions(cfg, policy, named, run_dir, plots, tag=tag, seed=int(seed)))
+        for name, cond in cfg.eval.conditions.items():
+            named = {per_seed_name(name, seed, seeds): cond}
+            conditions.update(evaluate_conditions(cfg, policy, named, run_dir, plots, tag=tag, seed=int(seed)))
+            if on_part is not None:
+                on_part(dict(conditions))
     clean = {"disturbance": "none", "adaptation": "none"}
     hover = evaluate_conditions(cfg, None, {"hover": clean}, run_dir, False, "hover", seed=int(seeds[0]))["hover"]
     return conditions, hover

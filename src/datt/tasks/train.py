@@ -68,7 +68,7 @@ def run_train(cfg: DictConfig, run_dir: Path | None = None) -> dict:
         _drop_own_hydra_dir(resumed, run_dir)
         done = finished_frames(resumed, int(int(cfg.train.total_frames) * budget_factor(cfg)))
         metrics_path = resumed / "metrics.json"
-        if done is not None and metrics_path.is_file():  # report, write nothing
+        if done is not None and _complete(metrics_path):  # report, write nothing
             console.print(
                 f"run {resumed} is finished ({done:,} frames); nothing to do. To train on, resume with a larger "
                 f"train.total_frames (> {done:,})"
@@ -81,6 +81,14 @@ def run_train(cfg: DictConfig, run_dir: Path | None = None) -> dict:
         if in_stages(cfg):
             return run_stages(cfg, run_dir, _train_locked)
         return _train_locked(cfg, run_dir, resumed is not None)
+
+
+def _complete(metrics_path: Path) -> bool:
+    """Whether ``metrics.json`` holds a whole end-of-run evaluation (one stopped part-way says
+    ``complete: false``: the resume evaluates again)."""
+    if not metrics_path.is_file():
+        return False
+    return json.loads(metrics_path.read_text()).get("complete") is not False
 
 
 def _requeued_attempt(given: Path | None, own: bool = False) -> Path | None:
@@ -168,9 +176,20 @@ def _train_and_evaluate(cfg, run_dir: Path, trainer, run, train, end_eval) -> di
     if history and end_eval.plots:
         plot_learning_curve(trainer.history, run_dir / "learning_curve.png")
     if train.eval_at_end:
-        metrics["conditions"], hover = evaluate_end_of_run(
-            cfg, trainer.actor, run_dir, end_eval.plots, run_dir.name, end_eval.seeds
-        )
+
+        def keep(done: dict) -> None:  # each finished condition on disk (a signal keeps them), not yet complete
+            write_json(run_dir / "metrics.json", {**metrics, "conditions": done, "complete": False})
+
+        try:
+            metrics["conditions"], hover = evaluate_end_of_run(
+                cfg, trainer.actor, run_dir, end_eval.plots, run_dir.name, end_eval.seeds, on_part=keep
+            )
+        except KeyboardInterrupt as exc:  # SIGINT, or SIGTERM through the entry point: say what is kept
+            signal_name = exc.args[0] if exc.args else "SIGINT"
+            raise KeyboardInterrupt(
+                f"{signal_name}: training finished ({run_dir / 'last.pt'}); the conditions evaluated so far are in "
+                f"{run_dir / 'metrics.json'} (complete: false); resume={run_dir} evaluates again"
+            ) from None
         metrics["hover_reference"] = hover
         print_metrics(console, f"evaluation ({run_dir.name})", {**metrics["conditions"], "hover (reference)": hover})
     write_json(run_dir / "metrics.json", metrics)
