@@ -66,6 +66,10 @@ SHORT_FLIGHT = [
 # flight's test flies the full speed (``FULL_SPEED`` after the others); a test naming its own
 # ``traj=`` keeps it.
 GENTLE_REFERENCE = ["traj.speed_min_mps=0.5", "traj.speed_max_mps=0.5"]
+# the transfer test's vehicle (10 % heavy, motors 10 % weak); it needs ~+23 % of hover trim, next to
+# hover_trim_max's 25 % (a loaded machine's trim read +25.4 % and +26 %): every flight of it raises
+# that limit unless its subject is the limit (then it sets its own after these)
+HEAVY_WEAK = ["deploy.server.mass_kg=0.0374", "deploy.server.thrust_gain=0.9", "deploy.flight.hover_trim_max=0.4"]
 FULL_SPEED = ["traj.speed_min_mps=1.0", "traj.speed_max_mps=1.0"]
 
 

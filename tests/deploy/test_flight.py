@@ -24,7 +24,7 @@ pytest.importorskip("cflib")
 from datt.configuration import compose  # noqa: E402
 from datt.tasks.deploy import run_deploy  # noqa: E402
 
-from . import FULL_SPEED, SHORT_FLIGHT, fly_sim, ports  # noqa: E402
+from . import FULL_SPEED, HEAVY_WEAK, SHORT_FLIGHT, fly_sim, ports  # noqa: E402
 
 pytestmark = pytest.mark.flight  # real flights (seconds each): not in the mutation-testing selection
 
@@ -383,9 +383,6 @@ def test_hover_calibration_finds_the_true_hover_command_and_slope(tmp_path):
     assert summary["controller"] == build_controller(cfg)[2]  # the run's labels, handed to the flight, kept
 
 
-# the transfer test's vehicle; it needs ~+23 % of hover trim, next to hover_trim_max's 25 % (a loaded
-# machine's trim once read +25.4 %): its flights raise that limit unless their subject is the limit
-HEAVY_WEAK = ["deploy.server.mass_kg=0.0374", "deploy.server.thrust_gain=0.9", "deploy.flight.hover_trim_max=0.4"]
 # a flight meant to fly at its ceiling: the thrust check lets the star through (corners averaged
 # over 2 s, no reserve), on the training model's loop its figures were measured on
 AT_CEILING = [

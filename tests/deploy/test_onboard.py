@@ -20,7 +20,7 @@ from datt.deploy.thrust import ThrustMap
 from datt.export import export_spec
 from datt.export.app import build_sil_library, write_app
 
-from . import ports
+from . import HEAVY_WEAK, ports
 
 pytestmark = pytest.mark.skipif(shutil.which("gcc") is None, reason="no gcc: the onboard app cannot be built here")
 LEVEL = [1.0, 0.0, 0.0, 0.0]
@@ -410,7 +410,7 @@ def test_the_app_flies_on_the_hover_trims_map(tmp_path):
         threading.Thread(target=sample, daemon=True).start()
 
     # the training model's rate loop: on a stock vehicle's own loop this vehicle is at its hover trim's limit
-    overrides = ["deploy.onboard=true", "deploy.server.mass_kg=0.0374", "deploy.server.thrust_gain=0.9"]
+    overrides = ["deploy.onboard=true", *HEAVY_WEAK]
     overrides.append("deploy.server.rate_loop=pi_first_order")
     overrides += [f"deploy.uri=udp://127.0.0.1:{next(ports)}", "deploy.flight.hover_s=1.0"]
     cfg = compose("deploy", [*SHORT_FLIGHT, *overrides])
@@ -689,8 +689,7 @@ def test_the_app_is_not_started_on_a_reference_beyond_its_ceiling(tmp_path):
     """Onboard the same thrust check runs after the trim, at the app's own ceiling: with the app
     capped at 60000 the transfer vehicle (10 % heavy, motors 10 % weak) cannot follow the star;
     the app is never started (``datt.run`` stays 0) and the PID lands from the hover."""
-    heavy_weak = ["deploy.server.mass_kg=0.0374", "deploy.server.thrust_gain=0.9"]
-    summary, server = fly(tmp_path, ["deploy.onboard=true", "deploy.thrust.app_max_command=60000", *heavy_weak])
+    summary, server = fly(tmp_path, ["deploy.onboard=true", "deploy.thrust.app_max_command=60000", *HEAVY_WEAK])
     assert summary["outcome_kind"] == "refused_reference", summary["outcome"]
     assert summary["track_steps"] == 0 and server.app.phase == onboard.IDLE
     assert "deploy.flight.infeasible=slow" in summary["outcome"]
