@@ -12,10 +12,8 @@ import contextlib
 import errno
 import re
 import signal
-import subprocess
 import sys
 import tempfile
-import time
 import traceback
 from collections.abc import Callable
 from pathlib import Path
@@ -453,23 +451,6 @@ def _sweep_state() -> str:
     return ": " + sweep_line(_sweep_dir, sweep_summary(_sweep_dir), "none started")
 
 
-def stop_local_jobs(wait_s: float = 60.0) -> None:
-    """``hydra/launcher=submitit_local``: its jobs run in processes of their own that a signal to
-    this (the launching) process does not reach; each gets SIGINT (its controller then stops its
-    task, which saves and exits) and is waited for, at most ``wait_s`` in all, so no job
-    outlives the command. Nothing without submitit or its jobs."""
-    local = sys.modules.get("submitit.local.local")
-    processes = [p for p in getattr(local, "_PROCESSES", {}).values() if p.poll() is None]
-    for process in processes:
-        process.send_signal(signal.SIGINT)
-    deadline = time.monotonic() + wait_s
-    for process in processes:
-        try:
-            process.wait(timeout=max(0.0, deadline - time.monotonic()))
-        except subprocess.TimeoutExpired:
-            process.kill()
-
-
 def _interrupt(signum: int, frame: object) -> None:
     raise KeyboardInterrupt(signal.Signals(signum).name)
 
@@ -586,7 +567,6 @@ def hydra_main(config_name: str, task: Callable[[DictConfig], object], lock: boo
                 _main()
         except KeyboardInterrupt as exc:
             ignore_stop_signals()
-            stop_local_jobs()
             _fail(f"interrupted by {exc.args[0] if exc.args else 'SIGINT'}{_sweep_state()}", 130)
         except OSError as exc:  # Hydra's own writes (.hydra/, the job log) on a full or read-only disk
             if exc.errno not in FILE_FAULTS:
