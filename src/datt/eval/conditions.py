@@ -73,6 +73,18 @@ def evaluate_conditions(
     return results
 
 
+def end_of_run_plan(cfg: DictConfig, seeds: Sequence[int]) -> list[tuple[str, int, DictConfig]]:
+    """The end-of-run evaluation in order: ``(name in metrics.json, seed, condition)`` for each of
+    ``seeds`` and each condition of ``cfg.eval.conditions`` that is not switched off (null); the
+    name per :func:`~datt.eval.schema.per_seed_name`."""
+    return [
+        (per_seed_name(name, seed, seeds), int(seed), cond)
+        for seed in seeds
+        for name, cond in cfg.eval.conditions.items()
+        if cond is not None  # a sweep can drop a default condition by setting it to null
+    ]
+
+
 def evaluate_end_of_run(
     cfg: DictConfig, policy, run_dir: Path, plots: bool, tag: str, seeds: Sequence[int], on_part=None
 ) -> tuple[dict, dict]:
@@ -82,12 +94,10 @@ def evaluate_end_of_run(
     (optional) is called with the conditions finished so far after each condition, so a caller
     can keep them on disk as they finish."""
     conditions = {}
-    for seed in seeds:
-        for name, cond in cfg.eval.conditions.items():
-            named = {per_seed_name(name, seed, seeds): cond}
-            conditions.update(evaluate_conditions(cfg, policy, named, run_dir, plots, tag=tag, seed=int(seed)))
-            if on_part is not None:
-                on_part(dict(conditions))
+    for name, seed, cond in end_of_run_plan(cfg, seeds):
+        conditions.update(evaluate_conditions(cfg, policy, {name: cond}, run_dir, plots, tag=tag, seed=seed))
+        if on_part is not None:
+            on_part(dict(conditions))
     clean = {"disturbance": "none", "adaptation": "none"}
     hover = evaluate_conditions(cfg, None, {"hover": clean}, run_dir, False, "hover", seed=int(seeds[0]))["hover"]
     return conditions, hover

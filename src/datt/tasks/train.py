@@ -11,9 +11,9 @@ from omegaconf import DictConfig, OmegaConf
 
 from datt.configuration import config_groups, search_roots, structured
 from datt.errors import TrainingDiverged
-from datt.eval.conditions import evaluate_end_of_run, print_metrics
+from datt.eval.conditions import end_of_run_plan, evaluate_end_of_run, print_metrics
 from datt.eval.plots import plot_learning_curve
-from datt.eval.schema import EndOfRunEvalParams, per_seed_name
+from datt.eval.schema import EndOfRunEvalParams
 from datt.runs import OWN_RUN, RunLock, finite_json, record_failure, scheduler_signal, write_json
 from datt.tasks.common import console, hydra_run_dir, set_threads, wandb_run_id
 from datt.tasks.resume import finished_frames, holds_a_run, resume_config, resume_dir
@@ -215,8 +215,6 @@ def end_of_run_names(cfg, seeds) -> dict[str, str]:
     wandb name (:func:`~datt.train.loggers.condition_key`: ``none-none``, ``brownian-privileged-
     seed1``), the name eval.py gives the same condition."""
     return {
-        per_seed_name(name, seed, seeds): condition_key(cond.disturbance, cond.adaptation, seed, seeds)
-        for seed in seeds
-        for name, cond in cfg.eval.conditions.items()
-        if cond is not None  # a condition switched off (eval.conditions.<name>=null) is not evaluated
+        name: condition_key(cond.disturbance, cond.adaptation, seed, seeds)
+        for name, seed, cond in end_of_run_plan(cfg, seeds)
     }
