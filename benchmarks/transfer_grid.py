@@ -115,6 +115,7 @@ def main() -> None:
     ap.add_argument("--workers", type=int, default=3)
     for key, values in GRID.items():
         ap.add_argument("--" + key.replace("_", "-"), nargs="+", type=float, default=list(values))
+    ap.add_argument("--set", nargs="+", default=[], metavar="KEY=VALUE", help="more deploy.py overrides (recorded)")
     ap.add_argument("--out", default=None, help="the result's name (benchmarks/results/<name>.json), not a path")
     ap.add_argument("--report", action="store_true", help="write docs/results/transfer_grid.md from the results")
     args = ap.parse_args()
@@ -126,7 +127,7 @@ def main() -> None:
         return
     checkpoint = args.checkpoint or default_checkpoint(args.vehicle, args.mode == "onboard")
     vehicle = VEHICLES[args.vehicle]
-    extra = (*MODE_OVERRIDES[args.mode], f"controller={args.controller}")
+    extra = (*MODE_OVERRIDES[args.mode], f"controller={args.controller}", *args.set)
     axes = [getattr(args, key) for key in GRID]
     cells = list(itertools.product(*axes))
     with tempfile.TemporaryDirectory() as tmp:
@@ -187,6 +188,7 @@ def main() -> None:
             "checkpoint": checkpoint,
             "flights_per_cell": args.flights,
             "workers": args.workers,
+            "overrides": list(args.set),
             "eval_star_error_m": eval_err,
             "totals": totals,
             "cells": rows,

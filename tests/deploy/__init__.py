@@ -62,7 +62,7 @@ SHORT_FLIGHT = [
 # The star at half the paper's speed: a flight test whose subject is not tracking at the vehicle's
 # limit flies a reference well inside it, so that what it checks does not hang on the margin a
 # loaded test machine's late ticks eat. At 1 m/s the 3 s track reaches the star's first corner,
-# which asks for most of the stock vehicle's ceiling (docs/deploy.md "Thrust check"). The default
+# which asks for most of the stock vehicle's ceiling (docs/deploy.md "The thrust check before TRACK"). The default
 # flight's test flies the full speed (``FULL_SPEED`` after the others); a test naming its own
 # ``traj=`` keeps it.
 GENTLE_REFERENCE = ["traj.speed_min_mps=0.5", "traj.speed_max_mps=0.5"]

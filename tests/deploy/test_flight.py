@@ -347,7 +347,7 @@ def test_hover_calibration_finds_the_true_hover_command_and_slope(tmp_path):
             "deploy.server.mass_kg=0.036",
             "deploy.server.thrust_gain=0.95",
             "deploy.calibrate_hover_s=3.0",
-            "deploy.server.rate_loop=pi_first_order",  # the fit's figures (docs/deploy.md) are this loop's
+            "deploy.server.rate_loop=pi_first_order",  # the fit's figures (deploy_studies.md): this loop's
         ],
     )
     summary = run_deploy(cfg, run_dir=tmp_path)
@@ -467,7 +467,7 @@ def test_the_hover_trim_finds_a_heavy_weak_vehicles_hover_command_and_tracks_on_
     assert [e["phase"] for e in trims] == ["TAKEOFF", "HOVER"]  # the takeoff's hover, refined in HOVER
     trim = trims[-1]
     # paired with the commands sent one measured latency earlier (round trip + one tick): -2.2 % with
-    # the same tick's commands in 1 of 3 flights, -0.25 to -0.92 % paired (docs/deploy.md)
+    # the same tick's commands in 1 of 3 flights, -0.25 to -0.92 % paired (docs/results/deploy_studies.md)
     assert abs(trim["hover_command"] - true_hover) / true_hover < 0.02, (trim, true_hover)
     # the lag null means: the round trip measured at connect + one 20 ms tick, the same chain the
     # predictor compensates (its null latency: the round trip + the policy's 20 ms)

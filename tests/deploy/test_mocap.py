@@ -165,3 +165,69 @@ def test_the_same_seed_draws_the_same_noise():
 
     a, b, c = first_positions(7), first_positions(7), first_positions(8)
     assert len(a) == 5 and a == b[: len(a)] and a != c[: len(a)]
+
+
+# -- the lead of the forwarded positions (deploy.mocap.lead_s) -------------------------------------
+def test_a_lead_moves_a_steadily_moving_position_ahead_by_its_velocity_times_the_lead():
+    from datt.deploy.mocap import FrameLead
+
+    lead = FrameLead(0.03, 0.04)
+    velocity = (1.0, -0.5, 0.2)
+    for k in range(20):
+        t = 0.01 * k
+        out = lead(tuple(v * t for v in velocity), t)
+        if k:  # from the second frame on: the position 30 ms ahead
+            assert out == pytest.approx(tuple(v * (t + 0.03) for v in velocity), abs=1e-12)
+
+
+def test_no_lead_returns_each_position_as_it_is_and_the_first_frame_is_never_moved():
+    from datt.deploy.mocap import FrameLead
+
+    assert FrameLead(0.0, 0.04)((1.0, 2.0, 3.0), 0.5) == (1.0, 2.0, 3.0)
+    lead = FrameLead(0.05, 0.04)
+    assert lead((1.0, 2.0, 3.0), 0.5) == (1.0, 2.0, 3.0)
+    assert lead((1.0, 2.0, 3.0), 0.5) == (1.0, 2.0, 3.0)  # a repeated stamp: no velocity from it
+
+
+def test_the_velocity_is_taken_over_the_window_not_between_neighbouring_frames():
+    """A 1 mm step in one frame moves the led position by 1 mm x lead / window, not lead / 10 ms."""
+    from datt.deploy.mocap import FrameLead
+
+    lead = FrameLead(0.03, 0.04)
+    for k in range(10):
+        lead((0.0, 0.0, 1.0), 0.01 * k)
+    out = lead((0.001, 0.0, 1.0), 0.10)
+    assert out[0] == pytest.approx(0.001 + 0.001 * 0.03 / 0.04, abs=1e-12)
+
+
+class _Link:
+    def __init__(self, round_trip_s):
+        self.round_trip_s = round_trip_s
+
+
+@pytest.mark.parametrize(
+    "kind, lead_s, round_trip_s, want",
+    [
+        ("offboard", None, 0.06, None),  # the predictor's job there
+        ("onboard", None, 0.06, 0.03),
+        ("onboard", None, float("inf"), None),  # no round trip measured: nothing to lead by
+        ("offboard", 0.02, 0.06, 0.02),
+        ("onboard", 0.0, 0.06, None),
+    ],
+)
+def test_the_flight_leads_by_the_setting_or_by_its_own_rule(kind, lead_s, round_trip_s, want):
+    from datt.deploy.mocap import NoMocap
+    from datt.deploy.onboard_flight import OnboardFlight
+    from datt.deploy.runner import FlightRunner
+
+    flight = object.__new__(OnboardFlight if kind == "onboard" else FlightRunner)
+    flight.mocap = NoMocap().with_lead(lead_s, 0.04)
+    flight.link = _Link(round_trip_s)
+    events = []
+    flight._event = lambda what, text="", **extra: events.append((what, text))
+    got = flight._mocap_lead()
+    if want is None:
+        assert got is None and events == []
+    else:
+        assert got.lead_s == pytest.approx(want) and got.window_s == 0.04
+        assert events == [("mocap lead", f"each forwarded mocap position led {want * 1000:.0f} ms along its velocity")]

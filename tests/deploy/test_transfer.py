@@ -2,7 +2,7 @@
 trip, motors 10 % weak, the vehicle 10 % heavy and 2 % packet loss, compared with eval.py's star
 error for the same policy. Real time (~25 s a flight): slow.
 
-What they pin (docs/deploy.md has the figures of benchmarks/transfer.py, on the simulated
+What they pin (docs/results/deploy_studies.md has the figures of benchmarks/transfer.py, on the simulated
 vehicle's real timing; a flight's error is eval.py's, each estimate against the reference when
 it was measured): the smooth policy (what ``deploy.py`` flies off-board) lands behind the state
 predictor within 1.5x of its eval error; the firmware-grade

@@ -80,3 +80,54 @@ def test_the_authors_protocol_counts_every_step_of_every_episode_and_still_count
 def test_an_unknown_protocol_is_refused_in_one_line():
     with pytest.raises(ConfigError, match=r"eval.protocol: unknown value 'paper'; allowed: project, authors"):
         evaluate(cfg_with("paper"), lambda env: HoverController(), "none", "none")
+
+
+def _probe(monkeypatch, **change):
+    """The project protocol with one field changed, as the protocol ``probe``."""
+    import dataclasses
+
+    from datt.eval import protocol as protocol_module
+
+    probe = dataclasses.replace(protocol_module.PROTOCOLS["project"], **change)
+    monkeypatch.setitem(protocol_module.PROTOCOLS, "probe", probe)
+    monkeypatch.setattr("datt.eval.schema.PROTOCOLS", protocol_module.PROTOCOLS, raising=False)
+    return cfg_with("project", "env.max_tracking_error_m=0.3")
+
+
+def _run(cfg, name, controller=HoverController):
+    cfg = cfg.copy()
+    cfg.eval.protocol = name
+    return evaluate(cfg, lambda env: controller(), "none", "none", seed=2)
+
+
+def test_each_protocol_setting_alone_changes_what_it_claims_and_nothing_else(monkeypatch):
+    """One field of the project protocol at a time: the start offset moves only the starts, the
+    start thrust only the first step's drop, the episode length only the length, counting every
+    step only which episodes enter the mean, and the error limit off only whether a drone far off
+    its reference stops (each compared with the project protocol itself on the same seed)."""
+    base = _run(cfg_with("project", "env.max_tracking_error_m=0.3"), "project")
+    bt = base["trace"]
+
+    cfg = _probe(monkeypatch, init_pos_range_m=0.5)
+    t = _run(cfg, "probe")["trace"]
+    assert (t.pos_m[:, 0] - t.ref_m[:, 0]).abs().max() > 0.3 and t.err_m.shape == bt.err_m.shape
+    assert t.pos_m[:, 1, 2].sub(t.pos_m[:, 0, 2]).abs().max() < 1e-6  # still hover thrust: no drop
+
+    t = _run(_probe(monkeypatch, initial_thrust_mps2=0.0), "probe")["trace"]
+    assert torch.equal(t.pos_m[:, 0], bt.pos_m[:, 0])  # the same starts
+    drop = t.pos_m[:, 1, 2] - t.pos_m[:, 0, 2]
+    assert torch.allclose(drop, torch.full_like(drop, -G * 0.02 * 0.02 / 2), atol=1e-6)
+
+    t = _run(_probe(monkeypatch, episode_steps=37), "probe")["trace"]
+    assert t.err_m.shape[1] == 37 and torch.equal(t.pos_m[:, 0], bt.pos_m[:, 0])
+
+    crashing = _run(cfg_with("project", "env.max_tracking_error_m=0.3"), "project", Climb)["groups"]["zigzag"]
+    every = _run(_probe(monkeypatch, count_every_step=True), "probe", Climb)
+    assert math.isnan(crashing["mean_m"]) and crashing["crashes"] == 40
+    assert every["groups"]["zigzag"]["crashes"] == 40 and math.isfinite(every["groups"]["zigzag"]["mean_m"])
+
+    kept = _run(_probe(monkeypatch, terminate_on_error=False), "probe", Climb)["trace"]
+    stopped = _run(cfg_with("project", "env.max_tracking_error_m=0.3"), "project", Climb)["trace"]
+    # the error limit off: climbing drones fly on past 0.3 m of error; on, they stop there
+    assert (stopped.crashed_at[:40] < kept.crashed_at[:40]).all()
+    assert kept.err_m[:40, -1].min() > 0.3

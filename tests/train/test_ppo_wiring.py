@@ -554,3 +554,38 @@ def test_a_bad_budget_is_refused_naming_its_key_where_a_run_scales_its_steps(val
     line = str(info.value)
     assert line.startswith("budget: must be a finite number in (0, 1000], got ") and "\n" not in line
     assert budget_factor(OmegaConf.create({"budget": 0.25})) == 0.25
+
+
+def _hand_gae_batch(rewards, terminated, done, value):
+    """GAE by hand over ``[envs, steps]`` with a constant value: δ = r + γ(1 − term)V − V and
+    A_t = δ_t + γλ(1 − done_t) A_{t+1} (an episode's end cuts the recursion; only a termination
+    cuts the bootstrap)."""
+    adv = torch.zeros_like(rewards)
+    running = torch.zeros(rewards.shape[0], dtype=rewards.dtype)
+    for t in reversed(range(rewards.shape[1])):
+        alive = (~terminated[:, t]).to(rewards.dtype)
+        cont = (~done[:, t]).to(rewards.dtype)
+        delta = rewards[:, t] + GAMMA * alive * value - value
+        running = delta + GAMMA * LMBDA * cont * running
+        adv[:, t] = running
+    return adv
+
+
+@pytest.mark.parametrize("scale", [2.0, 0.25])
+def test_the_advantage_and_value_target_are_computed_from_the_scaled_rewards(tmp_path, scale):
+    """reward_scale acts before GAE: the advantage and the value target of a constant critic are the
+    hand-computed ones of the scaled rewards (scaling after GAE would leave them the unscaled
+    rewards' while the batch's rewards read scaled)."""
+    trainer = constant_critic_trainer(
+        tmp_path, "algo.epochs=1", "algo.minibatch_size=100000", "algo.lr=1e-12", f"algo.reward_scale={scale}"
+    )
+    batch = _rollout_batch(trainer, steps=6)
+    rewards = batch["next", "reward"].squeeze(-1).clone()
+    terminated = batch["next", "terminated"].squeeze(-1)
+    done = batch["next", "done"].squeeze(-1)
+    trainer.update(batch)
+    want = _hand_gae_batch(rewards * scale, terminated, done, VALUE)
+    torch.testing.assert_close(batch["advantage"].squeeze(-1), want, rtol=1e-5, atol=1e-5)
+    torch.testing.assert_close(batch["value_target"].squeeze(-1), want + VALUE, rtol=1e-5, atol=1e-5)
+    unscaled = _hand_gae_batch(rewards, terminated, done, VALUE)
+    assert (want - unscaled).abs().max() > 1e-2  # the case tells the two orders apart

@@ -191,3 +191,25 @@ def test_a_bad_schedule_on_the_command_line_is_one_line(tmp_path, monkeypatch, c
     result = run_cli("train", args, tmp_path, monkeypatch, capsys)
     one_line(result, "error: train.stages: the stages add up to 64,000,000 frames but train.total_frames is 1,000; ")
     assert not (tmp_path / "outputs").exists() or not list((tmp_path / "outputs").rglob("*.pt"))
+
+
+def test_what_a_stage_sets_wins_over_what_the_plan_sets_for_it():
+    """The plan sets each stage's frames, its parent's weights, the fixed reference's frames (0 after
+    the first) and whether it evaluates at the end; a stage that sets one of the last two itself
+    keeps its own value (the order shows only when both set the same key)."""
+    stages = [
+        {"name": "a", "frames": 1024, "set": {"train.eval_at_end": True}},
+        {"name": "b", "frames": 1024, "set": {"curriculum.fixed_ref_frames": 256}},
+        {"name": "c", "frames": 1024, "set": {"train.eval_at_end": False}},
+    ]
+    cfg = staged_cfg(stages, 3072)
+    OmegaConf.update(cfg, "train.eval_at_end", True)
+    plan = stage_plan(cfg)
+    a, b, c = (stage_config(cfg, k, plan, f"p{k}/last.pt") for k in range(3))
+    assert a.train.eval_at_end is True  # the plan says only the last evaluates; the stage says otherwise
+    assert b.curriculum.fixed_ref_frames == 256  # the plan would reset it to 0 after the first stage
+    assert c.train.eval_at_end is False  # the last stage, which the plan would evaluate
+    assert (a.train.total_frames, b.train.total_frames) == (1024, 1024)
+    assert b.train.init_from == "p1/last.pt" and a.train.init_from is None
+    plain = stage_config(staged_cfg(TWO_STAGES, 2048), 1, stage_plan(staged_cfg(TWO_STAGES, 2048)), "x")
+    assert plain.curriculum.fixed_ref_frames == 0  # a stage that does not set it: the plan's 0

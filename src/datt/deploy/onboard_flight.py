@@ -34,6 +34,7 @@ APP_LANDED_MARGIN_S = 2.0
 
 class OnboardFlight(FlightRunner):
     sends_estop_watchdog = False  # a lost link must not stop the app's flight
+    leads_mocap_by_half_round_trip = True  # the app answers its own estimate: no host predictor behind it
 
     def __init__(self, *args, policy_id: int | None = None, **kwargs) -> None:
         super().__init__(*args, **kwargs)

@@ -37,6 +37,7 @@ from datt.deploy import firmware
 from datt.deploy.ceiling_guard import keep_altitude_at_ceiling
 from datt.deploy.feasibility import peak_ask, slow_factor, slowed
 from datt.deploy.flight_log import FlightLog, errors_when_measured, measured_at
+from datt.deploy.mocap import FrameLead
 from datt.deploy.outcome import Kind, Outcome
 from datt.deploy.safety import CELL, KILL, LAND, OK, BatteryFilter, SafetyParams, check, tilt_deg
 from datt.deploy.thrust import ThrustMap, commands_acting, hover_command_from_hover
@@ -197,7 +198,7 @@ class FlightParams:
     hover_trim_lag_s: float | None = ranged(None, Range(0.0, 0.5, optional=True))
     # altitude first at the thrust ceiling (datt.deploy.ceiling_guard): a command at the map's ceiling
     # from an attitude tilted past acos((g + reserve) / ceiling) levels instead of tilting further
-    # (off by default: not better in the transfer test, docs/deploy.md)
+    # (off by default: not better in the transfer test, docs/results/deploy_studies.md)
     ceiling_guard: bool = False
     ceiling_climb_reserve_mps2: float = ranged(0.0, Range(0.0, 10.0))
     ceiling_level_gain_per_s: float = ranged(4.0, Range(0.0, 100.0))
@@ -235,6 +236,9 @@ class FlightRunner:
     with a thrust excitation instead."""
 
     sends_estop_watchdog = True  # the firmware's e-stop watchdog every tick (onboard: the app flies on without us)
+    # deploy.mocap.lead_s null: off-board the host's predictor rolls the estimate over the latency; the
+    # vehicle's filter is not led (onboard flights lead it by half the radio round trip)
+    leads_mocap_by_half_round_trip = False
 
     def __init__(
         self,
@@ -269,6 +273,7 @@ class FlightRunner:
         self._frame_lock = threading.Lock()
         self._frame_ready = threading.Event()
         self._pending_frame = None  # the newest mocap frame not yet forwarded
+        self._lead = None  # datt.deploy.mocap.FrameLead of the forwarded positions (set at CONNECT)
         self.predictor = predictor  # off-board latency compensation (datt.deploy.predictor), or None
         self._excitation = None  # calibration: extra thrust (m/s²) as a function of the tick index
         self.stop_request = stop_request  # datt.runs.StopRequest active while the flight was prepared
@@ -312,8 +317,12 @@ class FlightRunner:
         return math.inf if sample is None else time.monotonic() - sample[2]
 
     def _forward_frame(self, sample) -> None:
-        """A new mocap frame (the source's thread): kept as the one to forward next; a frame not
-        yet forwarded when a newer one arrives is dropped (the newest is the one worth sending)."""
+        """A new mocap frame (the source's thread): led (``deploy.mocap.lead_s``) and kept as the one
+        to forward next; a frame not yet forwarded when a newer one arrives is dropped (the newest is
+        the one worth sending)."""
+        if self._lead is not None:
+            pos, quat, t = sample
+            sample = (self._lead(pos, t), quat, t)
         with self._frame_lock:
             self._pending_frame = sample
         self._frame_ready.set()
@@ -409,11 +418,24 @@ class FlightRunner:
             self.predictor.round_trip_s = self.link.round_trip_s
             self._event("predictor", f"latency {self.predictor.latency_s * 1000:.0f} ms compensated")
         if self._has_mocap():
+            self._lead = self._mocap_lead()
             self.mocap.subscribe(self._forward_frame)
             self._forwarding = True
             threading.Thread(target=self._forward_frames, name="mocap-forward", daemon=True).start()
         if self.mocap is not None:
             self.mocap.start()
+
+    def _mocap_lead(self):
+        """The lead of the forwarded mocap positions: ``deploy.mocap.lead_s``, or by the flight's
+        rule when null; None when there is none (logged either way)."""
+        lead_s = getattr(self.mocap, "lead_s", None)
+        if lead_s is None:
+            rtt = self.link.round_trip_s
+            lead_s = rtt / 2 if self.leads_mocap_by_half_round_trip and math.isfinite(rtt) else 0.0
+        if lead_s <= 0.0:
+            return None
+        self._event("mocap lead", f"each forwarded mocap position led {lead_s * 1000:.0f} ms along its velocity")
+        return FrameLead(lead_s, getattr(self.mocap, "lead_window_s", 0.04))
 
     def _disarm_and_write(self) -> dict:
         """DISARM whatever happened, write the flight log, then close mocap and the link;

@@ -17,7 +17,17 @@ from datt.errors import ConfigError
 from datt.export.c_code import L1Spec, PolicySpec, generate, l1_spec, policy_spec
 from datt.runs import atomic_write
 
-__all__ = ["Recording", "record_rollout", "export_spec", "generate", "PolicySpec", "L1Spec", "reference_action"]
+__all__ = [
+    "FORMATS",
+    "check_export_options",
+    "Recording",
+    "record_rollout",
+    "export_spec",
+    "generate",
+    "PolicySpec",
+    "L1Spec",
+    "reference_action",
+]
 
 
 @dataclass
@@ -186,3 +196,18 @@ class ObservePolicyModule(torch.nn.Module):
             torch.zeros(n, 3),
             torch.zeros(n, 4 * self.history),
         )
+
+
+FORMATS = ("c", "app", "torchscript", "onnx")
+
+
+def check_export_options(cfg: DictConfig) -> None:
+    """``format`` and ``prefix`` of ``conf/export.yaml`` (what ``datt export`` writes, and the names in it)."""
+    fmt = str(cfg.format)
+    if fmt not in FORMATS:
+        raise ConfigError(f"format: unknown value {fmt!r}; allowed: {', '.join(FORMATS)}")
+    prefix = str(cfg.prefix)
+    if not prefix.isidentifier():
+        raise ConfigError(f"prefix: must be a C identifier, got {prefix!r}")
+    if fmt == "app" and prefix != "datt":
+        raise ConfigError(f"prefix: format=app uses the prefix datt (its sources call datt_*), got {prefix!r}")

@@ -233,7 +233,7 @@ def run_deploy(cfg: DictConfig, run_dir: Path | None = None, estop=None, server_
         policy_id, library = _onboard_app(cfg, run_dir, params.server is not None) if params.onboard else (None, None)
         server = _start_server(cfg, params, thrust, library) if params.server is not None else None
         try:
-            source = _mocap_source(params, server)
+            source = _mocap_source(params, server).with_lead(params.mocap.lead_s, params.mocap.lead_window_s)
             link = CrazyflieLink(params.uri, params.log_period_ms, params.connect_timeout_s, params.io_timeout_s)
             track_family = instantiate_option(cfg, "traj")
             kind, extra = _flight_kind(params, policy_id)

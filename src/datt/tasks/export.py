@@ -12,20 +12,7 @@ from datt.export import ObservePolicyModule, export_spec, write_c
 from datt.export.app import write_app
 from datt.paths import original_cwd
 from datt.tasks.common import console, hydra_run_dir, set_threads
-
-FORMATS = ("c", "app", "torchscript", "onnx")
-
-
-def check_export_options(cfg: DictConfig) -> None:
-    """``format`` and ``prefix`` of ``conf/export.yaml``."""
-    fmt = str(cfg.format)
-    if fmt not in FORMATS:
-        raise ConfigError(f"format: unknown value {fmt!r}; allowed: {', '.join(FORMATS)}")
-    prefix = str(cfg.prefix)
-    if not prefix.isidentifier():
-        raise ConfigError(f"prefix: must be a C identifier, got {prefix!r}")
-    if fmt == "app" and prefix != "datt":
-        raise ConfigError(f"prefix: format=app uses the prefix datt (its sources call datt_*), got {prefix!r}")
+from datt.tasks.validation import validate_config
 
 
 def check_out_dir(out: Path) -> None:
@@ -38,8 +25,6 @@ def check_out_dir(out: Path) -> None:
 
 
 def run_export(cfg: DictConfig, run_dir: Path | None = None) -> list[Path]:
-    from datt.tasks.validation import validate_config
-
     validate_config("export", cfg)
     fmt, prefix = str(cfg.format), str(cfg.prefix)
     set_threads(cfg.threads)

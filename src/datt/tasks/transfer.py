@@ -6,7 +6,7 @@ firmware's fit, the vehicle 10 % heavier than ``deploy.thrust.mass_kg``, 2 % of 
 log and app-channel packets lost. ``MODES``: off-board on the nominal map (the policy over the
 radio at 50 Hz; also with the experimental state predictor), onboard on the nominal map (the
 policy in the vehicle's app, ``deploy.onboard``), and onboard after a calibration flight under the
-same conditions (:func:`calibrate`: the deploy procedure of docs/deploy.md). Used by
+same conditions (:func:`calibrate`: the calibration flight of docs/deploy.md). Used by
 ``benchmarks/transfer.py`` and ``tests/deploy/test_transfer.py``.
 """
 

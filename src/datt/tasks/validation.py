@@ -19,6 +19,7 @@ from datt.control.factory import refuse_unused_adaptation_overrides
 from datt.envs.factory import env_params_from_cfg
 from datt.errors import ConfigError
 from datt.eval.schema import AdapterEvalParams, EndOfRunEvalParams, EvalParams
+from datt.export import check_export_options
 from datt.paths import resolve_path
 from datt.policies.networks import PolicyParams
 from datt.tasks.resume import resume_dir
@@ -85,8 +86,6 @@ def _run_level(config_name: str, cfg: DictConfig) -> None:
         check_metric_path(cfg.optimized_metric)
     _check_file(cfg, "checkpoint")
     if config_name == "export":
-        from datt.tasks.export import check_export_options
-
         check_export_options(cfg)
 
 

@@ -171,7 +171,7 @@ class SimCrazyflieParams:
     dt_s: float = ranged(0.02, Range(0.0, 1.0, low_open=True))
     # True: each loop logs the estimate of now, then steps (what a real vehicle can know); False
     # (the former order, kept to reproduce earlier figures): the step first, so the
-    # state of t + dt_s leaves at t, a step earlier than a real vehicle knows it (docs/deploy.md)
+    # state of t + dt_s leaves at t, a step earlier than a real vehicle knows it (docs/results/deploy_studies.md)
     log_before_step: bool = True
     battery_v: float = ranged(4.1, Range(2.5, 4.5))  # a 1S LiPo
     battery_drain_vps: float = ranged(0.002, Range(0.0, 1.0))
