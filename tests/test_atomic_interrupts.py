@@ -31,6 +31,8 @@ CHILD = textwrap.dedent(
     from datt.checkpoint import save_checkpoint
 
     path, writer = Path(sys.argv[1]), sys.argv[2]
+    # a process started by a pytest-xdist worker inherits SIGINT ignored; a user's command has Ctrl-C
+    signal.signal(signal.SIGINT, signal.default_int_handler)
     if writer == "text":
         write_json(path, {"old": True})
     else:

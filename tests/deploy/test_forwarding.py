@@ -5,6 +5,8 @@ skipped and the thread carries on (a dead forwarder would leave the Kalman filte
 import threading
 import time
 
+import pytest
+
 from datt.deploy.runner import FlightRunner
 from datt.deploy.safety import SafetyParams
 
@@ -28,7 +30,7 @@ def forwarding_runner() -> tuple[FlightRunner, threading.Thread]:
     runner.link, runner.safety = RecordingLink(), SafetyParams()
     runner._mocap_sent_t, runner._pending_frame = None, None
     runner._frame_lock, runner._frame_ready = threading.Lock(), threading.Event()
-    runner._forwarding = True
+    runner._forwarding, runner._lead = True, None
     thread = threading.Thread(target=runner._forward_frames, daemon=True)
     thread.start()
     return runner, thread
@@ -62,3 +64,21 @@ def test_each_frame_goes_out_once_and_a_wake_up_without_a_frame_is_skipped():
         runner._forwarding = False
         thread.join(1.0)
     assert not thread.is_alive()
+
+
+def test_with_a_lead_the_vehicle_is_sent_the_led_position_and_the_frames_own_attitude():
+    from datt.deploy.mocap import FrameLead
+
+    runner, thread = forwarding_runner()
+    runner._lead = FrameLead(0.03, 0.04)
+    try:
+        t = time.monotonic()
+        runner._forward_frame(((0.0, 0.0, 1.0), (1.0, 0.0, 0.0, 0.0), t - 0.01))  # 1 m/s along x
+        sent_after(runner, 1)
+        runner._forward_frame(((0.01, 0.0, 1.0), (1.0, 0.0, 0.0, 0.0), t))
+        kind, pos, quat = sent_after(runner, 2)[-1]
+        assert kind == "extpose" and quat == (1.0, 0.0, 0.0, 0.0)
+        assert pos[0] == pytest.approx(0.01 + 0.03) and pos[1:] == (0.0, 1.0)
+    finally:
+        runner._forwarding = False
+        thread.join(1.0)
