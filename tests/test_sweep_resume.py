@@ -88,3 +88,24 @@ def test_a_sweep_dir_is_still_refused_without_resume(tmp_path, monkeypatch, caps
     args = ["-m", *TINY, "train.total_frames=1024", "eval.plots=false", "seed=0", f"hydra.sweep.dir={sweep}"]
     assert run_cli("train", args, tmp_path, monkeypatch, capsys)[0] == 0
     one_line(run_cli("train", args, tmp_path, monkeypatch, capsys), "error: hydra.sweep.dir:")
+
+
+def test_a_job_that_errored_and_then_finishes_is_finished_and_its_old_record_kept(tmp_path, monkeypatch, capsys):
+    """A job's state is its latest attempt's: job 1 errored after training (its failed.json, no
+    metrics.json, as a full disk at the evaluation leaves it); ``resume=<sweep>`` evaluates it, and
+    the sweep, the table and the exit status read it as done; the earlier record is kept beside it."""
+    from datt.eval.tables import read_job
+
+    sweep = tmp_path / "sweep"
+    args = ["-m", *TINY, "train.total_frames=1024", "eval.plots=false", "seed=0,1", f"hydra.sweep.dir={sweep}"]
+    assert run_cli("train", args, tmp_path, monkeypatch, capsys)[0] == 0
+    (sweep / "1" / "metrics.json").unlink()
+    record = {"status": "errored", "message": "OSError: [Errno 28] No space left on device"}
+    (sweep / "1" / "failed.json").write_text(json.dumps(record))
+    assert read_job(sweep / "1").status == "errored"
+
+    code, lines, out = run_cli("train", [f"resume={sweep}"], tmp_path, monkeypatch, capsys)
+    assert code == 0, lines
+    assert read_job(sweep / "1").status == "finished" and not (sweep / "1" / "failed.json").exists()
+    assert json.loads((sweep / "1" / "failed.previous.json").read_text()) == record
+    assert "2 jobs: 2 done" in out + "\n".join(lines)

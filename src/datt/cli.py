@@ -35,6 +35,7 @@ from datt.runs import (
     read_failure,
     record_failure,
     requeue_with_scheduler,
+    retire_failure,
     stop_signals,
 )
 
@@ -487,6 +488,10 @@ def _run_job(task: Callable[[DictConfig], object], cfg: DictConfig, lock: bool =
     multirun = _in_multirun()
     try:
         with sigterm_as_interrupt(), _job_lock(lock):
+            if multirun:  # a job carried on by resume=<sweep dir>: its records are of this attempt
+                from hydra.core.hydra_config import HydraConfig
+
+                retire_failure(HydraConfig.get().runtime.output_dir)
             return headline(task(cfg), cfg.get("optimized_metric"))
     except ConfigError as exc:
         if not multirun:

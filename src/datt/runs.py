@@ -96,6 +96,18 @@ def record_failure(run_dir: str | Path, status: str, message: str, **extra: Any)
     return write_json(Path(run_dir) / FAILED_NAME, {"status": status, "message": message, **extra})
 
 
+def retire_failure(run_dir: str | Path) -> Path | None:
+    """A new attempt at a run: its ``failed.json`` (why an earlier attempt stopped) becomes
+    ``failed.previous.json``, kept, so that the run's records say what its latest attempt did (a
+    table reads ``failed.json`` before ``metrics.json``). Returns the kept record's path, or None."""
+    path = Path(run_dir) / FAILED_NAME
+    if not path.is_file():
+        return None
+    kept = path.with_name("failed.previous.json")
+    os.replace(path, kept)
+    return kept
+
+
 def read_failure(run_dir: str | Path) -> dict | None:
     """The ``failed.json`` of a run (older ones without ``status`` were divergences), or None."""
     path = Path(run_dir) / FAILED_NAME
