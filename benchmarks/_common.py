@@ -38,3 +38,29 @@ def write_result(name: str, payload: dict) -> Path:
     payload = {"benchmark": name, "date": time.strftime("%Y-%m-%dT%H:%M:%S"), "machine": machine_info(), **payload}
     path.write_text(json.dumps(payload, indent=2) + "\n")
     return path
+
+
+def timed_training_config(description: str, default_iterations: int, *extra: str):
+    """The command line of a script that times ``--iterations`` PPO iterations of the training
+    config (``overrides`` on top): returns (the config as given, the config to run, its overrides,
+    frames per iteration). The run is quiet (no progress lines, csv logger, no mid-run checkpoints)
+    and gets ``extra`` overrides too."""
+    import argparse
+
+    from datt.configuration import compose
+
+    parser = argparse.ArgumentParser(description=description)
+    parser.add_argument("--iterations", type=int, default=default_iterations)
+    parser.add_argument("overrides", nargs="*", default=[])
+    args = parser.parse_args()
+    probe = compose("train", args.overrides)
+    per_iter = probe.algo.num_envs * probe.algo.rollout_steps
+    overrides = [
+        *args.overrides,
+        f"train.total_frames={per_iter * args.iterations}",
+        "train.progress=false",
+        "train.checkpoint_every=1000000",
+        "logger=csv",
+        *extra,
+    ]
+    return probe, compose("train", overrides), overrides, per_iter

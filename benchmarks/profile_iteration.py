@@ -16,7 +16,6 @@ benchmarks/results/profile_iteration.json.
 
 from __future__ import annotations
 
-import argparse
 import math
 import sys
 import tempfile
@@ -27,9 +26,8 @@ from pathlib import Path
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _common import write_result  # noqa: E402
+from _common import timed_training_config, write_result  # noqa: E402
 
-from datt.configuration import compose  # noqa: E402
 from datt.train.loggers import Logger  # noqa: E402
 from datt.train.ppo import Trainer  # noqa: E402
 
@@ -93,21 +91,7 @@ def update_flops(trainer: Trainer, batch) -> float:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--iterations", type=int, default=6)
-    parser.add_argument("overrides", nargs="*", default=[])
-    args = parser.parse_args()
-    probe = compose("train", args.overrides)
-    per_iter = probe.algo.num_envs * probe.algo.rollout_steps
-    overrides = [
-        *args.overrides,
-        f"train.total_frames={per_iter * args.iterations}",
-        "train.progress=false",
-        "train.eval_at_end=false",
-        "train.checkpoint_every=1000000",
-        "logger=csv",
-    ]
-    cfg = compose("train", overrides)
+    probe, cfg, overrides, per_iter = timed_training_config(__doc__.splitlines()[0], 6, "train.eval_at_end=false")
     stamps, parts = Stamps(), Parts()
     captured = {}
     real_backward, real_clip = torch.Tensor.backward, torch.nn.utils.clip_grad_norm_

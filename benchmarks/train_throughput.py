@@ -10,7 +10,6 @@ benchmarks/results/train_throughput.json.
 
 from __future__ import annotations
 
-import argparse
 import math
 import sys
 import tempfile
@@ -18,9 +17,8 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _common import write_result  # noqa: E402
+from _common import timed_training_config, write_result  # noqa: E402
 
-from datt.configuration import compose  # noqa: E402
 from datt.train.loggers import Logger  # noqa: E402
 from datt.train.ppo import Trainer  # noqa: E402
 
@@ -34,20 +32,7 @@ class Timer(Logger):
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--iterations", type=int, default=12)
-    parser.add_argument("overrides", nargs="*", default=[])
-    args = parser.parse_args()
-    probe = compose("train", args.overrides)
-    per_iter = probe.algo.num_envs * probe.algo.rollout_steps
-    overrides = [
-        *args.overrides,
-        f"train.total_frames={per_iter * args.iterations}",
-        "train.progress=false",
-        "train.checkpoint_every=1000000",
-        "logger=csv",
-    ]
-    cfg = compose("train", overrides)
+    probe, cfg, overrides, per_iter = timed_training_config(__doc__.splitlines()[0], 12)
     timer = Timer()
     t0 = time.perf_counter()
     update_s: list[float] = []
