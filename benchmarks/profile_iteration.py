@@ -107,8 +107,8 @@ def main() -> None:
 
         trainer.update = profiled_update
         trainer.gae = parts.timed("gae", trainer.gae)
-        trainer.loss_forward = trainer.loss
-        trainer.loss = parts.timed("forward", trainer.loss)
+        loss = trainer.loss
+        trainer.loss = parts.timed("forward", loss)
         trainer.optim.step = parts.timed("optimizer", trainer.optim.step)
         torch.Tensor.backward = parts.timed("backward", real_backward)
         torch.nn.utils.clip_grad_norm_ = parts.timed("clip", real_clip)
@@ -116,7 +116,7 @@ def main() -> None:
             trainer.train()
         finally:
             torch.Tensor.backward, torch.nn.utils.clip_grad_norm_ = real_backward, real_clip
-        trainer.loss = trainer.loss_forward
+        trainer.loss = loss
         flops_per_step = update_flops(trainer, captured["batch"])
         nets = (trainer.actor, trainer.critic)
         linears = [m for net in nets for m in net.modules() if isinstance(m, torch.nn.Linear)]

@@ -8,6 +8,7 @@ from types import SimpleNamespace
 
 import pytest
 
+from datt.deploy.mocap import MocapSource
 from datt.deploy.outcome import Kind
 from datt.deploy.runner import UNLOCK_TICKS, _Abort
 from tests.deploy import FakeClock, bookkeeping_runner
@@ -79,8 +80,9 @@ class ConnectingLink:
         self.connected.append(external_position)
 
 
-class Source:
+class Source(MocapSource):
     def __init__(self, name: str):
+        super().__init__()
         self.name, self.calls = name, []
 
     def subscribe(self, callback) -> None:

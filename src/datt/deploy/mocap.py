@@ -28,8 +28,10 @@ class MocapSource:
     (on the source's thread), so a frame can be forwarded at once instead of at the next tick."""
 
     name = "none"
-    lead_s: float | None = None  # deploy.mocap.lead_s (null: the flight's own rule)
-    lead_window_s: float = 0.04  # deploy.mocap.lead_window_s
+    # deploy.mocap.lead_s and lead_window_s, set by with_lead (the deploy task always does); a source
+    # built without them is not led
+    lead_s: float | None = 0.0
+    lead_window_s: float | None = None
 
     def __init__(self) -> None:
         self._subscribers: list = []

@@ -428,14 +428,14 @@ class FlightRunner:
     def _mocap_lead(self):
         """The lead of the forwarded mocap positions: ``deploy.mocap.lead_s``, or by the flight's
         rule when null; None when there is none (logged either way)."""
-        lead_s = getattr(self.mocap, "lead_s", None)
+        lead_s = self.mocap.lead_s
         if lead_s is None:
             rtt = self.link.round_trip_s
             lead_s = rtt / 2 if self.leads_mocap_by_half_round_trip and math.isfinite(rtt) else 0.0
         if lead_s <= 0.0:
             return None
         self._event("mocap lead", f"each forwarded mocap position led {lead_s * 1000:.0f} ms along its velocity")
-        return FrameLead(lead_s, getattr(self.mocap, "lead_window_s", 0.04))
+        return FrameLead(lead_s, self.mocap.lead_window_s)
 
     def _disarm_and_write(self) -> dict:
         """DISARM whatever happened, write the flight log, then close mocap and the link;

@@ -37,8 +37,8 @@ class MocapParams:
     connect_timeout_s: float = ranged(5.0, Range(0.0, 60.0, low_open=True))
     # each forwarded position led this far along the mocap velocity (datt.deploy.mocap.FrameLead);
     # null: half the radio round trip measured at connect for an onboard flight, 0 off-board
-    lead_s: float | None = ranged(None, Range(0.0, 0.2, optional=True))
-    lead_window_s: float = ranged(0.04, Range(0.0, 0.5, low_open=True))  # the velocity's baseline
+    lead_s: float | None = ranged(MISSING, Range(0.0, 0.2, optional=True))
+    lead_window_s: float = ranged(MISSING, Range(0.0, 0.5, low_open=True))  # the velocity's baseline
 
     def validate(self) -> None:
         if self.source == "motioncapture" and not (self.system and self.host and self.body):
