@@ -21,7 +21,8 @@ firmware builds and at ``-O2``):
   the network size is our reading of their paper, not measured).
 
 qemu is not cycle-accurate (no wait states, no pipeline model): the result is an estimate, and
-the only real figure is a DWT cycle count on a vehicle. Writes ``benchmarks/results/onboard_cost.json``.
+the only real figure is a DWT cycle count on a vehicle. Writes ``benchmarks/results/onboard_cost.json``
+(the default checkpoint) or ``onboard_cost_<checkpoint's file stem>.json``.
 """
 
 from __future__ import annotations
@@ -51,18 +52,6 @@ from datt.export.harness import (
 CLOCK_HZ = 168e6
 PUBLISHED_CYCLES_PER_MAC = {"generic C": 743e-6 * CLOCK_HZ / 13696, "CMSIS-DSP": 478e-6 * CLOCK_HZ / 13696,
                             "hand-optimised": 293e-6 * CLOCK_HZ / 13696}  # fmt: skip
-
-
-def macs(spec) -> int:
-    """Multiply-accumulates of one network evaluation (zero-padding taps skipped, as the C does)."""
-    h, total = spec.horizon, 0
-    for w, _ in spec.convs:
-        c_out, c_in, k = w.shape
-        pad = k // 2
-        taps = sum(min(k, h - t + pad) - max(0, pad - t) for t in range(h))
-        total += c_out * c_in * taps
-    total += spec.proj[0].size + sum(w.size for w, _ in spec.mlp) + spec.head[0].size
-    return int(total)
 
 
 def compile_object(src: Path, opt: str) -> Path:
@@ -126,7 +115,7 @@ def main() -> None:
         sys.exit(f"onboard_cost: {missing}")
     cfg = compose("export", sys.argv[1:])
     spec, controller, merged = export_spec(cfg)
-    n_macs = macs(spec)
+    n_macs = spec.macs
     results = {"checkpoint": str(cfg.checkpoint), "macs_per_step": n_macs, "params": int(
         sum(w.size + b.size for w, b in [*spec.convs, spec.proj, *spec.mlp, spec.head]))}  # fmt: skip
     with tempfile.TemporaryDirectory() as tmp:
@@ -157,7 +146,10 @@ def main() -> None:
     }
     print(f"{n_macs} MACs, {results['params']} parameters; at the published cycles per MAC: "
           + ", ".join(f"{k} {v} ms" for k, v in results["published_rate_estimate_ms"].items()))  # fmt: skip
-    print(f"wrote {write_result('onboard_cost', results)}")
+    # the shipped policy's figures keep their file; another checkpoint's go beside them
+    stem = Path(str(cfg.checkpoint)).stem
+    name = "onboard_cost" if stem == Path(str(compose("export").checkpoint)).stem else f"onboard_cost_{stem}"
+    print(f"wrote {write_result(name, results)}")
 
 
 if __name__ == "__main__":

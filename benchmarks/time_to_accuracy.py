@@ -1,12 +1,16 @@
 """Wall time and steps a training config needs to reach a zigzag tracking error.
 
-    python benchmarks/time_to_accuracy.py --label defaults [--eval-every 2000000]
-        [--max-minutes 30] [--thresholds 0.2 0.1 0.07 0.055] [train overrides...]
+    python benchmarks/time_to_accuracy.py --label defaults [--eval-every 1000000]
+        [--max-minutes 30] [--thresholds 0.2 0.1 0.07 0.055] [--protocol authors]
+        [--seeds 0 1 2] [train overrides...]
 
 Trains with ``conf/train.yaml`` plus the overrides (``train.total_frames`` bounds the run) and,
 every ``--eval-every`` frames, flies the policy deterministically on the evaluation bank's
-zigzags (``conf/bank/default.yaml``: the authors' generator, seed 1000, 10 references; no
-disturbance, d̂ = 0). The training clock excludes those evaluations. Stops when every threshold
+zigzags (``conf/bank/default.yaml``: the authors' generator, 10 references; no disturbance,
+d̂ = 0) under ``--protocol`` (default ``authors``: the protocol of the paper's figures,
+:mod:`datt.eval.protocol`) at each of ``--seeds``, pooled (the mean over seeds of the
+per-seed means: every seed flies the same 10 references). The training clock excludes those
+evaluations. Stops when every threshold
 is reached, at ``--max-minutes`` of training, or at the total. Prints the table and writes
 ``benchmarks/results/time_to_accuracy_<label>.json`` (every evaluation with the last training
 iteration's lr, KL estimate, training error and policy std, and per threshold the first frames
@@ -30,6 +34,7 @@ from omegaconf import OmegaConf  # noqa: E402
 
 from datt.configuration import compose  # noqa: E402
 from datt.eval.conditions import evaluate_conditions  # noqa: E402
+from datt.tasks.common import set_threads  # noqa: E402
 from datt.train.loggers import Logger  # noqa: E402
 from datt.train.ppo import Trainer  # noqa: E402
 
@@ -44,8 +49,9 @@ class AccuracyClock(Logger):
     """Evaluates the trainer's policy on the bank's zigzags every ``every`` frames, on a training
     clock that leaves the evaluations out."""
 
-    def __init__(self, cfg, every: int, thresholds: list[float], max_s: float, run_dir: Path) -> None:
+    def __init__(self, cfg, every: int, thresholds: list[float], max_s: float, run_dir: Path, seeds: list[int]) -> None:
         self.cfg = OmegaConf.merge(cfg, {"eval": {"bank": {"zigzag": cfg.eval.bank.zigzag}}})
+        self.seeds = seeds
         self.every, self.thresholds, self.max_s, self.run_dir = every, sorted(thresholds, reverse=True), max_s, run_dir
         self.trainer: Trainer | None = None
         self.start = time.perf_counter()
@@ -57,11 +63,21 @@ class AccuracyClock(Logger):
     def train_s(self) -> float:
         return time.perf_counter() - self.start - self.eval_s
 
+    def pooled_zigzag(self) -> dict:
+        """The zigzag group's mean error (m) over ``self.seeds`` and its crashes, summed."""
+        per_seed = [
+            evaluate_conditions(self.cfg, self.trainer.actor, CLEAN, self.run_dir, False, "tta", seed=seed)["clean"][
+                "groups"
+            ]["zigzag"]
+            for seed in self.seeds
+        ]
+        mean_m = sum(g["mean_m"] for g in per_seed) / len(per_seed)
+        return {"mean_m": mean_m, "crashes": sum(g["crashes"] for g in per_seed)}
+
     def evaluate(self, frames: int) -> None:
         t0 = time.perf_counter()
         train_s = self.train_s()
-        groups = evaluate_conditions(self.cfg, self.trainer.actor, CLEAN, self.run_dir, False, "tta")["clean"]["groups"]
-        zig = groups["zigzag"]
+        zig = self.pooled_zigzag()
         error_m = zig["mean_m"] if math.isfinite(zig["mean_m"]) else None  # None: every episode crashed
         point = {"frames": frames, "train_min": train_s / 60, "zigzag_m": error_m, "crashes": zig["crashes"]}
         if self.trainer.history:  # the training iteration just done: its lr, KL estimate, training error
@@ -95,16 +111,20 @@ class AccuracyClock(Logger):
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--label", required=True, help="names the result file")
-    parser.add_argument("--eval-every", type=int, default=2_000_000, help="frames between evaluations")
+    parser.add_argument("--eval-every", type=int, default=1_000_000, help="frames between evaluations")
     parser.add_argument("--max-minutes", type=float, default=30.0, help="training time limit")
     parser.add_argument("--thresholds", type=float, nargs="+", default=[0.2, 0.1, 0.07, 0.055])
+    parser.add_argument("--protocol", default="authors", help="eval.protocol of the evaluations")
+    parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2], help="evaluation seeds, pooled")
     parser.add_argument("overrides", nargs="*", default=[])
     args = parser.parse_args()
 
-    cfg = compose("train", ["logger=csv", "train.progress=false", "train.eval_at_end=false", *args.overrides])
+    quiet = ["logger=csv", "train.progress=false", "train.eval_at_end=false", f"eval.protocol={args.protocol}"]
+    cfg = compose("train", [*quiet, *args.overrides])
+    set_threads(cfg.threads)
     with tempfile.TemporaryDirectory() as tmp:
         run_dir = Path(tmp)
-        clock = AccuracyClock(cfg, args.eval_every, args.thresholds, args.max_minutes * 60, run_dir)
+        clock = AccuracyClock(cfg, args.eval_every, args.thresholds, args.max_minutes * 60, run_dir, args.seeds)
         trainer = Trainer(cfg, run_dir, clock)
         clock.trainer = trainer
         clock.start = time.perf_counter()  # construction (env, compile) is not training
@@ -124,6 +144,8 @@ def main() -> None:
         {
             "label": args.label,
             "overrides": args.overrides,
+            "protocol": args.protocol,
+            "seeds": args.seeds,
             "eval_every": args.eval_every,
             "max_minutes": args.max_minutes,
             "stopped": stop,

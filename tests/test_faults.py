@@ -664,16 +664,18 @@ def _group_members(pgid: int) -> list[str]:
 # each launcher's way to start two training jobs side by side
 LAUNCHERS = {
     "joblib": ["seed=0,1,2,3", "hydra/launcher=joblib", "hydra.launcher.n_jobs=2"],
-}  # submitit_local: not yet; its jobs' processes outlive a signal to the command (issue 63's note)
+    "submitit_local": ["seed=0,1", "hydra/launcher=submitit_local"],
+}
 
 
 @pytest.mark.slow  # two or four training processes and their signals: ~1-2 min each
 @pytest.mark.parametrize("launcher", sorted(LAUNCHERS))
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
 def test_10_a_signal_stops_every_worker_of_a_parallel_multirun(tmp_path, sig, launcher):
-    """SIGTERM / SIGINT to ``train.py -m`` under a parallel launcher (joblib): one
-    line naming the sweep and what finished, exit 130, and no process of the command's group left
-    (before: joblib exited 143 with no line while its loky workers trained on to the end)."""
+    """SIGTERM / SIGINT to ``train.py -m`` under a parallel launcher (joblib, submitit's local
+    executor): one line naming the sweep and what finished, exit 130, and no process of the
+    command's group left (before: joblib exited 143 with no line while its loky workers trained on
+    to the end; submitit's job controllers, started to outlive the command, trained on too)."""
     sweep = tmp_path / "sweep"
     args = [*TINY, "train.total_frames=100000000", *LAUNCHERS[launcher]]
     proc = subprocess.Popen(

@@ -36,6 +36,7 @@ from datt.runs import (
     record_failure,
     requeue_with_scheduler,
     retire_failure,
+    stop_children,
     stop_signals,
 )
 
@@ -572,6 +573,7 @@ def hydra_main(config_name: str, task: Callable[[DictConfig], object], lock: boo
                 _main()
         except KeyboardInterrupt as exc:
             ignore_stop_signals()
+            stop_children()  # a launcher's job processes end before the command does (and its line counts them)
             _fail(f"interrupted by {exc.args[0] if exc.args else 'SIGINT'}{_sweep_state()}", 130)
         except OSError as exc:  # Hydra's own writes (.hydra/, the job log) on a full or read-only disk
             if exc.errno not in FILE_FAULTS:

@@ -206,6 +206,88 @@ def ignore_stop_signals() -> None:
             signal.signal(sig, signal.SIG_IGN)
 
 
+# After a stop, the processes a command started (a launcher's workers: submitit's local job
+# controllers, joblib's loky workers) first get CHILD_GRACE_S to end by themselves (a terminal's
+# Ctrl-C reaches its whole process group, and a second signal would cut a job's save short), then
+# SIGTERM and CHILD_STOP_S to save and exit, then SIGKILL: the command never outlives them, and
+# never waits for ever.
+CHILD_GRACE_S = 5.0
+CHILD_STOP_S = 120.0
+KILLED_GONE_S = 5.0  # a SIGKILLed process is gone within this (bounded: the command exits anyway)
+# Children left to their owners' own shutdown, which ends them when the command exits: wandb's
+# service (it finishes the run's offline record), torch's compile workers, and the resource
+# trackers of joblib (loky) and multiprocessing. Matched in the child's command line.
+SERVICE_MARKERS = ("wandb", "compile_worker", "resource_tracker")
+
+
+def _process_table() -> list[tuple[int, int, str]]:
+    """(pid, parent pid, command line) of every live process (zombies left out), from ``ps``."""
+    import subprocess
+
+    try:
+        ps = subprocess.Popen(["ps", "-A", "-ww", "-o", "pid=,ppid=,stat=,args="], stdout=subprocess.PIPE, text=True)
+        out, _ = ps.communicate(timeout=10)
+    except (OSError, subprocess.SubprocessError):  # no ps: nothing can be listed (and so nothing waited for)
+        return []
+    rows = []
+    for line in out.splitlines():
+        parts = line.split(None, 3)
+        if len(parts) >= 3 and parts[0].isdigit() and parts[1].isdigit() and not parts[2].startswith("Z"):
+            if int(parts[0]) != ps.pid:  # the listing's own process
+                rows.append((int(parts[0]), int(parts[1]), parts[3] if len(parts) == 4 else ""))
+    return rows
+
+
+def _reap_children() -> None:
+    """Collect this process's children that have exited, so they stop counting as alive."""
+    with contextlib.suppress(ChildProcessError):
+        while os.waitpid(-1, os.WNOHANG)[0] > 0:
+            pass
+
+
+def live_children(pid: int | None = None, descendants: bool = False) -> list[int]:
+    """The live processes ``pid`` (default: this one) started, but for the services of
+    :data:`SERVICE_MARKERS`; with ``descendants`` their own children too, recursively."""
+    table = _process_table()
+    parents, found = {os.getpid() if pid is None else pid}, []
+    while True:
+        level = [
+            p for p, ppid, args in table
+            if ppid in parents and p not in found and not any(m in args for m in SERVICE_MARKERS)
+        ]  # fmt: skip
+        found += level
+        if not descendants or not level:
+            return found
+        parents = set(level)
+
+
+def stop_children(grace_s: float = CHILD_GRACE_S, stop_s: float = CHILD_STOP_S) -> list[int]:
+    """After this command was stopped: wait up to ``grace_s`` for the processes it started to
+    end, send SIGTERM to those still running (they save and exit: submitit's controller passes it
+    to its job), wait up to ``stop_s``, then SIGKILL whatever is left with its descendants.
+    Returns the pids that needed the SIGTERM."""
+
+    def wait(seconds: float) -> list[int]:
+        end = time.monotonic() + seconds
+        while True:
+            _reap_children()
+            alive = live_children()
+            if not alive or time.monotonic() >= end:
+                return alive
+            time.sleep(0.2)
+
+    termed = wait(grace_s)
+    for pid in termed:
+        with contextlib.suppress(ProcessLookupError):
+            os.kill(pid, signal.SIGTERM)
+    if termed and wait(stop_s):
+        for pid in live_children(descendants=True):
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(pid, signal.SIGKILL)
+        wait(KILLED_GONE_S)
+    return termed
+
+
 def scheduler_signal() -> signal.Signals | None:
     """The signal a job scheduler sends this process before a time limit or a preemption, when the
     scheduler's own handler for it is installed: submitit (``hydra/launcher=submitit_*``, ``slurm``)

@@ -85,6 +85,18 @@ class PolicySpec:
     def state_dim(self) -> int:
         return 13 + 4 * self.action_history
 
+    @property
+    def macs(self) -> int:
+        """Multiply-accumulates of one network evaluation as the generated C does it (the
+        zero-padding taps of the 'same' convolutions skipped)."""
+        h, total = self.horizon, 0
+        for w, _ in self.convs:
+            c_out, c_in, k = w.shape
+            pad = k // 2
+            taps = sum(min(k, h - t + pad) - max(0, pad - t) for t in range(h))
+            total += c_out * c_in * taps
+        return int(total + self.proj[0].size + sum(w.size for w, _ in self.mlp) + self.head[0].size)
+
 
 def policy_spec(net: nn.Module, horizon: int, obs, low: torch.Tensor, high: torch.Tensor) -> PolicySpec:
     """The spec of a trained :class:`~datt.policies.networks.TrackingNet` (``obs``: its
