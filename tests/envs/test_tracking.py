@@ -550,8 +550,8 @@ def test_disturbance_moves_the_drone(make_tracking_env):
     [
         (
             ["traj=spiral"],
-            "traj: unknown option 'spiral'; allowed: chained_poly, csv, fixed, mixed, poly, polygon, star, train_mix, "
-            "train_mix_fast, zigzag, zigzag_fast, zigzag_iid",
+            "traj: unknown option 'spiral'; allowed: chained_poly, csv, fixed, mixed, mixed_authors, poly, "
+            "poly_authors, polygon, star, train_mix, train_mix_fast, zigzag, zigzag_fast, zigzag_iid",
         ),
         (
             ["disturbance=storm"],

@@ -532,6 +532,8 @@ def test_zigzag_unknown_waypoint_law_names_the_allowed_ones():
         (Poly, {"vel_max_mps": -1.0}, "traj.vel_max_mps: must be a finite number in [0, 20], got -1.0"),
         (Poly, {"acc_max_mps2": float("nan")}, "traj.acc_max_mps2: must be a finite number in [0, 200], got nan"),
         (Poly, {"max_amplitude_m": 0.0}, "traj.max_amplitude_m: must be a finite number in (0, 1000], got 0.0"),
+        (Poly, {"degree": 4}, "traj.degree: unknown value 4; allowed: 3, 5, 7"),
+        (Poly, {"jerk_max_mps3": -1.0}, "traj.jerk_max_mps3: must be a finite number in [0, 1000], got -1.0"),
     ],
 )
 def test_family_parameter_messages(family, kwargs, message):

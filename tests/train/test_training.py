@@ -161,8 +161,8 @@ def test_bad_train_values_are_config_errors():
     [
         (
             ["traj=nope"],
-            "error: traj: unknown option 'nope'; allowed: chained_poly, csv, fixed, mixed, poly, polygon, star, "
-            "train_mix, train_mix_fast, zigzag, zigzag_fast, zigzag_iid",
+            "error: traj: unknown option 'nope'; allowed: chained_poly, csv, fixed, mixed, mixed_authors, poly, "
+            "poly_authors, polygon, star, train_mix, train_mix_fast, zigzag, zigzag_fast, zigzag_iid",
         ),
         (["horizon=-1"], "error: horizon: must be an integer in [1, 1000]"),
         (["algo.epochs=0"], "error: algo.epochs: must be an integer in [1, 1000]"),

@@ -1,4 +1,5 @@
-"""Smooth references (paper appendix C.1): degree-5 polynomials and chained polynomials."""
+"""Smooth references (paper appendix C.1): polynomials (degree 5 by default; 3 and 7 as in the
+authors' code) and chained degree-5 polynomials."""
 
 from __future__ import annotations
 
@@ -52,38 +53,73 @@ def quintic_zero_ends(h: Tensor) -> Tensor:
     return torch.cat((low, high), -2)
 
 
+def zero_ends_fit(degree: int, h: Tensor) -> Tensor:
+    """Linear map from boundary derivatives to an odd-degree polynomial that is 0 at both ends of
+    ``[0, h]``: for ``degree`` = 2m − 1, ``p(0) = p(h) = 0`` and derivatives 1 … m − 1 given at
+    both ends, ordered ``(p'(0), p'(h), p''(0), p''(h), ...)``. Returns ``K [..., degree + 1,
+    2 (m − 1)]`` with ``c = K @ derivatives`` (ascending powers). ``h [...]`` durations. The
+    conditions of the authors' ``polyu.deriv_fitting_matrix``; at degree 5 the map of
+    :func:`quintic_zero_ends`."""
+    m = (degree + 1) // 2
+    n = degree + 1
+    powers = torch.arange(n, dtype=h.dtype, device=h.device)
+    rows, picks = [], []
+    for k in range(m):  # the k-th derivative of t^j is j!/(j-k)! t^(j-k)
+        fall = torch.ones(n, dtype=h.dtype, device=h.device)
+        for i in range(k):
+            fall = fall * (powers - i)
+        at_zero = torch.where(powers == k, fall, torch.zeros_like(fall)).expand(*h.shape, n)
+        at_end = fall * h.unsqueeze(-1) ** (powers - k).clamp(min=0) * (powers >= k)
+        rows += [at_zero, at_end]
+        picks += [k > 0, k > 0]
+    a = torch.stack(rows, -2)  # [..., n, n]: p, p at h, p', p' at h, ...
+    select = torch.eye(n, dtype=h.dtype, device=h.device)[:, torch.tensor(picks, device=h.device)]  # [n, 2(m-1)]
+    return torch.linalg.solve(a, select.expand(*h.shape, n, 2 * (m - 1)))
+
+
 def eval_pieces(knot_t: Tensor, coeffs: Tensor, t_s: Tensor, derivative: int = 0) -> Tensor:
     """Evaluate piecewise polynomials.
 
-    ``knot_t [N, M+1]`` piece boundaries, ``coeffs [N, M, 6, D]`` (ascending powers of the
-    local time), ``t_s [T]`` -> ``[N, T, D]``. Times beyond the last knot evaluate the last piece
-    at its end (the references end at rest at the origin, so this holds position).
+    ``knot_t [N, M+1]`` piece boundaries, ``coeffs [N, M, C, D]`` (C coefficients in ascending
+    powers of the local time: 6 for quintics), ``t_s [T]`` -> ``[N, T, D]``. Times beyond the
+    last knot evaluate the last piece at its end (the references end at rest at the origin, so
+    this holds position).
     """
     n, m1 = knot_t.shape
     t = t_s.to(knot_t.dtype).expand(n, -1).contiguous()
     t = torch.minimum(t, knot_t[:, -1:])
     piece = (torch.searchsorted(knot_t.contiguous(), t, right=True) - 1).clamp(0, m1 - 2)
     tau = t - knot_t.gather(1, piece)  # [N, T]
-    d = coeffs.shape[-1]
-    c = coeffs.gather(1, piece[..., None, None].expand(-1, -1, 6, d))  # [N, T, 6, D]
+    n_coeffs, d = coeffs.shape[-2:]
+    c = coeffs.gather(1, piece[..., None, None].expand(-1, -1, n_coeffs, d))  # [N, T, C, D]
     out = torch.zeros_like(c[:, :, 0])
-    for i in range(5, derivative - 1, -1):  # Horner on the differentiated polynomial
+    for i in range(n_coeffs - 1, derivative - 1, -1):  # Horner on the differentiated polynomial
         factor = math.factorial(i) // math.factorial(i - derivative)
         out = out * tau.unsqueeze(-1) + factor * c[:, :, i]
     return out
 
 
+POLY_DEGREES = (3, 5, 7)
+
+
 class Poly(RefFamily):
-    """One degree-5 polynomial per axis (x, y) over ``duration_s`` (the 10 s episode), with
-    ``p(0) = p(T) = 0`` and random end velocities ``U(±vel_max_mps)`` and accelerations
-    ``U(±acc_max_mps2)``. If a sample strays beyond ``max_amplitude_m`` it is scaled down to
-    that amplitude (keeps the end positions at the origin). After ``duration_s`` the reference
-    holds the origin. Mean speed (``traj=poly``, 1000 draws): ≈ 0.41 m/s."""
+    """One polynomial of odd ``degree`` per axis (x, y) over ``duration_s`` (the 10 s episode),
+    with ``p(0) = p(T) = 0`` and random end derivatives: velocities ``U(±vel_max_mps)``, and from
+    degree 5 accelerations ``U(±acc_max_mps2)``, at degree 7 jerks ``U(±jerk_max_mps3)``. If a
+    sample strays beyond ``max_amplitude_m`` it is scaled down to that amplitude (keeps the end
+    positions at the origin). After ``duration_s`` the reference holds the origin. Mean speed
+    (``traj=poly``, degree 5, 1000 draws): ≈ 0.41 m/s.
+
+    ``degree`` 5 is the paper's (appendix C.1); the authors' ``PolyRef`` draws the same
+    conditions, all ``U(±1)``, at degree 3 by default (their mixed reference) and without an
+    amplitude cap (``max_amplitude_m=1000``): ``traj=poly_authors``."""
 
     ARG_RANGES = {
         "duration_s": POSITIVE_TIME_S,
+        "degree": Range(choices=POLY_DEGREES),
         "vel_max_mps": SPEED_MPS,
         "acc_max_mps2": ACCEL_MPS2,
+        "jerk_max_mps3": Range(0.0, 1000.0),  # 1000 m/s^3: beyond any quadrotor's thrust change
         "max_amplitude_m": Range(0.0, 1000.0, low_open=True),  # 1000: no rescaling
     }
 
@@ -93,21 +129,30 @@ class Poly(RefFamily):
         vel_max_mps: float = 1.0,
         acc_max_mps2: float = 1.0,
         max_amplitude_m: float = 1.5,
+        degree: int = 5,
+        jerk_max_mps3: float = 1.0,
     ) -> None:
         check_arg_ranges(Poly, locals(), "traj")
         self.duration_s = duration_s
+        self.degree = int(degree)
         self.vel_max = vel_max_mps
         self.acc_max = acc_max_mps2
+        self.jerk_max = jerk_max_mps3
         self.max_amplitude_m = max_amplitude_m
 
     def sample_pieces(self, n: int, generator: torch.Generator, like: Tensor):
-        """Knot times ``[n, 2]`` and coefficients ``[n, 1, 6, 2]``."""
-        v = self._uniform((n, 2, 2), -self.vel_max, self.vel_max, generator, like)  # [n, end, axis]
-        a = self._uniform((n, 2, 2), -self.acc_max, self.acc_max, generator, like)
+        """Knot times ``[n, 2]`` and coefficients ``[n, 1, degree + 1, 2]``."""
+        bounds = (self.vel_max, self.acc_max, self.jerk_max)[: (self.degree - 1) // 2]
+        # one draw per derivative, [n, end, axis], in the order velocity, acceleration, jerk
+        ends = [self._uniform((n, 2, 2), -b, b, generator, like) for b in bounds]
         h = torch.full((n,), self.duration_s, dtype=like.dtype, device=like.device)
-        k = quintic_zero_ends(h)  # [n, 6, 4]
-        bc = torch.stack((v[:, 0], v[:, 1], a[:, 0], a[:, 1]), dim=1)  # [n, 4, 2]
-        coeffs = (k @ bc).unsqueeze(1)  # [n, 1, 6, 2]
+        if self.degree == 5:  # the closed form every reference of the paper's degree was drawn with
+            v, a = ends
+            bc = torch.stack((v[:, 0], v[:, 1], a[:, 0], a[:, 1]), dim=1)  # [n, 4, 2]
+            coeffs = (quintic_zero_ends(h) @ bc).unsqueeze(1)  # [n, 1, 6, 2]
+        else:
+            bc = torch.cat([e for e in ends], dim=1)  # [n, 2 (m - 1), 2]: p'(0), p'(T), p''(0), ...
+            coeffs = (zero_ends_fit(self.degree, h) @ bc).unsqueeze(1)
         knot_t = torch.stack((torch.zeros_like(h), h), dim=1)
         grid = torch.linspace(0, self.duration_s, 2001, dtype=like.dtype, device=like.device)
         peak = eval_pieces(knot_t, coeffs, grid).abs().amax(dim=(1, 2))
