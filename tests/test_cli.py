@@ -33,6 +33,7 @@ def test_eval_py_on_checkpoint_writes_metrics(tmp_path, tiny_policy_checkpoint):
         assert cond["groups"]["zigzag"]["episodes"] == 10 and cond["groups"]["star"]["episodes"] == 1
     assert (tmp_path / "tracks_datt_brownian_l1_seed_0.png").exists()
     assert (tmp_path / "axes_datt_brownian_l1_seed_0.png").exists()
+    assert (tmp_path / "dhat_datt_brownian_l1_seed_0.png").exists()  # the L1's estimate against d
     assert (tmp_path / "trace_seed1.pt").exists()
     assert "tracking error (m)" in proc.stdout and "zigzag_fast" in proc.stdout
     timing = metrics["inference_ms"]
@@ -139,9 +140,8 @@ def test_unknown_option_lists_the_whole_search_path(tmp_path):
         tmp_path,
     )
     lines = [ln for ln in proc.stderr.splitlines() if ln.strip() and "warn" not in ln.lower()]
-    assert proc.returncode == 2 and lines == ["error: bank: unknown option 'mine'; allowed: default, figure8"], (
-        proc.stderr
-    )
+    want = "error: bank: unknown option 'mine'; allowed: default, figure8, paper_figure"
+    assert proc.returncode == 2 and lines == [want], proc.stderr
 
 
 def test_sweep_runs_without_dash_m(tmp_path):

@@ -14,7 +14,7 @@ from datt.checkpoint import write_torch
 from datt.control import Controller, DattController, HoverController
 from datt.envs.factory import make_env
 from datt.eval.metrics import format_error
-from datt.eval.plots import plot_group_axes, plot_tracks
+from datt.eval.plots import plot_disturbance_estimate, plot_group_axes, plot_tracks
 from datt.eval.rollout import evaluate
 from datt.eval.schema import per_seed_name
 from datt.eval.timing import step_times_ms, summarize_ms
@@ -70,6 +70,9 @@ def evaluate_conditions(
             plot_tracks(res["trace"], names, counts, run_dir / f"tracks_{slug}.png", title=f"{tag}: {name}")
             dt_s = float(cfg.env.dt_s)
             plot_group_axes(res["trace"], names, counts, dt_s, run_dir / f"axes_{slug}.png", title=f"{tag}: {name}")
+            if cond["adaptation"] != "none":  # an estimate to show (d̂ = 0 has none)
+                path = run_dir / f"dhat_{slug}.png"
+                plot_disturbance_estimate(res["trace"], names, counts, dt_s, path, title=f"{tag}: {name}")
     return results
 
 

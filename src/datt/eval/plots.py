@@ -1,4 +1,4 @@
-"""PNG plots: reference vs flown tracks, learning curves (matplotlib, Agg backend)."""
+"""PNG plots: reference vs flown tracks, disturbance estimates, learning curves (matplotlib, Agg backend)."""
 
 from __future__ import annotations
 
@@ -67,6 +67,43 @@ def plot_group_axes(trace, names: list[str], counts: list[int], dt_s: float, pat
     fig.savefig(path, dpi=90)
     plt.close(fig)
     return Path(path)
+
+
+def plot_disturbance_estimate(
+    trace, names: list[str], counts: list[int], dt_s: float, path: str | Path, title: str = ""
+) -> Path:
+    """The disturbance d (dashed) and the controller's estimate d̂ (solid), m/s², against time
+    for the first reference of each group: one column per group, one row per world axis (the
+    paper's d̂ traces)."""
+    fig = disturbance_estimate_figure(trace, names, counts, dt_s, title)
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return Path(path)
+
+
+def disturbance_estimate_figure(trace, names: list[str], counts: list[int], dt_s: float, title: str = ""):
+    """The figure of :func:`plot_disturbance_estimate` (axes ``[axis row][group column]``, lines
+    d then d̂), not yet saved."""
+    import numpy as np
+
+    fig, axes = plt.subplots(3, len(names), figsize=(4.2 * len(names), 6.0), sharex=True, squeeze=False)
+    for col, (name, i) in enumerate(zip(names, _first_of_groups(counts))):
+        stop = int(trace.crashed_at[i])
+        d, d_hat = trace.d_mps2[i, :stop].numpy(), trace.d_hat[i, :stop].numpy()
+        t = np.arange(1, len(d) + 1) * dt_s
+        for k in range(3):
+            ax = axes[k, col]
+            ax.plot(t, d[:, k], "--", lw=1.0, label="$d$")
+            ax.plot(t, d_hat[:, k], lw=1.2, label=r"$\hat{d}$")  # mathtext: the font drops a combining hat
+            ax.grid(alpha=0.3)
+            if col == 0:
+                ax.set_ylabel(f"{'xyz'[k]} (m/s²)")
+        axes[0, col].set_title(f"{name} #0")
+        axes[-1, col].set_xlabel("t (s)")
+    axes[0, 0].legend(fontsize=8)
+    fig.suptitle(title or "disturbance and its estimate")
+    fig.tight_layout()
+    return fig
 
 
 def plot_side_by_side(traces: dict, index: int, dt_s: float, path: str | Path, title: str = "") -> Path:
