@@ -1,6 +1,7 @@
 """Sweeps and tables: a tiny multirun end to end, sweep files compose, failed/incomplete runs."""
 
 import json
+import math
 import subprocess
 import sys
 from pathlib import Path
@@ -157,7 +158,8 @@ def test_failed_and_incomplete_runs_are_reported(tmp_path):
     rows, _ = tables.collect(spec, jobs)
     rendered = tables.render(spec, rows, jobs)
     by_label = {r[0].split(" [")[0]: r for r in rendered["rows"]}
-    assert by_label["Feedforward horizon 10 (base, used in main experiments)"][1] == "0.060 ± 0.010"
+    # two seeds 0.05, 0.07: t(0.975, 1) = 12.706 x sample std 0.01414 / sqrt(2) = 0.127 either side
+    assert by_label["Feedforward horizon 10 (base, used in main experiments)"][1] == "0.060 ± 0.010 [-0.067, 0.187]"
     assert by_label["No body frame"][1] == "failed"
     assert "incomplete" in rendered["md"] and "65,536 frames" in rendered["md"]
     assert "NaN in loss" in rendered["md"]
@@ -182,8 +184,9 @@ def test_main_table_pools_seeds_and_reports_inference(tmp_path):
     jobs = tables.find_jobs([tmp_path])
     rendered = tables.render(spec, tables.collect(spec, jobs)[0], jobs)
     rows = {r[0]: r for r in rendered["rows"]}
-    assert rows["Nonlinear tracking control (PID)"][2] == "0.300 ± 0.000 (2/4 failed)"
-    assert rows["DATT (d̂ = 0)"][1] == "0.040 ± 0.010" and rows["DATT (d̂ = 0)"][3] == "0.10"
+    assert rows["Nonlinear tracking control (PID)"][2] == "0.300 ± 0.000 [0.300, 0.300] (2/4 failed)"
+    # 0.03, 0.05, 0.03, 0.05: t(0.975, 3) = 3.182 x sample std 0.01155 / sqrt(4) = 0.018 either side
+    assert rows["DATT (d̂ = 0)"][1] == "0.040 ± 0.010 [0.022, 0.058]" and rows["DATT (d̂ = 0)"][3] == "0.10"
     assert rows["DATT (d̂ = 0)"][5] == "0.089 ± 0.026"  # paper column
     # side-by-side plot from the traces eval.py saves
     import torch
@@ -237,3 +240,26 @@ def test_a_sweep_of_another_entry_point_is_refused_in_one_line(tmp_path, table, 
     )
     (job / ".hydra" / "hydra.yaml").write_text(f"hydra:\n  job:\n    config_name: {spec.entry[:-3]}\n")
     tables.check_jobs_are_the_tables(spec, tables.find_jobs([tmp_path]))  # its own: accepted
+
+
+@pytest.mark.parametrize(
+    "values, low, high",
+    [
+        # mean ± t(0.975, n - 1) * sample std / sqrt(n), t from the printed tables: 12.706 (1 df), 2.776 (4 df)
+        ([1.0, 3.0], 2.0 - 12.706 * math.sqrt(2.0) / math.sqrt(2.0), 2.0 + 12.706),
+        ([1.0, 2.0, 3.0, 4.0, 5.0], 3.0 - 2.776 * math.sqrt(2.5) / math.sqrt(5.0), 3.0 + 2.776 * math.sqrt(0.5)),
+    ],
+)
+def test_the_interval_is_students_t_interval_of_the_mean(values, low, high):
+    cell = tables.Cell()
+    for v in values:
+        cell.add(v)
+    got = cell.interval95()
+    assert got == pytest.approx((low, high), abs=2e-3)
+
+
+def test_one_value_has_no_interval_and_failed_runs_are_not_in_it():
+    cell = tables.Cell()
+    cell.add(0.05)
+    cell.add(float("nan"))  # a failed run
+    assert cell.interval95() is None and cell.text() == "0.050 (1/2 failed)"

@@ -171,10 +171,12 @@ def test_tables_py_logs_the_table_to_its_sweep_s_group(tmp_path, monkeypatch, ca
     assert run["group"] == "horizon/2026-01-01_00-00-00_abcd" and run["job_type"] == "table"
     assert summary["jobs"] == 2 and "table/horizon/_type" in history
     table = logged_table(sweep, "table/horizon")  # numbers, not "0.051 ± 0.010" strings
-    assert table["columns"] == ["row", "column", "mean", "std", "values", "failed", "total", "paper"]
+    columns = ["row", "column", "mean", "std", "ci95_low", "ci95_high", "values", "failed", "total", "paper"]
+    assert table["columns"] == columns
     means = {row[0]: row[2] for row in table["data"]}
     assert means == {"H = 1 (0.06 s)": pytest.approx(0.051), "H = 5 (0.30 s)": pytest.approx(0.055)}
-    paper = {row[0]: row[7] for row in table["data"]}
+    assert all(row[4] is None and row[5] is None for row in table["data"])  # one seed per row: no interval
+    paper = {row[0]: row[9] for row in table["data"]}
     assert all(value is None or isinstance(value, float) for value in paper.values())
     assert summary["table/H = 5 (0.30 s)/zigzag error (m)"] == pytest.approx(0.055)
     quiet = tmp_path / "quiet"

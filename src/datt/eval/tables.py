@@ -2,7 +2,8 @@
 
 A table collects every job directory of its sweep (``outputs/sweeps/<table>/<time>/<job>/``, or
 the directories given as ``runs=``), reads each job's ``metrics.json`` and Hydra overrides, groups
-jobs by their swept keys (all overrides except ``seed``) and reports mean ± std over seeds next to
+jobs by their swept keys (all overrides except ``seed``) and reports mean ± std over seeds, with the
+95 % t-interval of the mean in brackets, next to
 the paper's numbers, as Markdown, CSV and LaTeX (plus PNG plots for training sweeps). A job that
 diverged (``failed.json`` with status ``diverged``) or whose drones all crashed counts as *failed*,
 as in the paper. Every job of a sweep is listed, never silently dropped: *errored* jobs (a bad
@@ -50,15 +51,30 @@ class Cell:
         else:
             self.values.append(float(value))
 
+    def interval95(self) -> tuple[float, float] | None:
+        """The 95 % confidence interval of the mean of the values (Student's t with n − 1
+        degrees of freedom over the sample std); None with fewer than two values."""
+        n = len(self.values)
+        if n < 2:
+            return None
+        from scipy.stats import t
+
+        mean = float(np.mean(self.values))
+        half = float(t.ppf(0.975, n - 1)) * float(np.std(self.values, ddof=1)) / math.sqrt(n)
+        return mean - half, mean + half
+
     def text(self, digits: int = 3) -> str:
+        """``mean ± std [95 % interval of the mean]`` (population std, as the paper's ±), with
+        the failed share; "failed" when every run failed, "—" without runs."""
         if self.total == 0:
             return "—"
         if not self.values:
             return "failed"
         mean = float(np.mean(self.values))
         out = f"{mean:.{digits}f}"
-        if len(self.values) > 1:
-            out += f" ± {float(np.std(self.values)):.{digits}f}"
+        interval = self.interval95()
+        if interval is not None:
+            out += f" ± {float(np.std(self.values)):.{digits}f} [{interval[0]:.{digits}f}, {interval[1]:.{digits}f}]"
         if self.failed:
             out += f" ({self.failed}/{self.total} failed)"
         return out
@@ -394,7 +410,8 @@ def render(spec: TableSpec, rows: dict[str, list[Cell]], jobs: list[Job]) -> dic
         body.append([label, *ours, *paper])
     protocols = ", ".join(sorted(evaluation_protocols(jobs))) or "project"
     md = [
-        f"**{spec.title}** (ours: simulation, evaluation protocol {protocols} (datt.eval.protocol); "
+        f"**{spec.title}** (ours: simulation, evaluation protocol {protocols} (datt.eval.protocol), "
+        "mean ± std [95 % t-interval of the mean]; "
         f"paper: {spec.paper_note})",
         "",
         "| " + " | ".join(header) + " |",
@@ -423,7 +440,7 @@ def render(spec: TableSpec, rows: dict[str, list[Cell]], jobs: list[Job]) -> dic
 
 
 # the table as numbers (wandb's Table: sortable, plottable): one row per (table row, column)
-NUMERIC_COLUMNS = ["row", "column", "mean", "std", "values", "failed", "total", "paper"]
+NUMERIC_COLUMNS = ["row", "column", "mean", "std", "ci95_low", "ci95_high", "values", "failed", "total", "paper"]
 
 
 def paper_number(text: str) -> float | None:
@@ -434,7 +451,8 @@ def paper_number(text: str) -> float | None:
 
 def numeric_rows(spec: TableSpec, rows: dict[str, list[Cell]], order: list[str]) -> list[list]:
     """The cells of ``rows`` in ``order`` as :data:`NUMERIC_COLUMNS`: the row's label, the
-    column, the mean and population std of its values (None without values), how many values,
+    column, the mean and population std of its values (None without values), the 95 % interval of
+    the mean (None under two values), how many values,
     failed and total, and the paper's figure for that cell (None where the paper has none)."""
     out = []
     for key in order:
@@ -445,7 +463,8 @@ def numeric_rows(spec: TableSpec, rows: dict[str, list[Cell]], order: list[str])
             values = cell.values
             mean = float(np.mean(values)) if values else None
             std = float(np.std(values)) if values else None
-            out.append([label, column, mean, std, len(values), cell.failed, cell.total, paper_number(cited)])
+            low, high = cell.interval95() or (None, None)
+            out.append([label, column, mean, std, low, high, len(values), cell.failed, cell.total, paper_number(cited)])
     return out
 
 
