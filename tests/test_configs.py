@@ -283,3 +283,32 @@ def test_the_shared_eval_keys_have_one_home(job):
     cls = {"train": EndOfRunEvalParams, "eval": EvalParams, "fit_rma": AdapterEvalParams}[job]
     assert set(cfg.eval) == {f.name for f in fields(cls)}
     assert {f.name for f in fields(SharedEvalParams)} == {*SHARED_EVAL_KEYS, "bank"}
+
+
+def test_the_authors_adaptive_experiment_is_their_configs_setting():
+    """``experiment=authors_adaptive`` (their configuration/datt_wind_adaptive.py): a constant
+    U(±1) m/s² force per axis and episode without a random walk, starts at the origin, position
+    noise 0.005 m; everything else as the training defaults."""
+    import torch
+
+    from datt.configuration import instantiate_option
+    from datt.sim import ConstantForce
+
+    cfg = compose("train", ["experiment=authors_adaptive"])
+    base = compose("train", [])
+    dist = instantiate_option(cfg, "disturbance")
+    assert type(dist) is ConstantForce and dist.max_mps2 == 1.0  # not Brownian: no walk
+    assert cfg.env.init_pos_range_m == 0.0 and cfg.env.obs.pos_noise_std_m == 0.005
+    changed = {
+        k
+        for k in ("algo", "policy", "traj", "adaptation", "train", "curriculum")
+        if OmegaConf.to_container(cfg[k]) != OmegaConf.to_container(base[k])
+    }
+    assert changed == set()
+    from datt.envs.factory import make_env
+
+    env = make_env(OmegaConf.merge(cfg, {"env": {"compile": False}}), num_envs=256, seed=0)
+    env.reset()
+    d = env.disturbance.current_mps2
+    assert d.abs().max() <= 1.0 and d.abs().max() > 0.9  # U(±1) per axis, spanning it
+    assert torch.equal(env.sim.state.pos_m, torch.zeros_like(env.sim.state.pos_m))  # at the origin
