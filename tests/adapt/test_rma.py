@@ -251,3 +251,16 @@ def test_the_fit_runs_its_iterations_once_each_with_the_lr_decayed_linearly(
     policy = torch.load(tiny_policy_checkpoint, weights_only=True)
     assert saved["base_checkpoint"] == str(tiny_policy_checkpoint) and saved["frames"] == policy["frames"]
     assert OmegaConf.to_container(OmegaConf.create(saved["config_yaml"])) == OmegaConf.to_container(cfg, resolve=True)
+
+
+def test_fit_rma_evaluates_under_the_disturbance_it_fitted_under(tiny_policy_checkpoint, tmp_path):
+    """``fit_rma.py disturbance=constant_authors`` (the authors' Table 4 setting) fits and then
+    evaluates every d̂ source under that disturbance, and records the node it flew."""
+    from datt.tasks.rma import run_rma
+
+    extra = ["disturbance=constant_authors", "bank@eval.bank=paper_figure", "eval.plots=false"]
+    metrics = run_rma(tiny_rma_cfg(tiny_policy_checkpoint, *extra), tmp_path)
+    assert set(metrics["conditions"]) == {"d_hat=0", "l1", "rma", "privileged"}
+    for cond in metrics["conditions"].values():
+        assert cond["disturbance"] == {"_target_": "datt.sim.ConstantForce", "max_mps2": 1.0}
+        assert set(cond["groups"]) == {"zigzag", "chained_poly"}

@@ -1,5 +1,6 @@
 """``fit_rma.py base_checkpoint=<policy>``: fit an RMA adapter for a frozen policy, then
-evaluate DATT under Brownian disturbance with d̂ = 0, L1, RMA and the privileged d."""
+evaluate DATT under the fit's disturbance (``disturbance=``, the paper's Brownian by default) with
+d̂ = 0, L1, RMA and the privileged d."""
 
 from __future__ import annotations
 
@@ -32,17 +33,23 @@ def run_rma(cfg: DictConfig, run_dir: Path) -> dict:
     (run_dir / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
     result = train_rma(cfg, run_dir, progress=True)
     actor, train_cfg, _ = load_actor(cfg.base_checkpoint, key="base_checkpoint")
-    eval_cfg = OmegaConf.merge(train_cfg, {"eval": cfg.eval, "env": {"compile": False}})
+    eval_cfg = OmegaConf.merge(train_cfg, {"env": {"compile": False}})
+    # the fit's own evaluation settings and bank, whole: a merge would keep the groups of the
+    # policy's bank that this bank does not name
+    eval_cfg.eval = OmegaConf.create(OmegaConf.to_container(cfg.eval, resolve=True))
     conditions = {}
     rma = OmegaConf.create({"_target_": "datt.adapt.RmaAdaptation", "checkpoint": str(run_dir / "rma.pt")})
     sources = {"d_hat=0": "none", "l1": "l1", "rma": rma, "privileged": "privileged"}
+    # the disturbance the adapter was fitted under (the run records the whole node it flew)
+    disturbance = OmegaConf.create(OmegaConf.to_container(cfg.disturbance, resolve=True))
     for seed in end_eval.seeds:
         for source, adaptation in sources.items():
             name = per_seed_name(source, seed, end_eval.seeds)
-            cond = {name: {"disturbance": "brownian", "adaptation": adaptation}}
+            cond = {name: {"disturbance": disturbance, "adaptation": adaptation}}
             res = evaluate_conditions(eval_cfg, actor, cond, run_dir, end_eval.plots, "rma", int(seed))
             conditions[name] = {**res[name], "adaptation": source}
-    print_metrics(console, "DATT under Brownian disturbance by adaptation", conditions)
+    kind = str(disturbance.get("_target_", "none")).rsplit(".", 1)[-1]
+    print_metrics(console, f"DATT under the {kind} disturbance by adaptation", conditions)
     metrics = {"rma_train_wall_s": result["wall_s"], "rma_history": result["history"], "conditions": conditions}
     write_json(run_dir / "metrics.json", metrics)
     return metrics
