@@ -305,6 +305,11 @@ def test_the_authors_adaptive_experiment_is_their_configs_setting():
         if OmegaConf.to_container(cfg[k]) != OmegaConf.to_container(base[k])
     }
     assert changed == set()
+    assert OmegaConf.to_container(cfg.eval.conditions) == {
+        "clean": {"disturbance": "none", "adaptation": "none"},
+        "brownian": None,
+        "constant_authors": {"disturbance": "constant_authors", "adaptation": "privileged"},
+    }
     from datt.envs.factory import make_env
 
     env = make_env(OmegaConf.merge(cfg, {"env": {"compile": False}}), num_envs=256, seed=0)
