@@ -555,7 +555,8 @@ def test_disturbance_moves_the_drone(make_tracking_env):
         ),
         (
             ["disturbance=storm"],
-            "disturbance: unknown option 'storm'; allowed: brownian, constant, none, plate, wind, wind_plate",
+            "disturbance: unknown option 'storm'; allowed: brownian, constant, constant_authors, none, plate, wind, "
+            "wind_plate",
         ),
         (["horizon=-2"], "horizon: must be an integer in [1, 1000]"),
         (["horizon=0"], "horizon: must be an integer in [1, 1000]"),
