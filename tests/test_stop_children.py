@@ -19,7 +19,7 @@ import pytest
 PARENT = textwrap.dedent(
     """
     import json, os, signal, subprocess, sys, time
-    from datt.runs import live_children, stop_children
+    from datt.runs import stop_children
 
     CHILD = (
         "import signal, sys, time\\n"

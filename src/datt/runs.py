@@ -245,11 +245,11 @@ def _reap_children() -> None:
             pass
 
 
-def live_children(pid: int | None = None, descendants: bool = False) -> list[int]:
-    """The live processes ``pid`` (default: this one) started, but for the services of
-    :data:`SERVICE_MARKERS`; with ``descendants`` their own children too, recursively."""
+def live_children(descendants: bool = False) -> list[int]:
+    """The live processes this one started, but for the services of :data:`SERVICE_MARKERS`;
+    with ``descendants`` their own children too, recursively."""
     table = _process_table()
-    parents, found = {os.getpid() if pid is None else pid}, []
+    parents, found = {os.getpid()}, []
     while True:
         level = [
             p for p, ppid, args in table

@@ -151,7 +151,7 @@ class Poly(RefFamily):
             bc = torch.stack((v[:, 0], v[:, 1], a[:, 0], a[:, 1]), dim=1)  # [n, 4, 2]
             coeffs = (quintic_zero_ends(h) @ bc).unsqueeze(1)  # [n, 1, 6, 2]
         else:
-            bc = torch.cat([e for e in ends], dim=1)  # [n, 2 (m - 1), 2]: p'(0), p'(T), p''(0), ...
+            bc = torch.cat(ends, dim=1)  # [n, 2 (m - 1), 2]: p'(0), p'(T), p''(0), ...
             coeffs = (zero_ends_fit(self.degree, h) @ bc).unsqueeze(1)
         knot_t = torch.stack((torch.zeros_like(h), h), dim=1)
         grid = torch.linspace(0, self.duration_s, 2001, dtype=like.dtype, device=like.device)
