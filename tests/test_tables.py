@@ -80,6 +80,30 @@ def test_the_paper_setting_ablation_sweep_is_the_ablation_sweep_with_the_authors
     assert cfg.env.obs.action_history == 0 and cfg.traj._target_ == "datt.refs.Zigzag"
 
 
+def test_the_paper_ppo_sweep_is_the_paper_setting_sweep_trained_as_the_authors_trained(tmp_path):
+    from omegaconf import OmegaConf
+
+    def job_cfg(sweep):
+        out = run("train.py", f"+sweep={sweep}", "--cfg", "job", "--resolve", cwd=tmp_path)
+        assert out.returncode == 0, out.stderr[-2000:]
+        return OmegaConf.create(out.stdout)
+
+    sb3, authors = job_cfg("ablation_sb3"), job_cfg("ablation_authors")
+    assert sb3.sweep_name == "ablation_sb3"
+    # SB3 1.6's PPO defaults (the authors' learning/train_policy.py sets none of them)
+    algo = sb3.algo
+    assert (algo.num_envs, algo.rollout_steps, algo.epochs, algo.minibatch_size) == (10, 2048, 10, 64)
+    assert (algo.lr, algo.lr_schedule, algo.gamma, algo.lmbda, algo.clip_epsilon) == (3e-4, "constant", 0.99, 0.95, 0.2)
+    # their exploration (std 1 in action units, no ceiling) and no crash termination or penalty
+    assert list(sb3.policy.init_std) == [0.05, 0.05, 0.05, 0.5] and sb3.policy.max_std is None
+    assert min(sb3.env.safety_box_m) >= 1000.0 and sb3.env.reward.crash_penalty == 0.0
+    # everything else is the paper-setting sweep's
+    for key in ("env.obs", "env.quad", "traj", "curriculum", "eval", "train.total_frames", "policy.encoder"):
+        assert OmegaConf.select(sb3, key) == OmegaConf.select(authors, key), key
+    rows = set(tables.get_spec("ablation_sb3").row_order)
+    assert rows == {"ablation=none", "ablation=no_fixed_ref", "ablation=no_body_frame", "ablation=no_feedback"}
+
+
 def test_an_authors_protocol_row_counts_every_episode_and_the_title_names_the_protocol(tmp_path):
     def metrics(values, crashed):
         row = {
@@ -211,7 +235,7 @@ def test_main_table_pools_seeds_and_reports_inference(tmp_path):
 def test_unknown_table_and_missing_sweep_are_one_line(tmp_path):
     out = run("tables.py", "nope", cwd=tmp_path)
     assert out.returncode == 2 and out.stderr.strip().count("\n") == 0
-    assert "table: unknown table 'nope'; allowed: ablation, ablation_authors, horizon, main, rma, wind" in out.stderr
+    assert "table: unknown table 'nope'; allowed: ablation, ablation_authors, ablation_sb3, horizon, main, rma, wind" in out.stderr
     out = run("tables.py", "ablation", cwd=tmp_path)
     assert out.returncode == 2 and "python train.py +sweep=ablation" in out.stderr
 

@@ -74,7 +74,7 @@ USAGE = {
         "Build a paper table (markdown, LaTeX, CSV, plots) from its sweep's runs, with the paper's figures "
         "beside ours; run=true runs the sweep first.",
         (
-            ("<table>", "main, ablation, ablation_authors, horizon, rma, wind (the first argument)"),
+            ("<table>", "main, ablation, ablation_authors, ablation_sb3, horizon, rma, wind (the first argument)"),
             ("runs=<sweep dir>", "the runs to read (default: the newest sweep of that table)"),
             ("run=true", "run the table's sweep, then build the table"),
             ("out_dir=<dir>", "where the table's files go"),
