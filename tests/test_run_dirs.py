@@ -111,6 +111,34 @@ def test_a_flight_whose_log_cannot_be_written_whole_is_refused_before_arming(tmp
     )
 
 
+@pytest.mark.parametrize("entry", list(ENTRIES))
+@pytest.mark.parametrize("multirun", [False, True])
+def test_no_entry_point_starts_on_a_disk_without_room_for_its_records(entry, multirun, tmp_path, monkeypatch, capsys):
+    """Hydra reports its own failed write of .hydra/ as a traceback (it never reaches the entry's
+    handler), so a disk without room is refused before Hydra runs, for every entry point."""
+    import shutil
+    from collections import namedtuple
+
+    usage = namedtuple("usage", "total used free")
+    monkeypatch.setattr(shutil, "disk_usage", lambda path: usage(10**9, 10**9 - 4096, 4096))
+    key = "hydra.sweep.dir" if multirun else "hydra.run.dir"
+    args = [*ENTRIES[entry], *(["-m"] if multirun else []), f"{key}={tmp_path / 'r'}"]
+    result = run_cli(entry, args, tmp_path, monkeypatch, capsys)
+    one_line(result, f"error: {key}: {tmp_path / 'r'}: 0.00 MB free on its disk, under the 10 MB a run's records need")
+    assert f"set {key}=<another disk>" in result[1][0]
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_the_room_a_run_needs_is_checked_against_the_disk_it_writes_to(tmp_path, monkeypatch):
+    import shutil
+    from collections import namedtuple
+
+    usage, seen = namedtuple("usage", "total used free"), []
+    monkeypatch.setattr(shutil, "disk_usage", lambda path: seen.append(path) or usage(1, 0, cli.RUN_MIN_FREE_BYTES))
+    cli.check_output_dir([f"hydra.run.dir={tmp_path / 'a' / 'b'}"])  # exactly the room needed: accepted
+    assert seen == [tmp_path]  # the nearest existing parent
+
+
 def test_hydras_own_write_on_a_full_disk_is_one_line(tmp_path, monkeypatch, capsys):
     """Hydra writes .hydra/ before the task runs: a full disk there is the same one line as in a task."""
     import errno

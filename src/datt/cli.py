@@ -12,6 +12,7 @@ import contextlib
 import errno
 import re
 import signal
+import shutil
 import sys
 import tempfile
 import traceback
@@ -221,6 +222,11 @@ def _output_dir_arg(argv: list[str]) -> tuple[str, str | None]:
     return key, (given[-1] if given else None)
 
 
+# Room a run needs on its disk before it starts: its config, log and first records (a training's
+# checkpoints are ~1 MB each; a flight asks for more before arming, deploy.flight_log)
+RUN_MIN_FREE_BYTES = 10_000_000
+
+
 def check_output_dir(argv: list[str]) -> None:
     """The directory runs will be written under must be creatable: one line before Hydra tries
     (and prints a traceback). Interpolated parts (``${now:...}``) are cut off."""
@@ -231,7 +237,7 @@ def check_output_dir(argv: list[str]) -> None:
     base = path
     while not base.exists():
         base = base.parent
-    problem = None
+    problem, advice = None, f"run from a writable directory or set {key}=<writable dir>"
     if not base.is_dir():
         problem = f"{base} is a file, not a directory"
     else:
@@ -239,8 +245,15 @@ def check_output_dir(argv: list[str]) -> None:
             tempfile.TemporaryDirectory(dir=base).cleanup()
         except OSError as exc:
             problem = f"cannot write in {base} ({exc.strerror})"
+    if problem is None:
+        # Hydra writes .hydra/ before any task runs, and reports a failed write as a traceback of
+        # its own (it never reaches this entry's handler): a disk without room refuses here
+        free = shutil.disk_usage(base).free
+        if free < RUN_MIN_FREE_BYTES:
+            problem = f"{free / 1e6:.2f} MB free on its disk, under the {RUN_MIN_FREE_BYTES / 1e6:.0f} MB a run's records need"
+            advice = f"free some space or set {key}=<another disk>"
     if problem:
-        raise ConfigError(f"{key}: {path}: {problem}; run from a writable directory or set {key}=<writable dir>")
+        raise ConfigError(f"{key}: {path}: {problem}; {advice}")
 
 
 # What a run of any entry point leaves in its dir: a dir holding one of these holds a run, and no
