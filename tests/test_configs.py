@@ -188,6 +188,33 @@ def _target_defaults_differ(node):
     return differ
 
 
+def _own_package_options():
+    """(group, option) of every option that lives under its group's key (not ``@package
+    _global_``): the ones a condition, a bank or a tool loads by name."""
+    out = []
+    for group in sorted(config_groups()):
+        for option in available_options(group):
+            text = (conf_dir() / group / f"{option}.yaml").read_text()
+            if "@package _global_" not in text:
+                out.append((group, option))
+    return out
+
+
+@pytest.mark.parametrize("group, option", _own_package_options())
+def test_an_option_loaded_by_name_is_the_option_hydra_composes(group, option):
+    """An evaluation condition (``{disturbance: constant_authors}``) or a bank item (``traj:
+    poly_authors``) names an option; it must load as ``+group=option`` composes it, its own
+    defaults list included (``constant_authors`` builds on ``constant``: loaded as the bare file
+    it had no ``_target_`` and the end-of-run evaluation died)."""
+    composed = OmegaConf.select(compose(None, [f"+{group}={option}"]), group.replace("/", "."))
+    assert OmegaConf.to_container(load_option(group, option)) == OmegaConf.to_container(composed)
+
+
+def test_the_options_that_build_on_another_are_among_those_checked():
+    built = {(g, o) for g, o in _own_package_options() if "defaults:" in (conf_dir() / g / f"{o}.yaml").read_text()}
+    assert {("disturbance", "constant_authors"), ("traj", "mixed_authors"), ("deploy", "crazyflie")} <= built
+
+
 @pytest.mark.parametrize("group", ["traj", "disturbance", "adaptation", "controller"])
 def test_python_defaults_are_the_config_defaults(group):
     """``Wind()`` in a notebook is the same wind as ``disturbance=wind``: one default per value.

@@ -117,16 +117,53 @@ def config_groups(roots: list[Path] | None = None) -> set[str]:
 
 
 def load_option(group: str, name: str) -> DictConfig:
-    """The YAML of one option of a config group (``<root>/<group>/<name>.yaml``, first root wins,
-    as in Hydra: the user's config dir before the package's)."""
+    """One option of a config group as Hydra composes it (``<root>/<group>/<name>.yaml``, first
+    root wins, as in Hydra: the user's config dir before the package's), its own defaults list
+    included: ``- other`` and ``- other@key`` (an option of the same group, at the option's root
+    or under ``key``), ``- sub@_here_: other`` / ``- sub@key: other`` (an option of the subgroup
+    ``<group>/sub``) and ``_self_`` (where the file's own keys merge; last when not listed)."""
     roots = search_roots()
     for root in roots:
         path = root / group / f"{name}.yaml"
         if path.is_file():
-            node = OmegaConf.load(path)
-            assert isinstance(node, DictConfig)
-            return node
+            return _compose_option(group, path, roots)
     raise ConfigError(f"{group}: unknown option {name!r}; allowed: {', '.join(available_options(group, roots))}")
+
+
+def _compose_option(group: str, path: Path, roots: list[Path]) -> DictConfig:
+    node = OmegaConf.load(path)
+    assert isinstance(node, DictConfig)
+    defaults = node.pop("defaults", None) or []
+    parts: list[DictConfig] = []
+    if "_self_" not in defaults:
+        defaults = [*defaults, "_self_"]
+    for entry in defaults:
+        if entry == "_self_":
+            parts.append(node)
+            continue
+        if isinstance(entry, str):
+            sub_group, (option, _, key) = group, entry.partition("@")
+        elif isinstance(entry, DictConfig) and len(entry) == 1 and not str(next(iter(entry))).startswith("override"):
+            head, option = next(iter(entry.items()))
+            sub, _, key = str(head).partition("@")
+            sub_group, key = f"{group}/{sub}", key or sub
+        else:
+            raise ConfigError(
+                f"{path}: defaults entry {entry!r} is not one an option can hold "
+                "(other, other@key, sub@key: other, _self_)"
+            )
+        loaded = load_option(sub_group, str(option))
+        parts.append(
+            loaded if key in ("", "_here_") else OmegaConf.create({}) if loaded is None else _nest(key, loaded)
+        )
+    return OmegaConf.merge(*parts) if parts else node
+
+
+def _nest(key: str, node: DictConfig) -> DictConfig:
+    """``node`` under the dotted ``key`` (``families.poly``)."""
+    for part in reversed(key.split(".")):
+        node = OmegaConf.create({part: node})
+    return node
 
 
 def check_option(group: str, name: Any, key: str) -> None:
