@@ -170,6 +170,24 @@ def _train_metrics(err, crashed=False):
     return {"conditions": {"clean": {"groups": {"zigzag": row}}}}
 
 
+def test_a_run_whose_drones_mostly_diverged_is_the_papers_failed_under_either_protocol(tmp_path):
+    def metrics(diverged, protocol):
+        row = {"mean_m": 0.8, "std_m": 0.1, "crashes": 0, "diverged": diverged, "episodes": 4, "protocol": protocol}
+        row["per_episode_m"] = [0.8] * 4
+        return {"conditions": {"clean": {"groups": {"zigzag": row}}}}
+
+    for num, (seed, diverged) in enumerate([(0, 3), (1, 2)]):
+        for offset, protocol in ((0, "project"), (10, "authors")):
+            overrides = ["+sweep=ablation", "ablation=h1", f"seed={seed}"]
+            _job(tmp_path, num + offset, [*overrides, f"eval.protocol={protocol}"], metrics(diverged, protocol))
+    spec = tables.get_spec("ablation")
+    rows, _ = tables.collect(spec, tables.find_jobs([tmp_path]))
+    for key in ("ablation=h1", "ablation=h1@authors"):
+        cell = rows[key][0]  # 3 of 4 diverged: failed; 2 of 4 (not most): its error counts
+        assert (cell.failed, cell.total, cell.values) == (1, 2, [0.8]), key
+        assert cell.text().endswith("(1/2 failed)")
+
+
 def test_failed_and_incomplete_runs_are_reported(tmp_path):
     _job(tmp_path, 0, ["+sweep=ablation", "ablation=none", "seed=0"], _train_metrics(0.05))
     _job(tmp_path, 1, ["+sweep=ablation", "ablation=none", "seed=1"], _train_metrics(0.07))

@@ -11,8 +11,8 @@ from __future__ import annotations
 import contextlib
 import errno
 import re
-import signal
 import shutil
+import signal
 import sys
 import tempfile
 import traceback
@@ -250,7 +250,8 @@ def check_output_dir(argv: list[str]) -> None:
         # its own (it never reaches this entry's handler): a disk without room refuses here
         free = shutil.disk_usage(base).free
         if free < RUN_MIN_FREE_BYTES:
-            problem = f"{free / 1e6:.2f} MB free on its disk, under the {RUN_MIN_FREE_BYTES / 1e6:.0f} MB a run's records need"
+            need_mb = RUN_MIN_FREE_BYTES / 1e6
+            problem = f"{free / 1e6:.2f} MB free on its disk, under the {need_mb:.0f} MB a run's records need"
             advice = f"free some space or set {key}=<another disk>"
     if problem:
         raise ConfigError(f"{key}: {path}: {problem}; {advice}")

@@ -51,3 +51,38 @@ def test_format_error_reads_as_the_tables_do():
     assert format_error({"mean_m": 0.05, "std_m": 0.01, "crashes": 0, "episodes": 10}) == "0.050 ± 0.010"
     assert format_error({"mean_m": 0.05, "std_m": 0.01, "crashes": 2, "episodes": 10}) == "0.050 ± 0.010 (2 crashed)"
     assert format_error({"mean_m": math.nan, "std_m": math.nan, "crashes": 3, "episodes": 3}) == "failed"
+
+
+def test_an_episode_diverged_when_its_last_second_averages_above_the_limit_or_it_crashed():
+    """The paper's "failed: the drone diverges from the reference", from its definition: the
+    last second (50 steps of 0.02 s) of the error against the limit, or a crash."""
+    from datt.eval.metrics import diverged_episodes
+
+    t = 120
+    err = torch.zeros(5, t)
+    err[0, -50:] = 1.01  # the last second just above 1 m
+    err[1, -50:] = 0.99  # just below
+    err[2, :-50] = 50.0  # far off early, back on the track for the last second
+    err[3, -49:] = 1.5  # 49 steps at 1.5 and one at 0: the mean of the window 1.47 > 1
+    err[4] = 0.1  # on the track, but it crashed
+    crashed_at = torch.tensor([t, t, t, t, 30])
+    got = diverged_episodes(err, crashed_at, dt_s=0.02, threshold_m=1.0).tolist()
+    assert got == [True, False, False, True, True]
+    err[3, -50] = -100.0  # the window is exactly 50 steps: the 50th from the end counts
+    assert not diverged_episodes(err, crashed_at, dt_s=0.02, threshold_m=1.0)[3]
+    short = diverged_episodes(torch.full((1, 10), 2.0), torch.tensor([10]), dt_s=0.02, threshold_m=1.0)
+    assert short.tolist() == [True]  # an episode shorter than the window is judged on all of it
+
+
+def test_a_run_failed_when_most_of_its_episodes_diverged():
+    from datt.eval.metrics import run_failed
+
+    errors, crashed = torch.tensor([0.1, 3.0, 4.0, 5.0]), torch.zeros(4, dtype=torch.bool)
+    half = summarize(errors, crashed, leave_out_crashed=False, diverged=torch.tensor([False, False, True, True]))
+    most = summarize(errors, crashed, leave_out_crashed=False, diverged=torch.tensor([False, True, True, True]))
+    assert half["diverged"] == 2 and half["per_episode_diverged"] == [False, False, True, True]
+    assert not run_failed(half) and run_failed(most)
+    assert format_error(most) == "3.025 ± 1.831 (3 diverged) failed"
+    assert format_error(half) == "3.025 ± 1.831 (2 diverged)"
+    # records written before the count: failed when every episode crashed
+    assert run_failed({"episodes": 2, "crashes": 2}) and not run_failed({"episodes": 2, "crashes": 1})

@@ -131,3 +131,20 @@ def test_each_protocol_setting_alone_changes_what_it_claims_and_nothing_else(mon
     # the error limit off: climbing drones fly on past 0.3 m of error; on, they stop there
     assert (stopped.crashed_at[:40] < kept.crashed_at[:40]).all()
     assert kept.err_m[:40, -1].min() > 0.3
+
+
+def test_a_drone_that_climbs_or_falls_away_diverges_and_one_that_holds_its_start_does_not():
+    """Under the authors' protocol (no termination on error) a drone climbing at full thrust
+    leaves its reference, and so does an open-loop hover from their zero-thrust start (it keeps
+    the velocity of its first fall): every episode diverged and the run failed. The same hover
+    from the project's start holds its start point, 0.2-0.8 m off a zigzag: under the 1 m limit."""
+    from datt.eval.metrics import run_failed
+
+    climb = _run(cfg_with("authors"), "authors", Climb)["groups"]["zigzag"]
+    fall = _run(cfg_with("authors"), "authors")["groups"]["zigzag"]
+    hover = _run(cfg_with("project"), "project")["groups"]["zigzag"]
+    for away in (climb, fall):
+        assert away["diverged"] == away["episodes"] == 40 and run_failed(away)
+    assert hover["diverged"] == 0 and not run_failed(hover) and 0.2 < hover["mean_m"] < 0.8
+    strict = cfg_with("project", "eval.diverged_error_m=0.05")
+    assert _run(strict, "project")["groups"]["zigzag"]["diverged"] == 40  # the limit is the config's

@@ -19,7 +19,7 @@ from datt.configuration import instantiate_option, load_option, with_options
 from datt.control.base import Controller
 from datt.envs.factory import make_env
 from datt.envs.params import OBS_NOISE_KEYS
-from datt.eval.metrics import episode_errors, summarize
+from datt.eval.metrics import diverged_episodes, episode_errors, summarize
 from datt.eval.protocol import apply_protocol, get_protocol
 from datt.refs.base import RefFamily
 from datt.refs.composite import Seeded
@@ -126,6 +126,7 @@ def evaluate(cfg: DictConfig, controller_factory, disturbance: str, adaptation: 
     env.seed_starts(seed)
     trace = run_controller(env, controller_factory(env))
     crashed = trace.crashed_at < trace.err_m.shape[1]
+    diverged = diverged_episodes(trace.err_m, trace.crashed_at, float(cfg.env.dt_s), float(cfg.eval.diverged_error_m))
     if protocol.count_every_step:
         errors = trace.err_m.mean(1)
     else:
@@ -133,7 +134,9 @@ def evaluate(cfg: DictConfig, controller_factory, disturbance: str, adaptation: 
     out, start = {}, 0
     for name, count in zip(names, counts):
         sl = slice(start, start + count)
-        out[name] = summarize(errors[sl], crashed[sl], leave_out_crashed=not protocol.count_every_step)
+        out[name] = summarize(
+            errors[sl], crashed[sl], leave_out_crashed=not protocol.count_every_step, diverged=diverged[sl]
+        )
         out[name]["protocol"] = str(cfg.eval.protocol)
         start += count
     return {"groups": out, "trace": trace, "names": names, "counts": counts}

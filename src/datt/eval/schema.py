@@ -71,6 +71,11 @@ class SharedEvalParams:
     end-of-run evaluation, ``eval.py`` and ``fit_rma.py`` fly the same bank the same way."""
 
     protocol: str = ranged(MISSING, Range(choices=tuple(PROTOCOLS)))
+    # The paper's "failed: the drone diverges from the reference" as a rule (datt.eval.metrics):
+    # the authors' evaluation has no termination, so a diverging drone ends far from its
+    # reference; 1 m is the half-width of the zigzags' waypoint box, more than twice the error of
+    # a drone that holds its start point (the hover reference row). Up to 20 m: the room.
+    diverged_error_m: float = ranged(MISSING, Range(0.0, 20.0, low_open=True))
     seeds: list[int] = ranged(MISSING, SEED)  # the bank at each seed; one seed = condition names without a suffix
     plots: bool = MISSING
     bank: Any = MISSING

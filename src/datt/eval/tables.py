@@ -32,6 +32,7 @@ import numpy as np
 import yaml
 
 from datt.errors import ConfigError, one_line
+from datt.eval.metrics import run_failed
 from datt.eval.protocol import get_protocol
 from datt.runs import read_failure
 
@@ -315,6 +316,8 @@ def _group_error(metrics: dict, condition: str | None, group: str) -> float | No
     if cond is None or group not in cond["groups"]:
         return None
     row = cond["groups"][group]
+    if run_failed(row):  # the paper's "failed": most episodes diverged (datt.eval.metrics)
+        return None
     if _counts_every_episode(row):
         mean = row["mean_m"]
         return mean if mean is not None and math.isfinite(mean) else None
