@@ -295,12 +295,12 @@ def test_a_saved_config_with_retired_keys_is_read_in_todays_keys():
     assert OmegaConf.to_container(upgrade_saved_config(OmegaConf.create(rma_run))) == rma_run
 
 
-SHARED_EVAL_KEYS = ("protocol", "seeds", "plots")
+SHARED_EVAL_KEYS = ("protocol", "diverged_error_m", "seeds", "plots")
 
 
 @pytest.mark.parametrize("job", ["train", "eval", "fit_rma"])
 def test_the_shared_eval_keys_have_one_home(job):
-    """protocol, seeds and plots come from conf/evaluation/common.yaml in every job: none of the
+    """protocol, diverged_error_m, seeds and plots come from conf/evaluation/common.yaml in every job: none of the
     job files sets them, and a job's eval node holds exactly the shared schema's keys plus its own."""
     own = OmegaConf.load(conf_dir() / f"{job}.yaml").get("eval") or {}
     assert not set(own) & set(SHARED_EVAL_KEYS), f"{job}.yaml sets a shared eval key"

@@ -213,6 +213,22 @@ class Trainer:
         self.critic = make_critic(
             self.env.horizon, self.policy_params, self.env.state_dim, len(self.env.critic_offsets)
         ).to(self.env.device)
+        self._make_update()
+        # the checkpoints this run's weights descend from, oldest first: each one's whole config
+        # and frames, so a chain of fine-tunes stays reproducible after its files are gone
+        self.lineage: list[dict] = []
+        if train_params.init_from:
+            self.init_weights(train_params.init_from)
+        self.frames_per_batch = self.algo.num_envs * self.algo.rollout_steps
+        self.frames = 0
+        self.iteration = 0
+        self.best_error = math.inf
+        self.history: list[dict] = []  # one row per iteration, kept in the checkpoint (whole learning curve)
+        self.train_wall_s = 0.0  # training time summed over every segment of the run
+        self.adaptive_lr = self.algo.lr  # lr_schedule=adaptive_kl: the lr the last gradient step left
+
+    def _make_update(self) -> None:
+        """PPO's parts over the actor and critic: the clipped loss, GAE and Adam."""
         algo = self.algo
         self.loss = ClipPPOLoss(
             self.actor,
@@ -236,18 +252,6 @@ class Trainer:
             {k for k in self.loss.in_keys if isinstance(k, str)}
             | {keys.advantage, keys.value_target, keys.value, keys.sample_log_prob, keys.action}
         )
-        # the checkpoints this run's weights descend from, oldest first: each one's whole config
-        # and frames, so a chain of fine-tunes stays reproducible after its files are gone
-        self.lineage: list[dict] = []
-        if train_params.init_from:
-            self.init_weights(train_params.init_from)
-        self.frames_per_batch = algo.num_envs * algo.rollout_steps
-        self.frames = 0
-        self.iteration = 0
-        self.best_error = math.inf
-        self.history: list[dict] = []  # one row per iteration, kept in the checkpoint (whole learning curve)
-        self.train_wall_s = 0.0  # training time summed over every segment of the run
-        self.adaptive_lr = algo.lr  # lr_schedule=adaptive_kl: the lr the last gradient step left
 
     # -- checkpoints -------------------------------------------------------------------------
     def state(self) -> dict:
