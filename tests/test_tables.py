@@ -95,7 +95,7 @@ def test_the_paper_ppo_sweep_is_the_paper_setting_sweep_trained_as_the_authors_t
     assert (algo.num_envs, algo.rollout_steps, algo.epochs, algo.minibatch_size) == (10, 2048, 10, 64)
     assert (algo.lr, algo.lr_schedule, algo.gamma, algo.lmbda, algo.clip_epsilon) == (3e-4, "constant", 0.99, 0.95, 0.2)
     # their exploration (std 1 in action units, no ceiling) and no crash termination or penalty
-    assert list(sb3.policy.init_std) == [0.05, 0.05, 0.05, 0.5] and sb3.policy.max_std is None
+    assert list(sb3.policy.init_std) == [0.05, 0.05, 0.05, 0.5] and sb3.policy.max_std == 1.0
     assert min(sb3.env.safety_box_m) >= 1000.0 and sb3.env.reward.crash_penalty == 0.0
     # everything else is the paper-setting sweep's
     for key in ("env.obs", "env.quad", "traj", "curriculum", "eval", "train.total_frames", "policy.encoder"):

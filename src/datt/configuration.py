@@ -153,10 +153,8 @@ def _compose_option(group: str, path: Path, roots: list[Path]) -> DictConfig:
                 "(other, other@key, sub@key: other, _self_)"
             )
         loaded = load_option(sub_group, str(option))
-        parts.append(
-            loaded if key in ("", "_here_") else OmegaConf.create({}) if loaded is None else _nest(key, loaded)
-        )
-    return OmegaConf.merge(*parts) if parts else node
+        parts.append(loaded if key in ("", "_here_") else _nest(key, loaded))
+    return OmegaConf.merge(*parts)
 
 
 def _nest(key: str, node: DictConfig) -> DictConfig:
