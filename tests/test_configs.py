@@ -344,3 +344,15 @@ def test_the_authors_adaptive_experiment_is_their_configs_setting():
     d = env.disturbance.current_mps2
     assert d.abs().max() <= 1.0 and d.abs().max() > 0.9  # U(±1) per axis, spanning it
     assert torch.equal(env.sim.state.pos_m, torch.zeros_like(env.sim.state.pos_m))  # at the origin
+
+
+def test_an_option_without_self_in_its_defaults_overrides_what_it_builds_on(tmp_path, monkeypatch):
+    """As Hydra (1.1 on) composes it: a defaults list without ``_self_`` merges the file's own
+    keys last, so they win over the option they build on (a user's --config-dir may omit it)."""
+    import datt.configuration as configuration
+
+    (tmp_path / "disturbance").mkdir()
+    (tmp_path / "disturbance" / "base.yaml").write_text("max_mps2: 0.5\nsigma2: 0.1\n")
+    (tmp_path / "disturbance" / "mine.yaml").write_text("defaults:\n  - base\nmax_mps2: 2.0\n")
+    monkeypatch.setattr(configuration, "search_roots", lambda: [tmp_path])
+    assert OmegaConf.to_container(load_option("disturbance", "mine")) == {"max_mps2": 2.0, "sigma2": 0.1}
