@@ -316,12 +316,10 @@ def _group_error(metrics: dict, condition: str | None, group: str) -> float | No
     if cond is None or group not in cond["groups"]:
         return None
     row = cond["groups"][group]
-    if run_failed(row):  # the paper's "failed": most episodes diverged (datt.eval.metrics)
+    if run_failed(row):  # the paper's "failed": most episodes diverged, all crashed among them
         return None
-    if _counts_every_episode(row):
-        mean = row["mean_m"]
-        return mean if mean is not None and math.isfinite(mean) else None
-    return None if row["crashes"] == row["episodes"] else row["mean_m"]
+    mean = row["mean_m"]  # over the episodes its protocol counts (datt.eval.protocol)
+    return mean if mean is not None and math.isfinite(mean) else None
 
 
 def _episodes(metrics: dict, group: str) -> tuple[list[float], int]:

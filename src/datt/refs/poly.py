@@ -58,8 +58,10 @@ def zero_ends_fit(degree: int, h: Tensor) -> Tensor:
     ``[0, h]``: for ``degree`` = 2m − 1, ``p(0) = p(h) = 0`` and derivatives 1 … m − 1 given at
     both ends, ordered ``(p'(0), p'(h), p''(0), p''(h), ...)``. Returns ``K [..., degree + 1,
     2 (m − 1)]`` with ``c = K @ derivatives`` (ascending powers). ``h [...]`` durations. The
-    conditions of the authors' ``polyu.deriv_fitting_matrix``; at degree 5 the map of
-    :func:`quintic_zero_ends`."""
+    conditions of the authors' ``polyu.deriv_fitting_matrix``; at degree 5 the closed form
+    :func:`quintic_zero_ends`, which every reference of the paper's degree was drawn with."""
+    if degree == 5:
+        return quintic_zero_ends(h)
     m = (degree + 1) // 2
     n = degree + 1
     powers = torch.arange(n, dtype=h.dtype, device=h.device)
@@ -146,13 +148,8 @@ class Poly(RefFamily):
         # one draw per derivative, [n, end, axis], in the order velocity, acceleration, jerk
         ends = [self._uniform((n, 2, 2), -b, b, generator, like) for b in bounds]
         h = torch.full((n,), self.duration_s, dtype=like.dtype, device=like.device)
-        if self.degree == 5:  # the closed form every reference of the paper's degree was drawn with
-            v, a = ends
-            bc = torch.stack((v[:, 0], v[:, 1], a[:, 0], a[:, 1]), dim=1)  # [n, 4, 2]
-            coeffs = (quintic_zero_ends(h) @ bc).unsqueeze(1)  # [n, 1, 6, 2]
-        else:
-            bc = torch.cat(ends, dim=1)  # [n, 2 (m - 1), 2]: p'(0), p'(T), p''(0), ...
-            coeffs = (zero_ends_fit(self.degree, h) @ bc).unsqueeze(1)
+        bc = torch.cat(ends, dim=1)  # [n, 2 (m - 1), 2]: p'(0), p'(T), p''(0), ...
+        coeffs = (zero_ends_fit(self.degree, h) @ bc).unsqueeze(1)  # [n, 1, degree + 1, 2]
         knot_t = torch.stack((torch.zeros_like(h), h), dim=1)
         grid = torch.linspace(0, self.duration_s, 2001, dtype=like.dtype, device=like.device)
         peak = eval_pieces(knot_t, coeffs, grid).abs().amax(dim=(1, 2))
