@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
-import json
 import os
 import platform
 import time
 from pathlib import Path
 
 import torch
+
+from datt.runs import write_json
 
 RESULTS_DIR = Path(__file__).resolve().parent / "results"
 
@@ -36,8 +37,7 @@ def write_result(name: str, payload: dict) -> Path:
     RESULTS_DIR.mkdir(parents=True, exist_ok=True)
     path = RESULTS_DIR / f"{name}.json"
     payload = {"benchmark": name, "date": time.strftime("%Y-%m-%dT%H:%M:%S"), "machine": machine_info(), **payload}
-    path.write_text(json.dumps(payload, indent=2) + "\n")
-    return path
+    return write_json(path, payload)  # strict JSON (NaN -> null), written atomically
 
 
 def timed_training_config(description: str, default_iterations: int, *extra: str):

@@ -22,6 +22,7 @@ from pathlib import Path
 
 from datt.cli import run_tool
 from datt.errors import ConfigError
+from datt.runs import write_json
 
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "docs" / "results" / "figures"
@@ -48,7 +49,7 @@ def main() -> None:
                 for name, cond in metrics["conditions"].items()
             },
         }
-        (OUT / "figures.json").write_text(json.dumps(record, indent=2) + "\n")
+        write_json(OUT / "figures.json", record)
     print(f"wrote {OUT / 'tracking_zigzag_chained_poly.png'}, {OUT / 'dhat_l1_brownian.png'}, {OUT / 'figures.json'}")
 
 
