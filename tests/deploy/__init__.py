@@ -5,6 +5,7 @@ import itertools
 import math
 import os
 import shutil
+import threading
 import time
 
 
@@ -154,14 +155,28 @@ def bookkeeping_runner(tmp_path, **attrs):
 
     runner = FlightRunner.__new__(FlightRunner)
     runner.log = FlightLog(tmp_path)
+    runner._frame_ready = threading.Event()  # what __init__ makes for the mocap forwarding
     for name, value in attrs.items():
         setattr(runner, name, value)
     return runner
 
 
 class FakeClock:
-    """``time`` for the watch loop: ``monotonic`` reads a clock that only ``sleep`` moves, each
-    sleep ``overshoot_s`` longer than asked (as a real one wakes late)."""
+    """A flight's clock (datt.deploy.clock) for the runner's loops: ``monotonic`` reads a clock
+    that only ``sleep`` moves, each sleep ``overshoot_s`` longer than asked (as a real one wakes
+    late); ``wait`` sleeps its timeout unless the event is already set."""
+
+    lockstep = False
+
+    def event(self):
+        import threading
+
+        return threading.Event()
+
+    def wait(self, event, timeout_s: float) -> bool:
+        if not event.is_set():
+            self.sleep(timeout_s)
+        return event.is_set()
 
     def __init__(self, overshoot_s: float = 0.0) -> None:
         self.now_s = 1000.0

@@ -10,7 +10,7 @@ import pytest
 
 from datt.deploy.mocap import MocapSource
 from datt.deploy.outcome import Kind
-from datt.deploy.runner import UNLOCK_TICKS, _Abort
+from datt.deploy.runner import UNLOCK_TICKS, FlightRunner, _Abort
 from tests.deploy import FakeClock, bookkeeping_runner
 
 
@@ -33,10 +33,9 @@ class ArmingLink:
 
 
 def arming(tmp_path, monkeypatch, armed: bool, rate_hz: float = 50.0):
-    import datt.deploy.runner as module
 
     clock = FakeClock()
-    monkeypatch.setattr(module, "time", clock)
+    monkeypatch.setattr(FlightRunner, "clock", clock)  # the class's: bookkeeping runners read it
     p = SimpleNamespace(arm_timeout_s=1.5, rate_hz=rate_hz)
     return bookkeeping_runner(tmp_path, p=p, link=ArmingLink(clock, armed))
 
@@ -143,10 +142,8 @@ def test_the_mocap_age_and_position_come_from_the_sources_latest_frame(tmp_path,
     inf, no position; with one: its age on the runner's clock and its position as floats."""
     import math
 
-    import datt.deploy.runner as module
-
     clock = FakeClock()
-    monkeypatch.setattr(module, "time", clock)
+    monkeypatch.setattr(FlightRunner, "clock", clock)  # the class's: bookkeeping runners read it
     frames = []
     source = SimpleNamespace(name="sim", read=lambda: frames[-1] if frames else None)
     runner = bookkeeping_runner(tmp_path, mocap=None)

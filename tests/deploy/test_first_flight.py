@@ -83,12 +83,10 @@ def test_off_board_selects_the_pid_and_clears_the_holds_then_restores_them(tmp_p
 
         def during_track():
             while runner.phase != "TRACK":
-                time.sleep(0.01)
+                runner.clock.sleep(0.01)
             flown.update({k: server.params[k] for k in left})
 
-        import threading
-
-        threading.Thread(target=during_track, daemon=True).start()
+        runner.clock.start_thread(during_track, "fault")
 
     # the training model's loop, on which the 0.15 m bound was set (a 3 s star on the stock loop: 0.18 m)
     summary, server = fly(tmp_path, ["deploy.server.rate_loop=pi_first_order"], hook=watch)
@@ -107,15 +105,14 @@ def test_onboard_selects_the_controller_the_app_publishes(tmp_path):
     seen = {}
 
     def watch(server, runner):
-        import threading
 
         def during_track():
             while runner.phase != "TRACK":
-                time.sleep(0.01)
-            time.sleep(0.3)
+                runner.clock.sleep(0.01)
+            runner.clock.sleep(0.3)
             seen.update(controller=server.controller, phase=server.app.phase)
 
-        threading.Thread(target=during_track, daemon=True).start()
+        runner.clock.start_thread(during_track, "fault")
         seen["runner"], seen["sent"] = runner, []  # this flight's (a stalled one is flown again)
         send_rates = runner.link.send_rates
 
@@ -183,16 +180,15 @@ def test_an_app_that_stops_stepping_is_taken_over_by_the_host(tmp_path):
     waiting for the commander's watchdog to cut the motors."""
 
     def lee_mid_track(server, runner):
-        import threading
 
         def switch():
             while server.app.phase != onboard.TRACK:
-                time.sleep(0.005)
-            time.sleep(0.5)
+                server.clock.sleep(0.005)
+            server.clock.sleep(0.5)
             with server._lock:
                 server.params["stabilizer.controller"] = 5
 
-        threading.Thread(target=switch, daemon=True).start()
+        server.clock.start_thread(switch, "fault")
 
     summary, server = fly(tmp_path, ["deploy.onboard=true"], hook=lee_mid_track)
     assert summary["outcome"].startswith("landed early: the app stopped stepping"), summary["outcome"]

@@ -45,14 +45,12 @@ def after(seconds, fn, runner, phase="TRACK"):
 
     def wait():
         while runner.phase != phase and runner.phase != "DISARM":
-            time.sleep(0.005)
+            runner.clock.sleep(0.005)
         if runner.phase == phase:
-            time.sleep(seconds)
+            runner.clock.sleep(seconds)
             fn()
 
-    t = threading.Thread(target=wait, daemon=True)
-    t.start()
-    return t
+    return runner.clock.start_thread(wait, "fault")  # on the flight's clock
 
 
 def motors_stopped(server):
@@ -177,7 +175,7 @@ def test_a_stalled_host_says_so_beside_the_landing_it_caused(tmp_path):
             if runner.phase == "TRACK" and not stalled:
                 stalled.append(True)
                 runner.mocap.dropout_prob = 1.0  # every later frame is lost
-                time.sleep(0.6)
+                runner.clock.sleep(0.6)
             return act(*args)
 
         runner._act = stalling
@@ -232,11 +230,11 @@ def test_low_battery_lands(tmp_path):
     def drop_at_takeoff(server, runner):
         def wait_and_drop():
             while runner.phase != "TAKEOFF":
-                time.sleep(0.01)
+                runner.clock.sleep(0.01)
             server.battery_v = 3.2
-            dropped["t_s"] = time.monotonic() - runner.t0
+            dropped["t_s"] = runner.clock.monotonic() - runner.t0
 
-        threading.Thread(target=wait_and_drop, daemon=True).start()
+        runner.clock.start_thread(wait_and_drop, "fault")
 
     summary, server = fly(tmp_path, hook=drop_at_takeoff)
     # the decision sees the low-passed voltage (1 s): it crosses 3.3 V about 2 s after the drop

@@ -199,12 +199,10 @@ def test_events_carry_their_time_since_the_start_their_phase_and_go_to_the_conso
     """An event is stamped with the seconds since the log began (to 0.1 ms) and the phase it
     happened in; extra fields are kept; the console gets one aligned line per event. A phase
     change is itself an event of the new phase. The log starts in CONNECT."""
-    from datt.deploy import flight_log
 
     clock = Clock(1000.0)
-    monkeypatch.setattr(flight_log, "time", clock)
     console = Console()
-    log = FlightLog(tmp_path, console=console)
+    log = FlightLog(tmp_path, console=console, clock=clock)
     assert log.phase == "CONNECT" and log.events == [] and log.rows == []
     clock.now = 1001.234567
     log.event("link", "radio up", round_trip_ms=12.5)

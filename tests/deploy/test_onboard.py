@@ -387,7 +387,6 @@ def test_the_app_flies_on_the_hover_trims_map(tmp_path):
     ``deploy.thrust.app_max_command`` (65535: its setpoints skip the legacy commander's 60000, and
     this vehicle needs more in the star's first second); after the flight the host restores what
     the vehicle held."""
-    import time
 
     pytest.importorskip("cflib")
     from datt.deploy.thrust import ThrustMap
@@ -404,10 +403,10 @@ def test_the_app_flies_on_the_hover_trims_map(tmp_path):
                     seen["tracking"].append((server.app.p.hover_command, server.app.p.slope_mps2_per_command))
                     seen["ceiling"].append(server.app.p.max_command)
                     seen["thrust"].append(server.cmd[3])
-                time.sleep(0.05)
+                runner.clock.sleep(0.05)
             seen["server"] = server
 
-        threading.Thread(target=sample, daemon=True).start()
+        runner.clock.start_thread(sample, "fault")
 
     # the training model's rate loop: on a stock vehicle's own loop this vehicle is at its hover trim's limit
     overrides = ["deploy.onboard=true", *HEAVY_WEAK]
@@ -638,8 +637,19 @@ def test_refused_points_fail_the_upload_naming_each_status():
 
 
 class _FakeClock:
-    """``onboard.time`` on a clock that only moves when the upload sleeps; an acknowledgement is
-    delivered ``ack_after_s`` after its packet was sent (as the radio answers, but deterministic)."""
+    """The upload's clock, moving only when the upload waits (to the next acknowledgement due, or
+    its deadline); an acknowledgement is delivered ``ack_after_s`` after its packet was sent (as
+    the radio answers, but deterministic)."""
+
+    def event(self):
+        import threading
+
+        return threading.Event()
+
+    def wait(self, event, timeout_s: float) -> bool:
+        due = min((t for t, _ in self.due), default=self.now + timeout_s)
+        self.sleep(max(0.0, min(due, self.now + timeout_s) - self.now))
+        return event.is_set()
 
     def __init__(self, ack_after_s: float) -> None:
         self.now, self.ack_after_s, self.due = 0.0, ack_after_s, []
@@ -662,17 +672,16 @@ class _FakeClock:
 
 def test_the_next_window_goes_out_as_soon_as_the_last_is_acknowledged(monkeypatch):
     """Answers 5 ms after each send: every packet goes once, and each window waits for its answers
-    (polled every 2 ms), not for the 0.1 s timeout. On the upload's own clock, not the wall's."""
+    (woken by each answer), not for the 0.1 s timeout. On the upload's own clock, not the wall's."""
     clock = _FakeClock(ack_after_s=0.005)
-    monkeypatch.setattr(onboard, "time", clock)
     table = [(0.0, 0.0, 0.0)] * (onboard.POINTS_PER_PACKET * 25)  # 25 packets: windows of 10, 10, 5
     sent = []
-    upload = onboard.Upload(lambda data: (sent.append(data), clock.send(data)), table)
+    upload = onboard.Upload(lambda data: (sent.append(data), clock.send(data)), table, clock=clock)
     clock.upload = upload
     upload.run()
     indices = [struct.unpack("<BHB", data[:4])[1] for data in sent]
     assert indices == list(range(0, len(table), onboard.POINTS_PER_PACKET))  # each packet once
-    assert clock.now == pytest.approx(3 * 0.006)  # three windows of three 2 ms polls
+    assert clock.now == pytest.approx(3 * 0.005)  # three windows, each woken by its last answer
 
 
 def test_a_repeated_acknowledgement_is_harmless():

@@ -14,6 +14,7 @@ import pytest
 from datt.deploy import onboard
 from datt.deploy.flight_log import FlightLog
 from datt.deploy.onboard_flight import OnboardFlight
+from datt.deploy.runner import FlightRunner
 from datt.deploy.safety import KILL, LAND, OK
 from tests.deploy import FakeClock
 
@@ -229,11 +230,10 @@ def test_the_host_watches_the_app_once_per_control_tick(tmp_path, monkeypatch):
     12 watched ticks one period apart, row to row, when every sleep wakes 1 ms late: each tick
     after the first is logged 1 ms behind its schedule, and the lateness does not add up (the
     schedule is absolute)."""
-    import datt.deploy.onboard_flight as module
 
     for rate_hz in (50.0, 100.0):
         clock = FakeClock(overshoot_s=0.001)
-        monkeypatch.setattr(module, "time", clock)
+        monkeypatch.setattr(FlightRunner, "clock", clock)  # the class's: bookkeeping runners read it
         flight = watching(tmp_path, onboard.TRACK)
         flight.p.rate_hz, flight._onboard_steps = rate_hz, 500
         flight.thrust = SimpleNamespace(hover_command=47123.5, slope=1.7e-4)
@@ -257,10 +257,9 @@ def test_an_app_start_that_is_not_confirmed_stops_the_app_and_lands_with_the_pid
     """The checked write of the trimmed map and ``datt.run = 1`` fails: the host writes
     ``datt.run = 0`` (the app must not start under the PID that lands it), returns LAND and says
     why in the link's own words (without its ``connect:`` prefix)."""
-    import datt.deploy.onboard_flight as module
 
     clock = FakeClock()
-    monkeypatch.setattr(module, "time", clock)
+    monkeypatch.setattr(FlightRunner, "clock", clock)  # the class's: bookkeeping runners read it
     flight = watching(tmp_path, None)
     flight.thrust = SimpleNamespace(hover_command=47123.5, slope=1.7e-4)
     flight.link = StartingLink(clock, refusal="connect: datt.hoverCmd reads back 45000, not 47123.5")
@@ -311,10 +310,9 @@ def test_the_host_judges_the_low_passed_battery_and_logs_the_raw_one(tmp_path):
 def handing_over(tmp_path, monkeypatch, steps: int, link_class=None):
     """A host about to hand the flight to a tracking app (``steps`` track steps at 50 Hz) on a
     fake clock that moves only when the host sleeps; returns (flight, clock)."""
-    import datt.deploy.onboard_flight as module
 
     clock = FakeClock()
-    monkeypatch.setattr(module, "time", clock)
+    monkeypatch.setattr(FlightRunner, "clock", clock)  # the class's: bookkeeping runners read it
     flight = watching(tmp_path, onboard.TRACK)
     flight.p.rate_hz, flight._onboard_steps = 50.0, steps
     flight.thrust = SimpleNamespace(hover_command=47123.5, slope=1.7e-4)
@@ -390,7 +388,7 @@ def test_a_failed_reference_upload_refuses_the_flight_saying_why(tmp_path, monke
     from datt.deploy.runner import _Abort
 
     class GivesUp:
-        def __init__(self, send, table) -> None:
+        def __init__(self, send, table, clock=None) -> None:
             self.on_packet = None
 
         def run(self) -> None:

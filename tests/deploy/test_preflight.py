@@ -11,7 +11,7 @@ import pytest
 
 from datt.deploy import firmware
 from datt.deploy.link import StateSample
-from datt.deploy.runner import _Abort
+from datt.deploy.runner import FlightRunner, _Abort
 from tests.deploy import FakeClock, bookkeeping_runner
 
 LEVEL = (1.0, 0.0, 0.0, 0.0)
@@ -58,12 +58,11 @@ def preflight(tmp_path, monkeypatch, mocap=None, clock=None, timeout_s=3.0, max_
     """Run the preflight of a runner with the shipped safety settings (``max_state_age_s`` if
     given), a ``timeout_s`` timeout, a 3.7 V minimum and the hover point (0, 0, 1); returns
     (runner, clock, result or None if refused)."""
-    import datt.deploy.runner as module
     from datt.configuration import compose
     from datt.deploy.schema import deploy_params
 
     clock = clock or FakeClock()
-    monkeypatch.setattr(module, "time", clock)
+    monkeypatch.setattr(FlightRunner, "clock", clock)  # the class's: bookkeeping runners read it
     p = SimpleNamespace(preflight_timeout_s=timeout_s, min_battery_v=3.7, origin_m=[0.0, 0.0], takeoff_height_m=1.0)
     safety = deploy_params(compose("deploy").deploy)[2]
     if max_state_age_s is not None:

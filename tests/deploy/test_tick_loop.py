@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from datt.deploy.link import StateSample
+from datt.deploy.runner import FlightRunner
 from datt.deploy.safety import KILL, LAND, OK, BatteryFilter
 from tests.deploy import FakeClock, bookkeeping_runner
 
@@ -217,10 +218,9 @@ def test_each_tick_is_timed_against_an_absolute_schedule(tmp_path, monkeypatch):
     """On a clock that only sleeping moves, each sleep waking 1 ms late: every tick after the first
     runs 1 ms behind its schedule (the lateness does not add up), the schedule is one period
     apart, and a tick that takes no time has no compute time."""
-    import datt.deploy.runner as module
 
     clock = FakeClock(overshoot_s=0.001)
-    monkeypatch.setattr(module, "time", clock)
+    monkeypatch.setattr(FlightRunner, "clock", clock)  # the class's: bookkeeping runners read it
     runner = tick_runner(tmp_path, [sample(1.00), sample(1.02), sample(1.04)])
     assert runner._tick_loop(Model(), 3, np.zeros(3)) == OK
     assert [a[5] for a in runner.acted] == pytest.approx([1000.0, 1000.021, 1000.041])  # each tick's now
@@ -244,10 +244,9 @@ def test_a_row_holds_every_column_of_the_tick(tmp_path, monkeypatch):
     estimate's arrival) from the log's start, the vehicle's own stamp, the estimate as measured,
     the reference in the world frame, the action as floats, the thrust sent, the model's
     disturbance estimate, the raw battery, the decision and the timing."""
-    import datt.deploy.runner as module
 
     clock = FakeClock()
-    monkeypatch.setattr(module, "time", clock)
+    monkeypatch.setattr(FlightRunner, "clock", clock)  # the class's: bookkeeping runners read it
     quat = (0.9950042, 0.0998334, 0.0, 0.0)  # 11.5° of roll
     estimate = StateSample(999.99, (0.3, -0.2, 1.1), (0.1, 0.2, -0.3), quat, 3.9, vehicle_s=12.5)
     runner = tick_runner(tmp_path, [estimate], phase="TRACK")
@@ -350,9 +349,8 @@ def test_a_phase_lasts_its_duration_or_the_references_episode(tmp_path, duration
 
 def test_a_ticks_compute_time_is_from_its_estimate_to_its_row(tmp_path, monkeypatch):
     """A controller that takes 3 ms (on a fake clock): the row's compute time is 3 ms, in ms."""
-    import datt.deploy.runner as module
 
-    monkeypatch.setattr(module, "time", FakeClock())
+    monkeypatch.setattr(FlightRunner, "clock", FakeClock())
     runner = tick_runner(tmp_path, [sample(1.00), sample(1.02)])
     runner.compute_s = 0.003
     assert runner._tick_loop(Model(), 2, np.zeros(3)) == OK

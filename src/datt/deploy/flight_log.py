@@ -5,12 +5,12 @@ from __future__ import annotations
 
 import csv
 import math
-import time
 from pathlib import Path
 
 import numpy as np
 import torch
 
+from datt.deploy.clock import WALL
 from datt.runs import write_json
 
 COLUMNS = [
@@ -55,17 +55,26 @@ def errors_when_measured(track: list[dict]) -> list[float]:
 class FlightLog:
     """Rows and events of one flight, with the phase they happened in (times from ``t0``)."""
 
-    def __init__(self, run_dir: Path, console=None, rate_hz: float = 50.0, late_tick_ms: float = 5.0) -> None:
+    def __init__(
+        self, run_dir: Path, console=None, rate_hz: float = 50.0, late_tick_ms: float = 5.0, clock=WALL
+    ) -> None:
         self.run_dir = Path(run_dir)
+        self.clock = clock  # the flight's (datt.deploy.clock)
         self.console = console
         self.rate_hz, self.late_tick_ms = float(rate_hz), float(late_tick_ms)
         self.rows: list[dict] = []
         self.events: list[dict] = []
         self.phase = "CONNECT"
-        self.t0 = time.monotonic()
+        self.t0 = self.clock.monotonic()
 
     def event(self, kind: str, text: str = "", **extra) -> None:
-        item = {"t_s": round(time.monotonic() - self.t0, 4), "phase": self.phase, "kind": kind, "text": text, **extra}
+        item = {
+            "t_s": round(self.clock.monotonic() - self.t0, 4),
+            "phase": self.phase,
+            "kind": kind,
+            "text": text,
+            **extra,
+        }
         self.events.append(item)
         if self.console is not None:
             self.console.print(f"[{item['t_s']:7.2f} s] {self.phase:8s} {kind}: {text}")

@@ -17,6 +17,11 @@ when the link dies mid-send: its receive thread sets ``Crazyflie.link = None`` b
 send (including the emergency stop) blocks forever. A call that does not return in time, or
 raises, marks the link lost (the safety layer then KILLs) and later calls return at once; the
 vehicle's own setpoint watchdog stops the motors when setpoints stop arriving.
+
+Every wait goes through the flight's clock (:mod:`datt.deploy.clock`). On the simulated
+Crazyflie's lockstep clock the link opens through :func:`_lockstep_udp_driver`, cflib's UDP driver
+accounting each datagram to the clock, and reads and writes parameters with packets of its own
+(cflib's parameter thread sends from a queue the clock cannot see).
 """
 
 from __future__ import annotations
@@ -26,14 +31,15 @@ import math
 import queue
 import struct
 import threading
-import time
 from dataclasses import dataclass
 
 from datt.deploy import firmware
+from datt.deploy.clock import WALL
 from datt.deploy.firmware import fact
 from datt.errors import LinkError
 
 PARAM_READ_CHANNEL = 1  # param port: read replies are <id:2><status:1><value>; write echoes come on channel 2
+PARAM_WRITE_CHANNEL = 2  # param port: a write is <id:2><value>
 # Off-board flight settings, in the order they are set (and restored in reverse at close): only the
 # PID and INDI controllers fly roll/pitch-rate setpoints; the position/altitude holds of the
 # legacy commander turn thrust and attitude setpoints into velocity commands; rate mode makes
@@ -69,6 +75,37 @@ def _cflib():
     except ImportError:
         raise LinkError('cflib is not installed: pip install -e ".[deploy]"') from None
     return cflib.crtp, Crazyflie, LogConfig
+
+
+def _lockstep_udp_driver(clock, uri: str):
+    """cflib's UDP driver for ``uri`` only, accounting each datagram to the lockstep ``clock``: one
+    sent is on its way (``begin``) until the simulated vehicle takes it up; one received is until
+    cflib's packet thread comes back for the next (it has then handed this one to every callback)."""
+    from cflib.crtp.exceptions import WrongUriType
+    from cflib.crtp.udpdriver import UdpDriver
+
+    class LockstepUdpDriver(UdpDriver):
+        def connect(self, link_uri, *callbacks):
+            if link_uri != uri:
+                raise WrongUriType(f"{link_uri}: not the lockstep vehicle's")
+            self._handed = False
+            super().connect(link_uri, *callbacks)
+
+        def send_packet(self, pk):
+            if self.socket is None:
+                return
+            clock.begin()
+            super().send_packet(pk)
+
+        def receive_packet(self, wait=0):
+            if self._handed:
+                self._handed = False
+                clock.end()
+            pk = super().receive_packet(wait)
+            self._handed = pk is not None
+            return pk
+
+    return LockstepUdpDriver
 
 
 def _connect_failure(message: str | None, timeout_s: float) -> str:
@@ -110,41 +147,58 @@ BLOCK_KALMAN = ["kalman.varPX", "kalman.varPY", "kalman.varPZ"]  # position vari
 class _BoundedCaller:
     """Runs calls on one daemon thread; ``call`` waits at most ``timeout_s`` for each."""
 
-    def __init__(self, timeout_s: float) -> None:
+    def __init__(self, timeout_s: float, clock=WALL) -> None:
         self.timeout_s = float(timeout_s)
+        self.clock = clock
         self._jobs: queue.SimpleQueue = queue.SimpleQueue()
-        threading.Thread(target=self._run, name="cflib-io", daemon=True).start()
+        self._queued = clock.event()
+        clock.start_thread(self._run, "cflib-io")
 
     def _run(self) -> None:
         while True:
-            fn, args, done, out = self._jobs.get()
-            try:
-                fn(*args)
-            except Exception as exc:  # handed to the caller
-                out.append(exc)
-            done.set()
+            self._queued.clear()
+            while True:
+                try:
+                    fn, args, done, out = self._jobs.get_nowait()
+                except queue.Empty:
+                    break
+                self.clock.end()  # taken up: this thread runs it
+                try:
+                    fn(*args)
+                except Exception as exc:  # handed to the caller
+                    out.append(exc)
+                done.set()
+            self.clock.wait(self._queued, None)
 
     def call(self, fn, *args, timeout_s: float | None = None) -> Exception | None:
         """None on success; the exception raised, or TimeoutError when the call is still running."""
         wait_s = self.timeout_s if timeout_s is None else timeout_s
-        done, out = threading.Event(), []
+        done, out = self.clock.event(), []
+        self.clock.begin()
         self._jobs.put((fn, args, done, out))
-        if not done.wait(wait_s):
+        self._queued.set()
+        if not self.clock.wait(done, wait_s):
             return TimeoutError(f"did not return within {wait_s:g} s")
         return out[0] if out else None
 
 
 class CrazyflieLink:
     def __init__(
-        self, uri: str, log_period_ms: int = 10, connect_timeout_s: float = 10.0, io_timeout_s: float = 0.5
+        self,
+        uri: str,
+        log_period_ms: int = 10,
+        connect_timeout_s: float = 10.0,
+        io_timeout_s: float = 0.5,
+        clock=WALL,
     ) -> None:
         if not io_timeout_s > 0:
             raise LinkError(f"deploy.io_timeout_s: must be > 0, got {io_timeout_s}")
         self.uri = uri
         self.log_period_ms = int(log_period_ms)
         self.connect_timeout_s = float(connect_timeout_s)
-        self._io = _BoundedCaller(io_timeout_s)
-        self.link_lost = threading.Event()
+        self.clock = clock  # the flight's (datt.deploy.clock): every wait goes through it
+        self._io = _BoundedCaller(io_timeout_s, clock)
+        self.link_lost = clock.event()
         self.lost_reason = ""
         self._a: dict | None = None
         self._b: dict | None = None
@@ -152,7 +206,7 @@ class CrazyflieLink:
         self._stamp_a = self._stamp_b = None  # the vehicle's timestamp (ms) of each block's latest sample
         self.variances: collections.deque = collections.deque(maxlen=50)  # (varPX, varPY, varPZ) samples
         self._lock = threading.Lock()
-        self._fresh = threading.Condition(self._lock)  # notified with every log block
+        self._fresh = clock.event()  # set with every log block
         self.round_trip_s = math.inf  # the shortest param read round trip seen (request -> answer)
         self.cf = None
         self.restore: dict[str, float] = {}  # parameters set at connect -> the value they held before
@@ -171,12 +225,19 @@ class CrazyflieLink:
         try:
             crtp.init_drivers()
             self.cf = Crazyflie(rw_cache=None)
-            done, error = threading.Event(), []
+            done, error = self.clock.event(), []
             self.cf.connected.add_callback(lambda uri: done.set())
             self.cf.connection_failed.add_callback(lambda uri, msg: (error.append(msg), done.set()))
             self.cf.connection_lost.add_callback(self._on_lost)
-            self.cf.open_link(self.uri)
-            ok = done.wait(self.connect_timeout_s) and not error
+            if self.clock.lockstep:
+                crtp.CLASSES.insert(0, _lockstep_udp_driver(self.clock, self.uri))
+                try:
+                    self.cf.open_link(self.uri)
+                finally:
+                    del crtp.CLASSES[0]
+            else:
+                self.cf.open_link(self.uri)
+            ok = self.clock.wait(done, self.connect_timeout_s) and not error
         finally:
             cflib_log.setLevel(logging.WARNING)  # its INFO chatter would drown the flight log
         if not ok:
@@ -212,7 +273,7 @@ class CrazyflieLink:
         """Restart the Kalman filter (``kalman.resetEstimation``) and forget the variances seen."""
         with self._lock:
             self.variances.clear()
-        self._send("kalman reset", self.cf.param.set_value, "kalman.resetEstimation", 1)
+        self._send("kalman reset", self._set_value, "kalman.resetEstimation", 1)
 
     def kalman_settled(self, samples: int = 10, spread_m2: float = 1e-3) -> bool:
         """The last ``samples`` position variances each vary by less than ``spread_m2`` (cflib's
@@ -247,7 +308,7 @@ class CrazyflieLink:
         if element is None:
             raise LinkError(f"connect: the vehicle has no parameter {name} (firmware too old?)")
         ident = struct.pack("<H", element.ident)
-        got, seen = threading.Event(), []
+        got, seen = self.clock.event(), []
 
         def cb(pk):
             data = bytes(pk.data)
@@ -257,11 +318,14 @@ class CrazyflieLink:
 
         self.cf.add_port_callback(CRTPPort.PARAM, cb)
         try:
-            asked = time.monotonic()
-            self.cf.param.request_param_update(name)
-            if not got.wait(self._io.timeout_s * 4):
+            asked = self.clock.monotonic()
+            if self.clock.lockstep:
+                self._param_packet(PARAM_READ_CHANNEL, ident)
+            else:
+                self.cf.param.request_param_update(name)
+            if not self.clock.wait(got, self._io.timeout_s * 4):
                 raise LinkError(f"connect: no answer reading {name} from the vehicle")
-            self.round_trip_s = min(self.round_trip_s, time.monotonic() - asked)
+            self.round_trip_s = min(self.round_trip_s, self.clock.monotonic() - asked)
         finally:
             self.cf.remove_port_callback(CRTPPort.PARAM, cb)
         return float(seen[-1])
@@ -285,8 +349,8 @@ class CrazyflieLink:
             if name not in self.restore:
                 self.restore[name] = self.read_param(name)
         for name, value in values.items():
-            self.cf.param.set_value(name, value)
-        time.sleep(PARAM_SETTLE_S)
+            self._set_value(name, value)
+        self.clock.sleep(PARAM_SETTLE_S)
         for name, value in values.items():
             got = self.read_param(name)
             if got != expected[name]:
@@ -295,21 +359,21 @@ class CrazyflieLink:
     def wait_armed(self, timeout_s: float) -> bool:
         """True once the supervisor reports the vehicle armed (``supervisor.info`` bit), False
         if it has not within ``timeout_s`` (the supervisor updates at 25 Hz)."""
-        deadline = time.monotonic() + timeout_s
+        deadline = self.clock.monotonic() + timeout_s
         while True:
             if self.supervisor_bits() & firmware.SUPERVISOR_BIT_ARMED:
                 return True
-            if time.monotonic() >= deadline or self.link_lost.is_set():
+            if self.clock.monotonic() >= deadline or self.link_lost.is_set():
                 return False
-            time.sleep(firmware.SUPERVISOR_PERIOD_S / 2)
+            self.clock.sleep(firmware.SUPERVISOR_PERIOD_S / 2)
 
     def _make_cb(self, store: str):
         def cb(timestamp, data, logconf):
             with self._lock:
                 setattr(self, store, data)
-                setattr(self, "_t" + store, time.monotonic())
+                setattr(self, "_t" + store, self.clock.monotonic())
                 setattr(self, "_stamp" + store, timestamp)
-                self._fresh.notify_all()
+            self._fresh.set()
 
         return cb
 
@@ -331,7 +395,7 @@ class CrazyflieLink:
         in :mod:`datt.deploy.firmware`)."""
         from cflib.crtp.crtpstack import CRTPPacket, CRTPPort
 
-        got, seen = threading.Event(), []
+        got, seen = self.clock.event(), []
 
         def cb(pk):
             reply = firmware.SUPERVISOR_CMD_RESPONSE | firmware.SUPERVISOR_CMD_GET_STATE_BITFIELD
@@ -348,7 +412,7 @@ class CrazyflieLink:
             # the radio, as cflib resends the requests it expects answers to)
             for _ in range(SUPERVISOR_REQUESTS):
                 self._send("supervisor state", self.cf.send_packet, pk)
-                if got.wait(self._io.timeout_s):
+                if self.clock.wait(got, self._io.timeout_s):
                     break
             else:
                 raise LinkError("preflight: the vehicle does not answer the supervisor state request (old firmware?)")
@@ -370,19 +434,22 @@ class CrazyflieLink:
         """Write back the values the parameters set at connect held before, newest first; cflib
         sends queued writes one at a time, so a read behind them waits until all have landed."""
         for name, value in reversed(list(self.restore.items())):
-            self.cf.param.set_value(name, value)
+            self._set_value(name, value)
         self.read_param(next(iter(self.restore)))
 
     # -- state -----------------------------------------------------------------------------
     def wait_state_after(self, t_s: float, timeout_s: float) -> None:
         """Wait (at most ``timeout_s``) until both log blocks have arrived after ``t_s``."""
-        deadline = time.monotonic() + timeout_s
-        with self._lock:
-            while min(self._t_a, self._t_b) <= t_s:
-                left = deadline - time.monotonic()
-                if left <= 0:
+        deadline = self.clock.monotonic() + timeout_s
+        while True:
+            self._fresh.clear()
+            with self._lock:
+                if min(self._t_a, self._t_b) > t_s:
                     return
-                self._fresh.wait(left)
+            left = deadline - self.clock.monotonic()
+            if left <= 0:
+                return
+            self.clock.wait(self._fresh, left)
 
     def state(self) -> StateSample | None:
         """Latest estimate (None before both log blocks arrived); ``t_s`` = older block's arrival."""
@@ -408,7 +475,25 @@ class CrazyflieLink:
 
     def set_param(self, name: str, value: float) -> None:
         """Set ``name`` without reading it back (within ``io_timeout_s``; a failure marks the link lost)."""
-        self._send(f"param {name}", self.cf.param.set_value, name, value)
+        self._send(f"param {name}", self._set_value, name, value)
+
+    def _set_value(self, name: str, value: float) -> None:
+        """A parameter write: cflib's (queued on its parameter thread), or on the lockstep clock a
+        write packet of the link's own, the same bytes, sent now."""
+        if not self.clock.lockstep:
+            self.cf.param.set_value(name, value)
+            return
+        element = self.cf.param.toc.get_element_by_complete_name(name)
+        number = float(value) if element.pytype in ("<f", "<d", "<e") else int(float(value))
+        self._param_packet(PARAM_WRITE_CHANNEL, struct.pack("<H", element.ident) + struct.pack(element.pytype, number))
+
+    def _param_packet(self, channel: int, data: bytes) -> None:
+        from cflib.crtp.crtpstack import CRTPPacket, CRTPPort
+
+        pk = CRTPPacket()
+        pk.set_header(CRTPPort.PARAM, channel)
+        pk.data = data
+        self.cf.send_packet(pk)
 
     def send_app_packet(self, data: bytes) -> None:
         """One app-channel packet (at most 30 bytes) to the app."""

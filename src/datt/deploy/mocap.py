@@ -1,7 +1,7 @@
 """Position sources for the external-position (mocap) stream sent to the vehicle.
 
-``read() -> (pos_m (x, y, z), quat (w, x, y, z) | None, t_s) | None`` with ``t_s`` on
-``time.monotonic()`` (the arrival of the frame; a new frame has a new ``t_s``):
+``read() -> (pos_m (x, y, z), quat (w, x, y, z) | None, t_s) | None`` with ``t_s`` on the
+source's ``clock`` (the arrival of the frame; a new frame has a new ``t_s``):
 
 * ``none``: no external position; the onboard estimate is used as is.
 * ``motioncapture``: the ``motioncapture`` library (Vicon, OptiTrack, Qualisys, ...; optional,
@@ -22,6 +22,8 @@ import threading
 import time
 import weakref
 
+from datt.deploy.clock import WALL
+
 
 class MocapSource:
     """``subscribe(callback)``: ``callback(sample)`` is called with every new frame as it arrives
@@ -32,6 +34,7 @@ class MocapSource:
     # built without them is not led
     lead_s: float | None = 0.0
     lead_window_s: float | None = None
+    clock = WALL  # the clock its frames are stamped on (datt.deploy.clock); the simulated one's is the vehicle's
 
     def __init__(self) -> None:
         self._subscribers: list = []
@@ -109,16 +112,18 @@ class SimulatedMocap(MocapSource):
         self.noise_std_m = float(noise_std_m)
         self._buffer: collections.deque = collections.deque()
         self._latest = None
+        self.clock = getattr(server, "clock", WALL)
         self._running = threading.Event()
+        self._stopping = self.clock.event()
 
     def start(self) -> None:
-        self._t0 = time.monotonic()
+        self._t0 = self.clock.monotonic()
         self._running.set()
-        threading.Thread(target=self._loop, daemon=True).start()
+        self.clock.start_thread(self._loop, "sim-mocap")
 
     def _loop(self) -> None:
         while self._running.is_set():
-            now = time.monotonic()
+            now = self.clock.monotonic()
             cut = self.dropout_after_s is not None and now - self._t0 > self.dropout_after_s
             if not cut and self.rng.random() >= self.dropout_prob:
                 true = self.server.true_state()
@@ -126,13 +131,14 @@ class SimulatedMocap(MocapSource):
                 self._buffer.append((pos, tuple(true["quat"]), now))
             while self._buffer and now - self._buffer[0][-1] >= self.latency_s:
                 self._publish(self._buffer.popleft())
-            time.sleep(self.period_s)
+            self.clock.wait(self._stopping, self.period_s)
 
     def read(self):
         return self._latest
 
     def stop(self) -> None:
         self._running.clear()
+        self._stopping.set()
 
 
 class MotionCaptureMocap(MocapSource):

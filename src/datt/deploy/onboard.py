@@ -7,8 +7,8 @@ from __future__ import annotations
 
 import struct
 import threading
-import time
 
+from datt.deploy.clock import WALL
 from datt.deploy.firmware import APP_CHANNEL_RX_QUEUE
 
 PKT_POINTS, PKT_ACK = 0x01, 0x81
@@ -72,7 +72,7 @@ class Upload:
     """Sends a reference table and waits for every packet's acknowledgement; a packet not
     acknowledged within ``timeout_s`` is sent again (at most ``attempts`` times in all)."""
 
-    def __init__(self, send, table, timeout_s: float = 0.1, attempts: int = 10) -> None:
+    def __init__(self, send, table, timeout_s: float = 0.1, attempts: int = 10, clock=WALL) -> None:
         if len(table) > TABLE_MAX:
             raise ValueError(f"the reference has {len(table)} points; the app holds at most {TABLE_MAX}")
         self.send, self.table = send, [tuple(float(v) for v in p) for p in table]
@@ -80,6 +80,8 @@ class Upload:
         self.pending = {i: 0 for i in range(0, len(self.table), POINTS_PER_PACKET)}  # index -> sends
         self.errors: list[str] = []
         self._lock = threading.Lock()
+        self.clock = clock  # the flight's (datt.deploy.clock)
+        self._answered = clock.event()  # an acknowledgement (or a refusal) arrived
 
     def on_packet(self, data: bytes) -> None:
         ack = parse_ack(bytes(data))
@@ -91,6 +93,7 @@ class Upload:
                 self.pending.pop(index, None)
             elif index in self.pending:
                 self.errors.append(f"point {index}: the app answered status {status}")
+        self._answered.set()
 
     def run(self, window: int = APP_CHANNEL_RX_QUEUE) -> None:
         """Send ``window`` packets, wait for their acknowledgements (or ``timeout_s``), repeat;
@@ -112,9 +115,10 @@ class Upload:
                     self.pending[index] += 1
             for index in chunk:
                 self.send(points_packet(index, self.table[index : index + POINTS_PER_PACKET]))
-            deadline = time.monotonic() + self.timeout_s
-            while time.monotonic() < deadline:
+            deadline = self.clock.monotonic() + self.timeout_s
+            while self.clock.monotonic() < deadline:
+                self._answered.clear()
                 with self._lock:
                     if self.errors or not any(i in self.pending for i in chunk):
                         break
-                time.sleep(0.002)
+                self.clock.wait(self._answered, deadline - self.clock.monotonic())

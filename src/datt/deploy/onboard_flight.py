@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import time
 
 import numpy as np
 
@@ -160,14 +159,14 @@ class OnboardFlight(FlightRunner):
 
     def _upload(self, table) -> None:
         """Send the reference table to the app over the app channel, refusing the flight if it fails."""
-        upload = onboard.Upload(self.link.send_app_packet, table)
+        upload = onboard.Upload(self.link.send_app_packet, table, clock=self.clock)
         self.link.on_app_packet(upload.on_packet)
-        started = time.monotonic()
+        started = self.clock.monotonic()
         try:
             upload.run()
         except RuntimeError as exc:
             self._refuse(f"the reference upload to the app failed: {exc}")
-        upload_s = time.monotonic() - started
+        upload_s = self.clock.monotonic() - started
         self.summary_extra["upload_s"] = upload_s
         self._event("onboard", f"reference uploaded: {len(table)} points in {upload_s:.2f} s")
 
@@ -191,7 +190,7 @@ class OnboardFlight(FlightRunner):
     def _on_app_log(self, values: dict) -> None:
         phase, step = int(values["datt.phase"]), int(values["datt.step"])
         ref = (values["datt.refX"], values["datt.refY"], values["datt.refZ"])
-        self._app["last"] = (phase, step, ref, time.monotonic())
+        self._app["last"] = (phase, step, ref, self.clock.monotonic())
         if phase in (onboard.TRACK, onboard.LAND, onboard.DONE) and step > 0:
             # datt.errM / datt.ref* belong to the step before datt.step (the app counts after stepping)
             self._app["samples"][step - 1] = float(values["datt.errM"])
@@ -210,12 +209,12 @@ class OnboardFlight(FlightRunner):
             return LAND
         dt = 1.0 / self.p.rate_hz
         budget_s = self._app_budget_s()
-        deadline = time.monotonic() + budget_s
+        deadline = self.clock.monotonic() + budget_s
         quiet = False
-        stepping = [-1, time.monotonic()]  # the app's last step seen, and when it changed
-        next_t = time.monotonic()
-        while time.monotonic() < deadline:
-            now = time.monotonic()
+        stepping = [-1, self.clock.monotonic()]  # the app's last step seen, and when it changed
+        next_t = self.clock.monotonic()
+        while self.clock.monotonic() < deadline:
+            now = self.clock.monotonic()
             state = self.link.state()
             verdict = self._app_verdict(now, stepping)
             if verdict is not None:
@@ -231,9 +230,13 @@ class OnboardFlight(FlightRunner):
                 if verdict is not None:
                     return verdict
             next_t += dt
-            time.sleep(max(0.0, next_t - time.monotonic()))
+            self.clock.sleep(max(0.0, next_t - self.clock.monotonic()))
         state = self.link.state()
-        if self.link.link_lost.is_set() or state is None or time.monotonic() - state.t_s > self.safety.max_state_age_s:
+        if (
+            self.link.link_lost.is_set()
+            or state is None
+            or self.clock.monotonic() - state.t_s > self.safety.max_state_age_s
+        ):
             # an e-stop could not arrive, and would drop a vehicle that may still be flying well
             self.outcome = Outcome(
                 Kind.LINK_LOST, "during the onboard flight the app flew on by itself; the host cannot confirm it landed"

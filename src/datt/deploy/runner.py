@@ -25,7 +25,6 @@ import gc
 import math
 import signal
 import threading
-import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -35,6 +34,7 @@ import torch
 from datt.configuration import POSITION_M, Range, check_ranges, ranged
 from datt.deploy import firmware
 from datt.deploy.ceiling_guard import keep_altitude_at_ceiling
+from datt.deploy.clock import WALL
 from datt.deploy.feasibility import peak_ask, slow_factor, slowed
 from datt.deploy.flight_log import FlightLog, errors_when_measured, measured_at
 from datt.deploy.mocap import FrameLead
@@ -239,6 +239,8 @@ class FlightRunner:
     # deploy.mocap.lead_s null: off-board the host's predictor rolls the estimate over the latency; the
     # vehicle's filter is not led (onboard flights lead it by half the radio round trip)
     leads_mocap_by_half_round_trip = False
+    _forwarding = False  # mocap frames go to the vehicle (from CONNECT until the log is written)
+    clock = WALL  # set from the link in __init__ (a runner built without one, for its bookkeeping: real time)
 
     def __init__(
         self,
@@ -259,19 +261,19 @@ class FlightRunner:
         predictor=None,
     ) -> None:
         self.link, self.mocap = link, mocap
+        self.clock = getattr(link, "clock", WALL)  # the flight's (the link's): every wait goes through it
         self.make_env, self.track_controller, self.pid_factory = make_env, track_controller, pid_factory
         self.track_family = track_family
         self.p, self.safety, self.thrust = params, safety, thrust
         self.configured_hover_command = thrust.hover_command  # before any hover trim
         self.run_dir = Path(run_dir)
         self.estop = estop or threading.Event()
-        self.log = FlightLog(self.run_dir, console, params.rate_hz, params.late_tick_ms)
+        self.log = FlightLog(self.run_dir, console, params.rate_hz, params.late_tick_ms, self.clock)
         self.outcome = Outcome(Kind.INCOMPLETE)
         self.battery = BatteryFilter(safety.battery_filter_s)
         self._mocap_sent_t: float | None = None  # time stamp of the last mocap sample forwarded
-        self._forwarding = False  # mocap frames go to the vehicle (from CONNECT until the log is written)
         self._frame_lock = threading.Lock()
-        self._frame_ready = threading.Event()
+        self._frame_ready = self.clock.event()
         self._pending_frame = None  # the newest mocap frame not yet forwarded
         self._lead = None  # datt.deploy.mocap.FrameLead of the forwarded positions (set at CONNECT)
         self.predictor = predictor  # off-board latency compensation (datt.deploy.predictor), or None
@@ -314,7 +316,7 @@ class FlightRunner:
         if not self._has_mocap():
             return None
         sample = self.mocap.read()
-        return math.inf if sample is None else time.monotonic() - sample[2]
+        return math.inf if sample is None else self.clock.monotonic() - sample[2]
 
     def _forward_frame(self, sample) -> None:
         """A new mocap frame (the source's thread): led (``deploy.mocap.lead_s``) and kept as the one
@@ -333,7 +335,7 @@ class FlightRunner:
         Kalman filter takes every packet as a fresh measurement, so resending an old one would
         pin the estimate where the vehicle was."""
         while self._forwarding:
-            if not self._frame_ready.wait(0.05):
+            if not self.clock.wait(self._frame_ready, 0.05):
                 continue
             self._frame_ready.clear()
             with self._frame_lock:
@@ -341,7 +343,7 @@ class FlightRunner:
             if sample is None or not self._forwarding:
                 continue
             pos, quat, t = sample
-            if t == self._mocap_sent_t or time.monotonic() - t > self.safety.max_mocap_age_s:
+            if t == self._mocap_sent_t or self.clock.monotonic() - t > self.safety.max_mocap_age_s:
                 continue
             self._mocap_sent_t = t
             if quat is None:
@@ -421,7 +423,7 @@ class FlightRunner:
             self._lead = self._mocap_lead()
             self.mocap.subscribe(self._forward_frame)
             self._forwarding = True
-            threading.Thread(target=self._forward_frames, name="mocap-forward", daemon=True).start()
+            self.clock.start_thread(self._forward_frames, "mocap-forward")
         if self.mocap is not None:
             self.mocap.start()
 
@@ -450,7 +452,9 @@ class FlightRunner:
             if self.link.link_lost.is_set():  # the sends above were skipped; say why
                 self._event("link lost", self.link.lost_reason)
             summary = self._write()  # before closing anything: a hanging close keeps the log
-            self._forwarding = False
+            if self._forwarding:
+                self._forwarding = False
+                self._frame_ready.set()  # the forwarding thread sees it at once
             try:
                 if self.mocap is not None:
                     self.mocap.stop()
@@ -494,7 +498,7 @@ class FlightRunner:
         period_s = 1.0 / self.p.rate_hz
         for _ in range(UNLOCK_TICKS):
             self.link.send_rates(0.0, 0.0, 0.0, 0)
-            time.sleep(period_s)
+            self.clock.sleep(period_s)
 
     def _takeoff(self, start_rel: np.ndarray) -> tuple:
         model = self._model(self.pid_factory(), Ramp(start_rel, [0.0, 0.0, 0.0], self.p.takeoff_s))
@@ -623,14 +627,14 @@ class FlightRunner:
             )
 
     def _preflight(self) -> np.ndarray:
-        deadline = time.monotonic() + self.p.preflight_timeout_s
+        deadline = self.clock.monotonic() + self.p.preflight_timeout_s
         state, mocap_pos = None, None
         self.link.reset_kalman()  # start the filter from this position, with the mocap stream
-        while time.monotonic() < deadline:  # a fresh estimate, settled, converged on mocap when there is one
+        while self.clock.monotonic() < deadline:  # a fresh estimate, settled, converged on mocap when there is one
             self._mocap_age()
             state = self.link.state()
             mocap_pos = self._mocap_position()
-            fresh = state is not None and time.monotonic() - state.t_s < self.safety.max_state_age_s
+            fresh = state is not None and self.clock.monotonic() - state.t_s < self.safety.max_state_age_s
             if not fresh:
                 agrees = False
             elif mocap_pos is None:  # no mocap source: nothing to agree with; a source: wait for its first frame
@@ -639,7 +643,7 @@ class FlightRunner:
                 agrees = self._estimate_error_m(state, mocap_pos) < self.safety.max_estimate_mocap_m
             if agrees and self.link.kalman_settled():
                 break
-            time.sleep(0.02)
+            self.clock.sleep(0.02)
         checks = self._supervisor_checks()
         if not self.link.kalman_settled():
             checks.append(
@@ -649,7 +653,7 @@ class FlightRunner:
         if state is None:
             checks.append("no state estimate from the vehicle")
         else:
-            age_s = time.monotonic() - state.t_s
+            age_s = self.clock.monotonic() - state.t_s
             if age_s >= self.safety.max_state_age_s:  # the log stream stopped: every check below is of the past
                 checks.append(
                     f"no fresh state estimate (the last arrived {age_s * 1e3:.0f} ms ago, > "
@@ -745,7 +749,7 @@ class FlightRunner:
         Returns the thrust command sent."""
         command = self._send(action)
         if self.predictor is not None:  # what was sent: a command clipped at the map's ceiling gives less
-            self.predictor.record(time.monotonic(), self.thrust.as_sent(*(float(a) for a in action[:4])))
+            self.predictor.record(self.clock.monotonic(), self.thrust.as_sent(*(float(a) for a in action[:4])))
         if self.p.estop_watchdog and self.sends_estop_watchdog:
             self.link.send_estop_watchdog()
         return command
@@ -768,17 +772,17 @@ class FlightRunner:
 
     def _tick_loop(self, model: FlightModel, steps: int, origin: np.ndarray, allow_land: bool = True) -> str:
         dt = 1.0 / self.p.rate_hz
-        next_t = time.monotonic()
+        next_t = self.clock.monotonic()
         used_t = -math.inf  # arrival of the estimate the last tick used
         # the predictor serves the tracking controller; the PID (takeoff, hover and its trim, landing,
         # the calibration) flies the raw loop it was tuned on
         predict = self.predictor is not None and self.phase == "TRACK"
         for k in range(steps):
             scheduled = next_t
-            jitter_ms = (time.monotonic() - scheduled) * 1e3
+            jitter_ms = (self.clock.monotonic() - scheduled) * 1e3
             # the tick runs on a fresh estimate: wait (at most one log period) for one newer than the last
             self.link.wait_state_after(used_t, self.link.log_period_ms / 1000.0)
-            now = time.monotonic()
+            now = self.clock.monotonic()
             state = self.link.state()
             if state is not None:  # the decision sees the low-passed voltage (the log keeps the raw one)
                 state_for_check = dataclasses.replace(state, vbat_v=self.battery.update(state.vbat_v, dt))
@@ -791,7 +795,7 @@ class FlightRunner:
                 action = self._act(model, state, now, origin, k, predict)
             decision = check(
                 self.safety,
-                now_s=time.monotonic(),
+                now_s=self.clock.monotonic(),
                 state=state_for_check,
                 command=action,
                 estop=self.estop.is_set(),
@@ -809,7 +813,7 @@ class FlightRunner:
             next_t += dt
             if predict and k == 0:  # commands land mid-way between vehicle ticks (from the schedule: late stays late)
                 next_t = self.predictor.send_slot(next_t - dt / 2)
-            time.sleep(max(0.0, next_t - time.monotonic()))
+            self.clock.sleep(max(0.0, next_t - self.clock.monotonic()))
         return OK
 
     def _record(
@@ -833,7 +837,7 @@ class FlightRunner:
                 "vbat": state.vbat_v,
                 "decision": decision.action,
                 "jitter_ms": jitter_ms,
-                "compute_ms": (time.monotonic() - now) * 1e3,
+                "compute_ms": (self.clock.monotonic() - now) * 1e3,
             }
         )
 

@@ -15,6 +15,7 @@ from datt.control.factory import build_controller, require_current_state_timing
 from datt.control.pid import PidController
 from datt.deploy import mocap
 from datt.deploy.calibration import CalibrationFlight
+from datt.deploy.clock import WALL
 from datt.deploy.link import CrazyflieLink, LinkError
 from datt.deploy.onboard_flight import OnboardFlight
 from datt.deploy.outcome import Kind, Outcome
@@ -234,7 +235,8 @@ def run_deploy(cfg: DictConfig, run_dir: Path | None = None, estop=None, server_
         server = _start_server(cfg, params, thrust, library) if params.server is not None else None
         try:
             source = _mocap_source(params, server).with_lead(params.mocap.lead_s, params.mocap.lead_window_s)
-            link = CrazyflieLink(params.uri, params.log_period_ms, params.connect_timeout_s, params.io_timeout_s)
+            clock = WALL if server is None else server.clock  # a real vehicle flies in real time
+            link = CrazyflieLink(params.uri, params.log_period_ms, params.connect_timeout_s, params.io_timeout_s, clock)
             track_family = instantiate_option(cfg, "traj")
             kind, extra = _flight_kind(params, policy_id)
             runner = kind(

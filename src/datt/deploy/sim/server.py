@@ -4,7 +4,8 @@ It answers CRTP one packet per datagram (cflib's ``udpdriver``) on the ports cfl
 connecting and flying: link (magic string), platform (protocol version 12), log (TOC v2, blocks,
 periodic data), param (TOC v2, read, write), mem (no memories), commander (legacy RPYT setpoints),
 localization (external position), supervisor (arm, emergency stop). Behind it one drone of
-:mod:`datt.sim` flies in real time at ``dt_s`` with a disturbance model and a ground plane.
+:mod:`datt.sim` flies at ``dt_s`` on the flight's clock (``clock``: real time, or lockstep with
+the host) with a disturbance model and a ground plane.
 
 Firmware behaviour that matters for safety is emulated:
 
@@ -66,7 +67,6 @@ import random
 import socket
 import struct
 import threading
-import time
 import zlib
 from dataclasses import dataclass, field, fields, replace
 
@@ -74,6 +74,7 @@ import torch
 
 from datt.configuration import NOISE, POSITION_M, SEED, SPEED_MPS, Range, ranged
 from datt.deploy import crtp
+from datt.deploy.clock import WALL, LockstepClock
 from datt.deploy.onboard import READ_ONLY as APP_READ_ONLY
 from datt.deploy.sim.motors import FirmwareMotors, MotorParams
 from datt.deploy.sim.onboard_app import OnboardApp
@@ -164,6 +165,9 @@ def _toc_crc(entries: list[tuple]) -> int:
     return zlib.crc32(repr(entries).encode()) & 0xFFFFFFFF
 
 
+CLOCKS = ("real_time", "lockstep")
+
+
 @dataclass
 class SimCrazyflieParams:
     host: str = "127.0.0.1"
@@ -213,6 +217,10 @@ class SimCrazyflieParams:
     # first-order rate response, a model of the paper's custom PI rate controller
     rate_loop: str | None = ranged(None, Range(choices=RATE_LOOPS, optional=True))
     motor_time_constant_s: float = ranged(0.03, Range(0.0, 1.0))  # each motor's spin-up (an estimate; 0: instant)
+    # real_time: the vehicle flies in real time beside the host (its stalls and compute time land in
+    # the flight); lockstep: it and the host share one virtual clock (datt.deploy.clock), so a
+    # flight's outcome does not depend on the machine's load (the host's compute takes no time)
+    clock: str = ranged("real_time", Range(choices=CLOCKS))
 
 
 def udp_port_free(port: int, host: str = "127.0.0.1") -> bool:
@@ -251,6 +259,8 @@ class SimCrazyflie:
 
     def __init__(self, params: SimCrazyflieParams | None = None, disturbance=None, quad: QuadrotorParams | None = None):
         self.p = params or SimCrazyflieParams()
+        # the flight's clock: the host's link, mocap and runner take it from here
+        self.clock = LockstepClock() if self.p.clock == "lockstep" else WALL
         self.motors = FirmwareMotors(self.p.motors)
         self.stabilizer = Stabilizer(self.motors, self.p.motor_time_constant_s)
         self.quad = Quadrotor(1, quad or QuadrotorParams(), dt_s=self.p.dt_s)
@@ -291,24 +301,29 @@ class SimCrazyflie:
         self.events: list[tuple[float, str]] = []
         self.yaw_setpoint_rad = 0.0  # the firmware's attitudeDesired.yaw (legacy commander: integrated rate)
         self.yaw_integral = 0.0
-        self._radio: list = []  # heap of (due monotonic time, seq, direction, datagram)
-        self._radio_seq = 0
-        self._radio_ready = threading.Condition()
-        self._radio_rng = random.Random(self.p.radio_seed)
+        self._init_radio()
         self._lock = threading.Lock()
-        self._running = threading.Event()
+        self._running, self._stopping = threading.Event(), self.clock.event()
         self._threads: list[threading.Thread] = []
         # How far the physics loop fell behind its real-time schedule (s) from the host's first
         # supervisor request on (its preflight: the flight's part of the session): the host
         # machine's stall (a real vehicle's stabilizer runs on its own MCU and never falls behind),
         # after which the vehicle catches up flying the last setpoint, as one would after a host stall.
-        # ``physics_lags``: (time.monotonic(), lag) of every step that ran over half a step late.
+        # ``physics_lags``: (the clock's time, lag) of every step that ran over half a step late.
         self.physics_lag_max_s = 0.0
         self.physics_lags: list[tuple[float, float]] = []
         self._lag_watched = False
-        # (time.monotonic(), true [x, y, z]) as each physics step begins, the last 10 min: the truth
+        # (the clock's time, true [x, y, z]) as each physics step begins, the last 10 min: the truth
         # tests measure the host's estimate-based figures against
         self.truth: collections.deque = collections.deque(maxlen=30000)
+
+    def _init_radio(self) -> None:
+        """The radio's queue (a heap of (due time on the clock, seq, direction, datagram)), its lock,
+        the event a packet joining it sets, and its losses' generator."""
+        self._radio: list = []
+        self._radio_seq = 0
+        self._radio_lock, self._radio_new = threading.Lock(), self.clock.event()
+        self._radio_rng = random.Random(self.p.radio_seed)
 
     def _boot_params(self) -> None:
         """The vehicle's parameters at boot: the configured decks attached, the boot overrides
@@ -364,15 +379,22 @@ class SimCrazyflie:
             ) from None
         self.sock.settimeout(0.05)
         self._running.set()
-        self._t0 = time.monotonic()
-        for target in (self._rx_loop, self._physics_loop, self._radio_loop):
-            t = threading.Thread(target=target, daemon=True)
-            t.start()
-            self._threads.append(t)
+        self._t0 = self.clock.monotonic()
+        self.clock.take_part()  # the thread that starts the vehicle flies it: the vehicle waits for it
+        # the receive thread only hands datagrams on (accounted to the clock), so never waits on it
+        rx = threading.Thread(target=self._rx_loop, name="sim-cf-rx", daemon=True)
+        rx.start()
+        self._threads = [
+            rx,
+            self.clock.start_thread(self._physics_loop, "sim-cf-physics"),
+            self.clock.start_thread(self._radio_loop, "sim-cf-radio"),
+        ]
         return self
 
     def stop(self) -> None:
         self._running.clear()
+        self._stopping.set()
+        self._radio_new.set()
         for t in self._threads:
             t.join(timeout=1.0)
         self.sock.close()
@@ -439,10 +461,10 @@ class SimCrazyflie:
 
     # -- physics ---------------------------------------------------------------------------
     def _physics_loop(self) -> None:
-        next_t = time.monotonic()
+        next_t = self.clock.monotonic()
         while self._running.is_set():
             if self._lag_watched or self.armed:
-                now = time.monotonic()
+                now = self.clock.monotonic()
                 self.physics_lag_max_s = max(self.physics_lag_max_s, now - next_t)
                 if now - next_t > self.p.dt_s / 2:
                     self.physics_lags.append((now, now - next_t))
@@ -455,15 +477,15 @@ class SimCrazyflie:
                 if not self.p.log_before_step:
                     self._send_logs()
             next_t += self.p.dt_s
-            time.sleep(max(0.0, next_t - time.monotonic()))
+            self.clock.wait(self._stopping, next_t - self.clock.monotonic())
 
     def physics_lag_max_until(self, t_s: float) -> float:
-        """How far the physics loop fell behind at most before ``time.monotonic()`` reached
+        """How far the physics loop fell behind at most before the clock reached
         ``t_s`` (the end of the host's flight; after it a stall no longer meets the host's loop)."""
         return max((lag for t, lag in self.physics_lags if t - lag <= t_s), default=0.0)
 
     def _physics_step(self) -> None:
-        self.truth.append((time.monotonic(), self.quad.state.pos_m[0].tolist()))
+        self.truth.append((self.clock.monotonic(), self.quad.state.pos_m[0].tolist()))
         self._settle_params()
         if self.controller == "OutOfTree":
             self.hook_t = self.sim_time_s  # the hook runs in every stabilizer tick under this controller
@@ -746,35 +768,37 @@ class SimCrazyflie:
         if self.p.radio_latency_s <= 0:
             self._deliver(direction, data)
             return
-        with self._radio_ready:
+        with self._radio_lock:
             self._radio_seq += 1
-            due = time.monotonic() + self.p.radio_latency_s
+            due = self.clock.monotonic() + self.p.radio_latency_s
             if self.p.radio_jitter_s > 0:
                 due += self._radio_rng.uniform(0.0, self.p.radio_jitter_s)
             due = self._radio_last_due = max(due, self._radio_last_due)  # the radio keeps packets in order
             heapq.heappush(self._radio, (due, self._radio_seq, direction, data))
-            self._radio_ready.notify()
+        self._radio_new.set()
 
     def _deliver(self, direction: str, data: bytes) -> None:
         if direction == "in":
             with self._lock:
                 self._handle(data)
         elif self.client is not None:
+            self.clock.begin()  # on its way to the host until cflib has handled it
             try:
                 self.sock.sendto(data, self.client)
             except OSError:
-                pass
+                self.clock.end()
 
     def _radio_loop(self) -> None:
+        """Delivers each packet of the radio's queue when it is due (the clock's time)."""
         while self._running.is_set():
-            with self._radio_ready:
-                while self._running.is_set() and (not self._radio or self._radio[0][0] > time.monotonic()):
-                    wait = 0.05 if not self._radio else self._radio[0][0] - time.monotonic()
-                    self._radio_ready.wait(max(0.0, min(wait, 0.05)))
-                if not self._running.is_set():
-                    return
-                _, _, direction, data = heapq.heappop(self._radio)
-            self._deliver(direction, data)
+            self._radio_new.clear()
+            with self._radio_lock:
+                due = self._radio[0][0] if self._radio else math.inf
+                packet = heapq.heappop(self._radio) if due <= self.clock.monotonic() else None
+            if packet is not None:
+                self._deliver(packet[2], packet[3])
+            else:
+                self.clock.wait(self._radio_new, None if math.isinf(due) else due - self.clock.monotonic())
 
     def _rx_loop(self) -> None:
         while self._running.is_set():
@@ -784,15 +808,19 @@ class SimCrazyflie:
                 continue
             except OSError:
                 return
-            if not data:
-                continue
-            if self.radio_down:
-                continue
-            self.client = addr
-            port = crtp.split(data)[0] if data != b"\xff" else None
-            if port in (crtp.PORT_COMMANDER, crtp.PORT_LOCALIZATION, crtp.PORT_PLATFORM) and self._lost():
-                continue
-            self._via_radio("in", data)
+            try:
+                self._received(data, addr)
+            finally:
+                self.clock.end()  # the host's datagram is taken up: queued on the radio, or lost
+
+    def _received(self, data: bytes, addr) -> None:
+        if not data or self.radio_down:
+            return
+        self.client = addr
+        port = crtp.split(data)[0] if data != b"\xff" else None
+        if port in (crtp.PORT_COMMANDER, crtp.PORT_LOCALIZATION, crtp.PORT_PLATFORM) and self._lost():
+            return
+        self._via_radio("in", data)
 
     def _handle(self, datagram: bytes) -> None:
         if datagram == b"\xff":  # scan probe / null packet
@@ -939,7 +967,7 @@ class SimCrazyflie:
     def _measure(self, pos_m: tuple, quat_wxyz: tuple | None) -> None:
         """An external position (and attitude): the Kalman filter takes it; the complementary
         filter drops it."""
-        self.extpos_rx.append((time.monotonic(), tuple(pos_m)))
+        self.extpos_rx.append((self.clock.monotonic(), tuple(pos_m)))
         if self.estimator != KALMAN:
             return
         true = self.quad.state.pos_m[0].tolist()
