@@ -60,13 +60,6 @@ class Model:
         self.advanced += 1
 
 
-def module_time():
-    """The runner's clock (a test may have swapped in a fake one)."""
-    import datt.deploy.runner as module
-
-    return module.time
-
-
 def tick_runner(tmp_path, states, phase: str = "HOVER", **settings):
     """A runner whose tick loop flies ``states`` (one per tick) with the shipped safety settings;
     ``_act`` returns a hover command and records its calls, ``_send_tick`` records the sends."""
@@ -95,7 +88,7 @@ def tick_runner(tmp_path, states, phase: str = "HOVER", **settings):
     def act(model, state, now, origin, k, predict):
         runner.acted.append((state.t_s, k, predict, origin.tolist(), model, now))
         if runner.compute_s:  # the controller takes this long (on a fake clock)
-            module_time().sleep(runner.compute_s)
+            runner.clock.sleep(runner.compute_s)  # a test may have swapped in a fake clock
         return np.array(runner.command)
 
     def send_tick(model, action):
