@@ -117,9 +117,7 @@ class LockstepClock:
             try:
                 target()
             finally:
-                with self._cond:
-                    self._waits.pop(threading.current_thread(), None)
-                    self._progress()
+                self.leave()
 
         thread = threading.Thread(target=run, name=name, daemon=True)
         with self._cond:  # registered before it can wait: started, so is_alive() holds
@@ -137,7 +135,7 @@ class LockstepClock:
         """The calling thread no longer takes part (time no longer waits for it)."""
         with self._cond:
             self._waits.pop(threading.current_thread(), None)
-            self._progress()
+            self._cond.notify_all()
 
     def begin(self) -> None:
         with self._cond:
@@ -146,16 +144,13 @@ class LockstepClock:
     def end(self) -> None:
         with self._cond:
             self._in_flight -= 1
-            self._progress()
+            self._cond.notify_all()
 
     # -- the scheduler ---------------------------------------------------------------------
     def _changed(self) -> None:
+        """Something happened: wake the waiters to look again."""
         with self._cond:
-            self._progress()
-
-    def _progress(self) -> None:
-        """Something happened (held lock): wake the waiters to look again."""
-        self._cond.notify_all()
+            self._cond.notify_all()
 
     def _wait(self, event: threading.Event | None, deadline_s: float) -> bool:
         me = threading.current_thread()

@@ -108,6 +108,12 @@ def _lockstep_udp_driver(clock, uri: str):
     return LockstepUdpDriver
 
 
+def _packed_value(element, value: float) -> bytes:
+    """``value`` as the vehicle stores the parameter ``element`` (its TOC type), as written."""
+    number = float(value) if element.pytype in ("<f", "<d", "<e") else int(value)
+    return struct.pack(element.pytype, number)
+
+
 def _connect_failure(message: str | None, timeout_s: float) -> str:
     """cflib's connect failure (message + traceback) as one line with what to do."""
     if message is None:
@@ -344,8 +350,7 @@ class CrazyflieLink:
             element = self.cf.param.toc.get_element_by_complete_name(name) if self._in_toc(name) else None
             if element is None:
                 raise LinkError(f"connect: the vehicle has no parameter {name} (firmware too old?)")
-            number = float(value) if element.pytype in ("<f", "<d", "<e") else int(value)
-            expected[name] = float(struct.unpack(element.pytype, struct.pack(element.pytype, number))[0])
+            expected[name] = float(struct.unpack(element.pytype, _packed_value(element, value))[0])
             if name not in self.restore:
                 self.restore[name] = self.read_param(name)
         for name, value in values.items():
@@ -484,8 +489,7 @@ class CrazyflieLink:
             self.cf.param.set_value(name, value)
             return
         element = self.cf.param.toc.get_element_by_complete_name(name)
-        number = float(value) if element.pytype in ("<f", "<d", "<e") else int(float(value))
-        self._param_packet(PARAM_WRITE_CHANNEL, struct.pack("<H", element.ident) + struct.pack(element.pytype, number))
+        self._param_packet(PARAM_WRITE_CHANNEL, struct.pack("<H", element.ident) + _packed_value(element, value))
 
     def _param_packet(self, channel: int, data: bytes) -> None:
         from cflib.crtp.crtpstack import CRTPPacket, CRTPPort

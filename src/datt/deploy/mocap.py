@@ -19,7 +19,6 @@ import random
 import subprocess
 import sys
 import threading
-import time
 import weakref
 
 from datt.deploy.clock import WALL
@@ -217,7 +216,8 @@ class MotionCaptureMocap(MocapSource):
                 self._bodies_seen = [str(b) for b in item["bodies"]]
             else:
                 p, q = item["p"], item.get("q")
-                sample = ((float(p[0]), float(p[1]), float(p[2])), None if q is None else tuple(q), time.monotonic())
+                pos = (float(p[0]), float(p[1]), float(p[2]))
+                sample = (pos, None if q is None else tuple(q), self.clock.monotonic())
                 self._first.set()
                 if self._running.is_set():
                     self._publish(sample)
